@@ -1,0 +1,1 @@
+"""Captures: synthetic Cycles scenes, imports (video, photos, COLMAP), the workspace on disk."""

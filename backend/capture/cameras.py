@@ -1,0 +1,129 @@
+"""Pinhole cameras in the COLMAP/OpenCV convention (x right, y down, looking down +z)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A PINHOLE camera.
+
+    ``R`` (3x3) and ``t`` (3,) map world to camera: ``x_cam = R @ x_world + t`` (COLMAP's
+    ``cam_from_world``). Intrinsics in pixels; the pixel centre of the top-left pixel is (0.5, 0.5).
+    """
+
+    name: str
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    R: np.ndarray = field(repr=False)
+    t: np.ndarray = field(repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "R", np.asarray(self.R, dtype=np.float64).reshape(3, 3))
+        object.__setattr__(self, "t", np.asarray(self.t, dtype=np.float64).reshape(3))
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def world_to_cam(self) -> np.ndarray:
+        """4x4 world-to-camera matrix (viewmat)."""
+        m = np.eye(4)
+        m[:3, :3] = self.R
+        m[:3, 3] = self.t
+        return m
+
+    @property
+    def cam_to_world(self) -> np.ndarray:
+        """4x4 camera-to-world matrix."""
+        m = np.eye(4)
+        m[:3, :3] = self.R.T
+        m[:3, 3] = -self.R.T @ self.t
+        return m
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates, (3,)."""
+        return -self.R.T @ self.t
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project world points (N,3) to pixels (N,2) and camera depths z (N,)."""
+        pc = points @ self.R.T + self.t
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = np.stack([self.fx * pc[:, 0] / z + self.cx, self.fy * pc[:, 1] / z + self.cy], axis=1)
+        return uv, z
+
+    def scaled(self, factor: float) -> Camera:
+        """The same camera for an image resized by ``factor`` (rounded sizes)."""
+        w, h = max(1, round(self.width * factor)), max(1, round(self.height * factor))
+        sx, sy = w / self.width, h / self.height
+        return replace(self, width=w, height=h, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy)
+
+    @staticmethod
+    def look_at(name: str, eye, target, up, width: int, height: int, fov_x_deg: float) -> Camera:
+        """A camera at ``eye`` looking at ``target`` with world ``up`` roughly up in the image."""
+        eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+        z = target - eye
+        z /= np.linalg.norm(z)
+        x = np.cross(z, up)
+        if np.linalg.norm(x) < 1e-8:  # looking along ``up``: pick any perpendicular
+            x = np.cross(z, np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])  # rows: camera axes in world coordinates
+        fx = 0.5 * width / np.tan(np.radians(fov_x_deg) / 2)
+        return Camera(name, width, height, fx, fx, width / 2, height / 2, R, -R @ eye)
+
+
+def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) to a 3x3 rotation matrix."""
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
+    """3x3 rotation matrix to a unit quaternion (w, x, y, z) with w >= 0."""
+    R = np.asarray(R, dtype=np.float64)
+    K = np.array([
+        [R[0, 0] - R[1, 1] - R[2, 2], 0, 0, 0],
+        [R[1, 0] + R[0, 1], R[1, 1] - R[0, 0] - R[2, 2], 0, 0],
+        [R[2, 0] + R[0, 2], R[2, 1] + R[1, 2], R[2, 2] - R[0, 0] - R[1, 1], 0],
+        [R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], R[0, 0] + R[1, 1] + R[2, 2]],
+    ]) / 3.0
+    vals, vecs = np.linalg.eigh(K)
+    x, y, z, w = vecs[:, np.argmax(vals)]
+    q = np.array([w, x, y, z])
+    return -q if q[0] < 0 else q
+
+
+# OpenCV/COLMAP camera axes (y down, looking +z) vs Blender's (y up, looking -z).
+CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
+
+
+def blender_matrix_world(cam: Camera) -> np.ndarray:
+    """4x4 Blender camera ``matrix_world`` for a COLMAP camera: R_blender = R_colmap^T diag(1,-1,-1)."""
+    m = np.eye(4)
+    m[:3, :3] = cam.R.T @ CV_TO_BLENDER
+    m[:3, 3] = cam.center
+    return m
+
+
+def from_blender_matrix_world(matrix_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`blender_matrix_world`: (R, t) world-to-camera in the OpenCV convention."""
+    m = np.asarray(matrix_world, dtype=np.float64)
+    R = (m[:3, :3] @ CV_TO_BLENDER).T
+    return R, -R @ m[:3, 3]

@@ -1,0 +1,119 @@
+"""Image files of a workspace and the colour conversions between them.
+
+- ``images/*.png``, ``albedo/*.png``: sRGB-encoded 8- or 16-bit PNG. The pipeline works in
+  (pseudo-)linear RGB: :func:`srgb_to_linear` is the exact sRGB transfer curve, which Blender
+  writes with the "Standard" view transform, so synthetic ground truth stays exact.
+- ``gt/shading``, ``gt/residual``: linear float, unbounded (HDR) -> OpenEXR (half float).
+- ``depth/*.npy``, ``gt/depth/*.npy``: float32 z-depth (along the camera axis), 0 where nothing.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # must precede the cv2 import
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from backend.errors import IGSError  # noqa: E402
+from backend.io_utils import atomic_path  # noqa: E402
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0,1] -> linear RGB."""
+    x = np.asarray(x, dtype=np.float32)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """Linear RGB -> sRGB-encoded values; clipped to [0,1] first."""
+    x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
+    return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit image as float32 RGB in [0,1] (still sRGB-encoded), shape (H, W, 3)."""
+    path = Path(path)
+    if not path.exists():
+        raise IGSError(f"{path}: file not found")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise IGSError(f"{path}: unreadable image (not a PNG/JPEG OpenCV can decode)")
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    elif img.shape[2] == 4:
+        img = img[:, :, :3]
+    return (img[:, :, ::-1].astype(np.float32) / scale).copy()
+
+
+def read_linear(path: str | Path) -> np.ndarray:
+    """Read an sRGB-encoded image and return linear RGB float32 (H, W, 3)."""
+    return srgb_to_linear(read_image(path))
+
+
+def write_image(path: str | Path, rgb: np.ndarray, bits: int = 8) -> None:
+    """Write float RGB in [0,1] (already sRGB-encoded) as PNG/JPEG, atomically."""
+    scale, dtype = (65535.0, np.uint16) if bits == 16 else (255.0, np.uint8)
+    data = (np.clip(rgb, 0.0, 1.0) * scale + 0.5).astype(dtype)[:, :, ::-1]
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), data):
+            raise IGSError(f"{path}: could not write image")
+
+
+def write_linear_as_srgb(path: str | Path, linear: np.ndarray, bits: int = 8) -> None:
+    write_image(path, linear_to_srgb(linear), bits=bits)
+
+
+def read_exr(path: str | Path) -> np.ndarray:
+    """Read a linear float EXR as float32 RGB (H, W, 3)."""
+    path = Path(path)
+    if not path.exists():
+        raise IGSError(f"{path}: file not found")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise IGSError(f"{path}: unreadable EXR")
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    return img[:, :, 2::-1].astype(np.float32).copy()
+
+
+def write_exr(path: str | Path, linear: np.ndarray, half: bool = True) -> None:
+    """Write linear float RGB (H, W, 3) as a (half-float, compressed) EXR, atomically."""
+    data = np.ascontiguousarray(np.asarray(linear, dtype=np.float32)[:, :, ::-1])
+    params = [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_HALF if half else cv2.IMWRITE_EXR_TYPE_FLOAT]
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), data, params):
+            raise IGSError(f"{path}: could not write EXR")
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    """Read a float32 depth map (H, W) saved with numpy."""
+    path = Path(path)
+    if not path.exists():
+        raise IGSError(f"{path}: file not found")
+    try:
+        d = np.load(path, allow_pickle=False)
+    except Exception as e:
+        raise IGSError(f"{path}: unreadable depth map ({e})") from e
+    if d.ndim == 3 and d.shape[2] == 1:
+        d = d[:, :, 0]
+    if d.ndim != 2:
+        raise IGSError(f"{path}: depth map must be 2-D (H, W), got shape {d.shape}")
+    if not np.isfinite(d).all():
+        raise IGSError(f"{path}: depth map contains NaN or infinite values")
+    return d.astype(np.float32)
+
+
+def write_depth(path: str | Path, depth: np.ndarray) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.save(f, np.asarray(depth, dtype=np.float32))
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) of an image file without decoding more than needed."""
+    img = read_image(path)
+    return img.shape[1], img.shape[0]

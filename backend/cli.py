@@ -1,0 +1,63 @@
+"""The ``igs`` / ``python -m backend`` command line.
+
+Each command lives in its room's ``commands.py`` which exposes ``register(subparsers)``; a
+command is listed here only once it works end to end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+import traceback
+
+from backend import __version__, events
+from backend.errors import Cancelled, IGSError
+
+# Modules with a ``register(subparsers)`` function, in the order of the pipeline.
+COMMAND_MODULES: list[str] = [
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="igs",
+        description="Intrinsic Splats: decompose a capture into albedo, shading and residual Gaussians, "
+        "edit the albedo, render.",
+    )
+    parser.add_argument("--version", action="version", version=f"igs {__version__}")
+    parser.add_argument("--events", action="store_true",
+                        help="also write JSON-lines progress events to stdout (used by the Blender add-on)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    events.enable_json(args.events)
+    events.install_signal_handlers()
+    t0 = time.perf_counter()
+    events.emit("start", command=args.command, argv=argv)
+    try:
+        args.func(args)
+    except IGSError as e:
+        events.emit("error", message=str(e))
+        print(f"igs {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except (Cancelled, KeyboardInterrupt):
+        msg = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
+        events.emit("cancelled", message=msg)
+        print(f"igs {args.command}: {msg}", file=sys.stderr)
+        return 130
+    except Exception as e:  # a bug, not bad input: keep the traceback but still report one line
+        events.emit("error", message=f"internal error: {type(e).__name__}: {e}")
+        traceback.print_exc()
+        return 1
+    events.emit("done", command=args.command, seconds=time.perf_counter() - t0)
+    return 0

@@ -1,0 +1,9 @@
+"""User-facing errors: one clear message naming the file or parameter and what is wrong."""
+
+
+class IGSError(Exception):
+    """An error the user can fix (bad input, missing file). The CLI prints only its message."""
+
+
+class Cancelled(Exception):
+    """Raised when the user cancels (SIGINT/SIGTERM); the last checkpoint is kept."""

@@ -1,0 +1,148 @@
+"""Progress reporting for the terminal (tqdm on stderr) and for the Blender side (JSON lines on stdout).
+
+The Blender add-on starts ``python -m backend --events <command> ...`` and reads stdout line by
+line. Every event is one JSON object with an ``event`` key:
+
+- ``{"event": "start", "command": str, "argv": [...]}``
+- ``{"event": "stage", "stage": str, "total": int}``      a stage with ``total`` steps begins
+- ``{"event": "progress", "stage": str, "step": int, "total": int, "eta_s": float, ...metrics}``
+- ``{"event": "log", "message": str}``
+- ``{"event": "output", "kind": str, "path": str}``       a file the user may want to open
+- ``{"event": "done", "command": str, "seconds": float}``
+- ``{"event": "error", "message": str}`` / ``{"event": "cancelled", "message": str}``
+
+Lines that are not JSON objects must be ignored by readers.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from tqdm import tqdm
+
+from backend.errors import Cancelled
+
+_state = {"json": False}
+_cancel = threading.Event()
+_lock = threading.Lock()
+
+
+def enable_json(enabled: bool = True) -> None:
+    _state["json"] = enabled
+
+
+def json_enabled() -> bool:
+    return _state["json"]
+
+
+def emit(event: str, **fields: Any) -> None:
+    """Write one JSON-lines event to stdout (only in ``--events`` mode)."""
+    if not _state["json"]:
+        return
+    line = json.dumps({"event": event, **fields}, default=_jsonable)
+    with _lock:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
+
+
+def _jsonable(obj: Any) -> Any:
+    if hasattr(obj, "item"):
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return str(obj)
+
+
+def log(message: str) -> None:
+    """A human line on stderr (and a ``log`` event)."""
+    tqdm.write(message, file=sys.stderr)
+    emit("log", message=message)
+
+
+def output(kind: str, path: Any) -> None:
+    emit("output", kind=kind, path=str(path))
+
+
+def request_cancel() -> None:
+    _cancel.set()
+
+
+def cancelled() -> bool:
+    return _cancel.is_set()
+
+
+def check_cancel() -> None:
+    """Raise :class:`Cancelled` if the user asked to stop; call between units of work."""
+    if _cancel.is_set():
+        raise Cancelled("cancelled by user")
+
+
+def install_signal_handlers() -> None:
+    """SIGINT/SIGTERM set the cancel flag; long loops call :func:`check_cancel` and stop cleanly."""
+
+    def handler(signum, frame):  # noqa: ARG001
+        if _cancel.is_set():  # second signal: stop now
+            raise KeyboardInterrupt
+        _cancel.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+class Progress:
+    """A tqdm bar that mirrors itself as ``progress`` events; checks for cancel on every update."""
+
+    def __init__(self, stage: str, total: int, initial: int = 0, unit: str = "it", every_s: float = 0.25):
+        self.stage = stage
+        self.total = total
+        self.step = initial
+        self._t0 = time.perf_counter()
+        self._initial = initial
+        self._last_emit = 0.0
+        self._every = every_s
+        self.bar = tqdm(total=total, initial=initial, desc=stage, unit=unit, file=sys.stderr,
+                        dynamic_ncols=True, leave=True, disable=None if not _state["json"] else False)
+        emit("stage", stage=stage, total=total)
+
+    def update(self, n: int = 1, **metrics: Any) -> None:
+        self.step += n
+        self.bar.update(n)
+        if metrics:
+            self.bar.set_postfix({k: _fmt(v) for k, v in metrics.items()}, refresh=False)
+        now = time.perf_counter()
+        if now - self._last_emit >= self._every or self.step >= self.total:
+            self._last_emit = now
+            done = self.step - self._initial
+            rate = done / max(now - self._t0, 1e-9)
+            eta = (self.total - self.step) / rate if rate > 0 else None
+            emit("progress", stage=self.stage, step=self.step, total=self.total, eta_s=eta, **metrics)
+        check_cancel()
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _fmt(v: Any) -> Any:
+    return f"{v:.4g}" if isinstance(v, float) else v
+
+
+@contextmanager
+def stage(name: str, total: int, initial: int = 0, unit: str = "it") -> Iterator[Progress]:
+    bar = Progress(name, total, initial=initial, unit=unit)
+    try:
+        yield bar
+    finally:
+        bar.close()

@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+
+from backend.capture.cameras import (
+    Camera,
+    blender_matrix_world,
+    from_blender_matrix_world,
+    qvec_to_rotmat,
+    rotmat_to_qvec,
+)
+from backend.capture.colmap_io import read_model, write_model
+from backend.errors import IGSError
+
+
+def random_rotation(rng):
+    q = rng.normal(size=4)
+    return qvec_to_rotmat(q / np.linalg.norm(q))
+
+
+def test_quaternion_round_trip():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        R = random_rotation(rng)
+        np.testing.assert_allclose(qvec_to_rotmat(rotmat_to_qvec(R)), R, atol=1e-10)
+
+
+def test_look_at_projects_target_to_image_centre_and_keeps_up_up():
+    cam = Camera.look_at("a", [2.0, 1.0, 3.0], [0.0, 0.5, 0.0], [0, 0, 1], 64, 48, 70)
+    uv, z = cam.project(np.array([[0.0, 0.5, 0.0], [0.0, 0.5, 1.0]]))
+    np.testing.assert_allclose(uv[0], [32, 24], atol=1e-9)
+    assert z[0] > 0
+    assert uv[1, 1] < uv[0, 1]  # a point above the target appears higher (smaller y)
+    np.testing.assert_allclose(cam.center, [2, 1, 3])
+
+
+def test_blender_matrix_round_trip_and_axes():
+    cam = Camera.look_at("a", [1.0, -4.0, 2.0], [0.0, 0.0, 0.5], [0, 0, 1], 64, 48, 60)
+    m = blender_matrix_world(cam)
+    # Blender cameras look down their local -z.
+    forward = -m[:3, 2]
+    expected = np.array([0.0, 0.0, 0.5]) - cam.center
+    np.testing.assert_allclose(forward, expected / np.linalg.norm(expected), atol=1e-12)
+    R, t = from_blender_matrix_world(m)
+    np.testing.assert_allclose(R, cam.R, atol=1e-12)
+    np.testing.assert_allclose(t, cam.t, atol=1e-12)
+
+
+def test_colmap_text_model_round_trip(tmp_path):
+    rng = np.random.default_rng(1)
+    cams = [Camera.look_at(f"f{i:03d}.png", [np.cos(i), 1, np.sin(i)], [0, 0, 0], [0, 1, 0], 64, 48, 60)
+            for i in range(4)]
+    pts = rng.uniform(-0.2, 0.2, (20, 3))
+    cols = rng.integers(0, 256, (20, 3))
+    write_model(tmp_path, cams, pts, cols, [["f000.png", "f002.png"]] * 20)
+    model = read_model(tmp_path)
+    assert [c.name for c in model.cameras] == [c.name for c in cams]
+    for a, b in zip(cams, model.cameras):
+        np.testing.assert_allclose(b.R, a.R, atol=1e-9)
+        np.testing.assert_allclose(b.t, a.t, atol=1e-9)
+        assert (b.width, b.height) == (64, 48)
+        np.testing.assert_allclose([b.fx, b.fy, b.cx, b.cy], [a.fx, a.fy, a.cx, a.cy], rtol=1e-9)
+    np.testing.assert_allclose(model.points, pts, atol=1e-6)
+    assert (model.colors == cols).all()
+    assert model.tracks[0] == ["f000.png", "f002.png"]
+
+
+def test_colmap_missing_model_is_a_clear_error(tmp_path):
+    with pytest.raises(IGSError, match="no COLMAP model"):
+        read_model(tmp_path)
