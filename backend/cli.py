@@ -17,6 +17,7 @@ from backend.errors import Cancelled, IGSError
 
 # Modules with a ``register(subparsers)`` function, in the order of the pipeline.
 COMMAND_MODULES: list[str] = [
+    "backend.capture.info",
 ]
 
 

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from backend.capture.cameras import Camera
 from backend.errors import IGSError
 from backend.io_utils import write_json
@@ -112,3 +114,172 @@ class Frame:
     @property
     def name(self) -> str:
         return self.camera.name
+
+
+@dataclass
+class Capture:
+    """A loaded, validated workspace: frames sorted by name, the sparse points, capture.json."""
+
+    workspace: Workspace
+    frames: list[Frame]
+    points: np.ndarray  # (N, 3) float64
+    colors: np.ndarray  # (N, 3) uint8
+    meta: dict[str, Any]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the first frame."""
+        cam = self.frames[0].camera
+        return cam.width, cam.height
+
+    def frame(self, name: str) -> Frame:
+        for f in self.frames:
+            if f.name == name or Path(f.name).stem == name:
+                return f
+        raise IGSError(f"no view named '{name}' in {self.workspace.root} "
+                       f"(views: {', '.join(f.name for f in self.frames[:5])}{', ...' if len(self.frames) > 5 else ''})")
+
+
+def split_frames(frames: list[Frame], hold_every: int = 8) -> tuple[list[Frame], list[Frame]]:
+    """(train, test): every ``hold_every``-th view (index 0, 8, 16, ...) is held out, as in 3DGS and the paper."""
+    if hold_every <= 0 or len(frames) < 2:
+        return list(frames), []
+    test = [f for i, f in enumerate(frames) if i % hold_every == 0]
+    train = [f for i, f in enumerate(frames) if i % hold_every != 0]
+    return train, test
+
+
+def _png_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG header, or None when the file is not a PNG."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    if len(head) < 24 or head[12:16] != b"IHDR":
+        raise IGSError(f"{path}: unreadable image (truncated or corrupt PNG header)")
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
+def image_file_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file; PNG headers are read without decoding."""
+    if not path.exists():
+        raise IGSError(f"{path}: image file not found")
+    size = _png_size(path)
+    if size is not None:
+        return size
+    from backend.capture.imageio import read_image
+
+    img = read_image(path)
+    return img.shape[1], img.shape[0]
+
+
+def _depth_shape(path: Path) -> tuple[int, ...]:
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False).shape
+    except Exception as e:
+        raise IGSError(f"{path}: unreadable depth map ({e})") from e
+
+
+def _prior_dir(ws: Workspace, kind: str, meta: dict[str, Any]) -> tuple[Path | None, str]:
+    """Folder holding the ``kind`` prior ('albedo' or 'depth') and its source label."""
+    own = ws.albedo if kind == "albedo" else ws.depth
+    source = (meta.get("priors") or {}).get(kind)
+    if own.is_dir() and any(own.iterdir()):
+        return own, source or "workspace"
+    if source == "gt" and ws.gt_pass(kind).is_dir():
+        return ws.gt_pass(kind), "gt"
+    return None, "none"
+
+
+def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool = False) -> Capture:
+    """Read and validate a workspace; every problem is one IGSError naming the file.
+
+    Checks: capture.json, images/ and sparse/0 exist; every registered view has a readable image
+    whose size matches its camera; albedo/depth priors exist for every view when required and
+    have the image size.
+    """
+    from backend.capture.colmap_io import read_model
+
+    ws = Workspace(Path(root))
+    if not ws.root.is_dir():
+        raise IGSError(f"{ws.root}: workspace folder not found")
+    meta = ws.read_capture_json()
+    if not ws.images.is_dir():
+        raise IGSError(f"{ws.images}: missing images folder")
+    if not ws.sparse.is_dir():
+        hint = " (a transforms.json is there: convert it with `igs import`)" if ws.transforms_json.exists() else ""
+        raise IGSError(f"{ws.sparse}: missing COLMAP model folder{hint}")
+    model = read_model(ws.sparse)
+
+    albedo_dir, _ = _prior_dir(ws, "albedo", meta)
+    depth_dir, _ = _prior_dir(ws, "depth", meta)
+    frames: list[Frame] = []
+    missing_albedo: list[str] = []
+    missing_depth: list[str] = []
+    for cam in model.cameras:
+        image = ws.images / cam.name
+        w, h = image_file_size(image)
+        if (w, h) != (cam.width, cam.height):
+            raise IGSError(f"{image}: image is {w}x{h} but its camera in {ws.sparse} is {cam.width}x{cam.height}")
+        stem = Path(cam.name).stem
+        albedo = _find(albedo_dir, stem, (".png", ".jpg", ".jpeg")) if albedo_dir else None
+        depth = _find(depth_dir, stem, (".npy",)) if depth_dir else None
+        if albedo is None:
+            missing_albedo.append(cam.name)
+        elif need_albedo and image_file_size(albedo) != (w, h):
+            raise IGSError(f"{albedo}: albedo map is {image_file_size(albedo)} but the image is {(w, h)}")
+        if depth is None:
+            missing_depth.append(cam.name)
+        elif need_depth and _depth_shape(depth)[:2] != (h, w):
+            raise IGSError(f"{depth}: depth map has shape {_depth_shape(depth)} but the image is {h}x{w}")
+        gt = {p: f for p in GT_PASSES
+              if (f := _find(ws.gt_pass(p), stem, (".png", ".exr", ".npy"))) is not None}
+        frames.append(Frame(cam, image, albedo, depth, gt))
+
+    for needed, missing, kind, folder in ((need_albedo, missing_albedo, "albedo", albedo_dir or ws.albedo),
+                                          (need_depth, missing_depth, "depth", depth_dir or ws.depth)):
+        if needed and missing:
+            shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
+            raise IGSError(f"{folder}: {kind} maps missing for {len(missing)} of {len(frames)} views ({shown})")
+    return Capture(ws, frames, model.points, model.colors, meta)
+
+
+def _find(folder: Path | None, stem: str, suffixes: tuple[str, ...]) -> Path | None:
+    if folder is None:
+        return None
+    for suffix in suffixes:
+        p = folder / f"{stem}{suffix}"
+        if p.exists():
+            return p
+    return None
+
+
+def capture_summary(capture: Capture) -> dict[str, Any]:
+    """A JSON-able summary of a workspace (what `igs info` prints)."""
+    ws = capture.workspace
+    cams = [f.camera for f in capture.frames]
+    centers = np.array([c.center for c in cams])
+    train, test = split_frames(capture.frames)
+    layers = sorted(p.name for p in ws.layers.glob("*.ply")) if ws.layers.is_dir() else []
+    edits = sorted(p.name for p in ws.edits.iterdir() if p.is_dir()) if ws.edits.is_dir() else []
+    gt_edits = sorted(p.name for p in ws.gt_edit.iterdir() if p.is_dir()) if ws.gt_edit.is_dir() else []
+    _, albedo_src = _prior_dir(ws, "albedo", capture.meta)
+    _, depth_src = _prior_dir(ws, "depth", capture.meta)
+    return {
+        "workspace": str(ws.root),
+        "source": capture.meta.get("source", {}),
+        "views": len(cams),
+        "train_views": len(train),
+        "test_views": len(test),
+        "size": list(capture.size),
+        "focal": [float(np.mean([c.fx for c in cams])), float(np.mean([c.fy for c in cams]))],
+        "points3D": int(len(capture.points)),
+        "camera_path_length": float(np.linalg.norm(np.diff(centers, axis=0), axis=1).sum()) if len(cams) > 1 else 0.0,
+        "priors": {"albedo": albedo_src, "albedo_views": sum(f.albedo is not None for f in capture.frames),
+                   "depth": depth_src, "depth_views": sum(f.depth is not None for f in capture.frames)},
+        "ground_truth": sorted({p for f in capture.frames for p in f.gt}),
+        "gt_edits": gt_edits,
+        "layers": layers,
+        "edits": edits,
+        "metrics": ws.metrics_json.exists(),
+    }

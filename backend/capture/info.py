@@ -1,0 +1,38 @@
+"""`igs info <ws>`: validate a workspace and print what it holds."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from backend.capture.workspace import capture_summary, load_capture
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("info", help="validate a workspace and print a summary of what it holds")
+    p.add_argument("workspace", help="workspace folder")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> dict:
+    summary = capture_summary(load_capture(args.workspace))
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return summary
+    pri = summary["priors"]
+    lines = [
+        f"workspace   {summary['workspace']}",
+        f"source      {summary['source'].get('kind', '?')} {summary['source'].get('preset', '')}".rstrip(),
+        f"views       {summary['views']} ({summary['train_views']} train / {summary['test_views']} held out), "
+        f"{summary['size'][0]}x{summary['size'][1]} px, focal {summary['focal'][0]:.1f} px",
+        f"points3D    {summary['points3D']}",
+        f"albedo      {pri['albedo']} ({pri['albedo_views']}/{summary['views']} views)",
+        f"depth       {pri['depth']} ({pri['depth_views']}/{summary['views']} views)",
+        f"ground truth {', '.join(summary['ground_truth']) or 'none'}"
+        + (f"; edits: {', '.join(summary['gt_edits'])}" if summary["gt_edits"] else ""),
+        f"layers      {', '.join(summary['layers']) or 'none yet (run `igs decompose`)'}",
+        f"edits       {', '.join(summary['edits']) or 'none'}",
+    ]
+    print("\n".join(lines))
+    return summary
