@@ -86,6 +86,10 @@ def check_cancel() -> None:
 
 def install_signal_handlers() -> None:
     """SIGINT/SIGTERM set the cancel flag; long loops call :func:`check_cancel` and stop cleanly."""
+    try:  # importing pycolmap installs glog's C-level SIGTERM handler over Python's: import it first
+        import pycolmap  # noqa: F401
+    except ImportError:
+        pass
 
     def handler(signum, frame):  # noqa: ARG001
         if _cancel.is_set():  # second signal: stop now

@@ -1,0 +1,242 @@
+"""The priors stage: albedo and depth maps for every view of a workspace, aligned with images/.
+
+Maps that came with the capture (``gt``, ``folder:``) are in the geometry of the frames as captured
+and get the frames' own warp (undistortion, resize), rebuilt from what the import recorded per frame
+in capture.json (``import_frames``: raw file, distorted intrinsics). Model predictions are made on
+the undistorted workspace images and are only resized. Depth is aligned to the SfM scale on the
+sparse points each view sees (:mod:`backend.priors.align`).
+
+Works on imported workspaces and on any other valid workspace (e.g. a synthetic one): frames with
+no import record are taken as already undistorted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from backend import events
+from backend.capture.cameras import Camera
+from backend.capture.colmap_io import read_model
+from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
+from backend.capture.workspace import Workspace, load_capture
+from backend.errors import IGSError
+from backend.io_utils import atomic_path, write_json
+from backend.priors.albedo import AlbedoOptions, AlbedoPredictor, make_albedo_predictor
+from backend.priors.align import AlignConfig, align_depth, points_in_view
+from backend.priors.depth import DepthOptions, DepthPredictor, make_depth_predictor
+from backend.priors.folder import PriorFrame
+
+
+@dataclass(frozen=True)
+class PriorsConfig:
+    """Which priors to compute and how."""
+
+    albedo: str = "none"
+    """Albedo prior spec: none, gt, folder:<path>, marigold:<model dir> (none keeps what is there)."""
+    depth: str = "none"
+    """Depth prior spec: none, gt, folder:<path>, depth-anything:<model dir> (none keeps what is there)."""
+    albedo_options: AlbedoOptions = field(default_factory=AlbedoOptions)
+    """Settings of albedo predictors."""
+    depth_options: DepthOptions = field(default_factory=DepthOptions)
+    """Settings of depth predictors."""
+    align: AlignConfig = field(default_factory=AlignConfig)
+    """Robust fit of depth maps to the SfM points."""
+
+
+@dataclass
+class _View:
+    """One view: what priors know of its frame, its warp, its camera and its workspace image."""
+
+    frame: PriorFrame
+    warp: FrameWarp
+    camera: Camera
+    image: Path
+
+
+def _views(ws: Workspace, capture) -> list[_View]:
+    records = {r["name"]: r for r in capture.meta.get("import_frames", []) if isinstance(r, dict) and "name" in r}
+    views = []
+    for i, f in enumerate(capture.frames):
+        rec = records.get(f.name)
+        if rec is None:
+            views.append(_View(PriorFrame(i, f.name, f.name, f.image), FrameWarp.identity(f.camera), f.camera, f.image))
+            continue
+        ri = rec["intrinsics"]
+        intr = Intrinsics(ri["model"], int(ri["width"]), int(ri["height"]), tuple(float(p) for p in ri["params"]))
+        warp = FrameWarp(make_undistorter(intr), f.camera.width, f.camera.height)
+        views.append(_View(PriorFrame(int(rec["index"]), f.name, rec.get("source", f.name), Path(rec["raw"]),
+                                      rec.get("video_index")), warp, f.camera, f.image))
+    return views
+
+
+def _gt_dirs(ws: Workspace, meta: dict) -> dict[str, Path | None]:
+    recorded = (meta.get("source") or {}).get("gt") or {}
+    out = {}
+    for kind in ("albedo", "depth"):
+        if kind in recorded:
+            out[kind] = Path(recorded[kind])
+        else:
+            out[kind] = ws.gt_pass(kind) if ws.gt_pass(kind).is_dir() else None
+    return out
+
+
+def make_predictors(config: PriorsConfig, gt: dict[str, Path | None], num_frames: int,
+                    num_video_frames: int | None) -> tuple[AlbedoPredictor | None, DepthPredictor | None]:
+    """Both predictors (None for 'none'); every bad spec is an IGSError before any work is done."""
+    albedo = make_albedo_predictor(config.albedo, gt.get("albedo"), num_frames, num_video_frames,
+                                   config.albedo_options)
+    depth = make_depth_predictor(config.depth, gt.get("depth"), num_frames, num_video_frames, config.depth_options)
+    return albedo, depth
+
+
+def _rgb(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise IGSError(f"{path}: unreadable image")
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+class _Cache:
+    """Model predictions per frame, kept while the predictor's stamp and the frame's image are unchanged,
+    so that a cancelled or repeated run does not predict again."""
+
+    def __init__(self, folder: Path, stamp: dict, enabled: bool):
+        self.folder, self.enabled = folder, enabled
+        if not enabled:
+            return
+        stamp_file = folder / "stamp.json"
+        stamp = json.loads(json.dumps(stamp))
+        if not stamp_file.exists() or json.loads(stamp_file.read_text()) != stamp:
+            if folder.exists():
+                shutil.rmtree(folder)
+            folder.mkdir(parents=True)
+            write_json(stamp_file, stamp)
+
+    def get(self, name: str, image: Path, compute) -> np.ndarray:
+        if not self.enabled:
+            return compute()
+        digest = hashlib.sha1(image.read_bytes()).hexdigest()[:16]
+        path = self.folder / f"{Path(name).stem}-{digest}.npy"
+        if path.exists():
+            return np.load(path)
+        for stale in self.folder.glob(f"{Path(name).stem}-*.npy"):
+            stale.unlink()
+        value = np.asarray(compute(), dtype=np.float32)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.save(fh, value)
+        return value
+
+
+def _raw_check(view: _View) -> None:
+    if not view.frame.raw.exists():
+        raise IGSError(f"{view.frame.raw}: the frame as captured is gone; maps that come with the capture are "
+                       "undistorted like it (re-run `igs import`)")
+
+
+def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
+    """Write albedo/ and/or depth/ for every view; update capture.json; return (and write) the report."""
+    t0 = time.perf_counter()
+    ws = Workspace(Path(workspace).expanduser())
+    capture = load_capture(ws.root)
+    meta = capture.meta
+    views = _views(ws, capture)
+    source = meta.get("source") or {}
+    albedo_pred, depth_pred = make_predictors(config, _gt_dirs(ws, meta), int(source.get("frames_in", len(views))),
+                                              source.get("video_frames"))
+    report: dict = {"workspace": str(ws.root), "albedo": None, "depth": None}
+    if albedo_pred is None and depth_pred is None:
+        return report
+
+    if albedo_pred is not None:
+        t = time.perf_counter()
+        cache = _Cache(ws.root / ".priors" / "albedo", albedo_pred.stamp(), enabled=not albedo_pred.warp)
+        if ws.albedo.exists():
+            shutil.rmtree(ws.albedo)
+        with events.stage(f"albedo ({albedo_pred.label})", total=len(views), unit="image") as bar:
+            for v in views:
+                if albedo_pred.warp:
+                    _raw_check(v)
+                amap = cache.get(v.frame.name, v.image, lambda v=v: albedo_pred.predict(v.frame, _rgb(v.image)))
+                amap = v.warp.image(amap) if albedo_pred.warp else v.warp.resize(amap)
+                data = (np.clip(amap, 0, 1) * 65535 + 0.5).astype(np.uint16)[:, :, ::-1]
+                with atomic_path(ws.albedo / v.frame.name) as tmp:
+                    if not cv2.imwrite(str(tmp), data):
+                        raise IGSError(f"{ws.albedo / v.frame.name}: could not write")
+                bar.update(1)
+        events.output("albedo", ws.albedo)
+        report["albedo"] = {"prior": albedo_pred.label, "views": len(views),
+                            "seconds": round(time.perf_counter() - t, 3)}
+
+    if depth_pred is not None:
+        t = time.perf_counter()
+        model = read_model(ws.sparse)
+        seen: dict[str, list[int]] = {v.frame.name: [] for v in views}
+        for j, tr in enumerate(model.tracks):
+            for n in tr:
+                if n in seen:
+                    seen[n].append(j)
+        has_tracks = any(model.tracks)
+        align = AlignConfig(**{**asdict(config.align), "model": depth_pred.fit})
+        cache = _Cache(ws.root / ".priors" / "depth", depth_pred.stamp(), enabled=not depth_pred.warp)
+        if ws.depth.exists():
+            shutil.rmtree(ws.depth)
+        alignments = []
+        with events.stage(f"depth ({depth_pred.label})", total=len(views), unit="image") as bar:
+            for v in views:
+                if depth_pred.warp:
+                    _raw_check(v)
+                dmap = cache.get(v.frame.name, v.image, lambda v=v: depth_pred.predict(v.frame, _rgb(v.image)))
+                dmap = v.warp.depth(dmap) if depth_pred.warp else v.warp.resize(dmap)
+                pts = model.points[seen[v.frame.name]] if has_tracks else points_in_view(v.camera, model.points)
+                depth, rep = align_depth(dmap, depth_pred.kind, v.camera, pts, align)
+                with atomic_path(ws.depth / f"{Path(v.frame.name).stem}.npy") as tmp, open(tmp, "wb") as fh:
+                    np.save(fh, depth)
+                alignments.append(asdict(rep) if rep is not None else
+                                  {"name": v.frame.name, "points": int(len(pts)), "aligned": False})
+                bar.update(1, **({"rel_err": rep.median_abs_rel} if rep is not None else {}))
+        unaligned = [a["name"] for a in alignments if a.get("aligned") is False]
+        if unaligned:
+            events.log(f"depth: {len(unaligned)} view(s) see too few sparse points to align; their depth is empty: "
+                       + ", ".join(unaligned[:10]))
+        events.output("depth", ws.depth)
+        report["depth"] = {"prior": depth_pred.label, "kind": depth_pred.kind, "fit": depth_pred.fit,
+                           "summary": align_summary(alignments), "views": alignments,
+                           "seconds": round(time.perf_counter() - t, 3)}
+        s = report["depth"]["summary"]
+        if s:
+            events.log(f"depth: aligned {s['views_aligned']} views to the SfM scale, median relative error "
+                       f"{s['median_abs_rel_median']:.3f} (worst view {s['median_abs_rel_max']:.3f})")
+
+    priors = dict(meta.get("priors") or {})
+    settings = dict(meta.get("prior_settings") or {})
+    for kind, pred, spec, opts in (("albedo", albedo_pred, config.albedo, config.albedo_options),
+                                   ("depth", depth_pred, config.depth, config.depth_options)):
+        if pred is not None:
+            priors[kind] = pred.label
+            settings[kind] = {"spec": spec, **pred.stamp(), "options": asdict(opts)}
+    if depth_pred is not None:
+        settings["depth"]["align"] = asdict(config.align)
+    new_meta = {k: v for k, v in meta.items() if k != "schema"}
+    new_meta.update(priors=priors, prior_settings=settings)
+    ws.write_capture_json(new_meta)
+    report["seconds"] = round(time.perf_counter() - t0, 3)
+    write_json(ws.root / "priors_report.json", report)
+    events.output("report", ws.root / "priors_report.json")
+    return report
+
+
+def align_summary(alignments: list[dict]) -> dict:
+    """Median and worst per-view relative depth residual over the aligned views."""
+    rel = [a["median_abs_rel"] for a in alignments if "median_abs_rel" in a]
+    if not rel:
+        return {}
+    return {"views_aligned": len(rel), "views_unaligned": len(alignments) - len(rel),
+            "median_abs_rel_median": float(np.median(rel)), "median_abs_rel_max": float(np.max(rel))}

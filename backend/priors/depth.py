@@ -1,0 +1,171 @@
+"""Depth priors: ground truth (synthetic captures), maps from a folder, Depth Anything V2 (transformers).
+
+Every predictor returns a map plus what it holds (``depth`` or ``disparity`` = inverse depth) and
+which fit brings it to SfM units (``scale`` for metric/ground-truth depth, ``scale_shift`` for
+relative predictions); :mod:`backend.priors.align` does the fit on the sparse points.
+
+Spec strings (``igs import --depth``): ``none``, ``gt``, ``folder:<path>``, ``depth-anything:<model dir>``.
+The model directory is a Hugging Face checkpoint on disk (``config.json``, ``model.safetensors``,
+``preprocessor_config.json``), e.g. ``depth-anything/Depth-Anything-V2-Small-hf`` downloaded beforehand;
+nothing is ever downloaded here.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from backend.errors import IGSError
+from backend.priors.folder import FolderMaps, PriorFrame, read_map
+
+DEPTH_SPECS = "none, gt, folder:<path>, depth-anything:<model dir>"
+
+
+@dataclass(frozen=True)
+class DepthOptions:
+    """How depth maps from a folder are read."""
+
+    folder_kind: str = "depth"
+    """What folder maps hold: 'depth' (z-depth, any unit) or 'disparity' (inverse depth)."""
+    fit: str = "auto"
+    """Alignment model: 'scale', 'scale_shift' or 'auto' (scale for gt, scale_shift otherwise)."""
+    device: str = "cpu"
+    """Torch device for model predictors ('cpu', 'cuda', 'auto')."""
+
+
+class DepthPredictor:
+    """Per-frame depth prior. ``predict(frame, image)`` -> (H', W') float32, any resolution (resized later).
+
+    ``image``: the undistorted frame, (H, W, 3) uint8 RGB. ``warp``: the map is in the geometry of the
+    raw (distorted) frame and must be undistorted like it (maps that came with the capture); model
+    predictions are made on the undistorted frame and are only resized.
+    """
+
+    label = "depth"
+    kind = "depth"
+    fit = "scale_shift"
+    warp = True
+
+    def predict(self, frame: PriorFrame, image: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def stamp(self) -> dict:
+        """What identifies this predictor's output (for reusing cached predictions)."""
+        return {"label": self.label, "kind": self.kind, "fit": self.fit}
+
+
+class FolderDepth(DepthPredictor):
+    """Depth (or inverse depth) maps from a folder: .npy, .exr, 16-bit PNG/TIFF, matched to frames."""
+
+    label = "folder"
+
+    def __init__(self, maps: FolderMaps, kind: str, fit: str):
+        if kind not in ("depth", "disparity"):
+            raise IGSError(f"--depth-kind must be 'depth' or 'disparity' (got '{kind}')")
+        self.maps, self.kind, self.fit = maps, kind, fit
+
+    def predict(self, frame: PriorFrame, image: np.ndarray) -> np.ndarray:
+        path = self.maps.find(frame)
+        m = read_map(path)
+        if m.ndim == 3:
+            m = m[:, :, 0]
+        if (m < 0).any():
+            raise IGSError(f"{path}: negative values in a {self.kind} map")
+        return m
+
+    def stamp(self) -> dict:
+        return {**super().stamp(), "folder": str(self.maps.folder.resolve())}
+
+
+class GroundTruthDepth(FolderDepth):
+    """A synthetic capture's gt/depth maps (z-depth in the scene's units: only a scale to SfM's)."""
+
+    label = "gt"
+
+
+class DepthAnythingV2(DepthPredictor):
+    """Depth Anything V2 through transformers, loaded from a local checkpoint directory only.
+
+    Relative checkpoints predict affine-invariant inverse depth (fit scale and shift in disparity);
+    metric checkpoints (``depth_estimation_type: metric``) predict metres (fit a scale in depth).
+    """
+
+    label = "depth-anything-v2"
+    warp = False
+
+    def __init__(self, model_dir: str | Path, device: str = "cpu", fit: str = "auto"):
+        self.model_dir = Path(model_dir)
+        config = self.model_dir / "config.json"
+        if not config.exists():
+            raise IGSError(f"{self.model_dir}: not a Depth Anything V2 checkpoint folder (no config.json); download "
+                           "e.g. depth-anything/Depth-Anything-V2-Small-hf to a folder first")
+        if not (self.model_dir / "preprocessor_config.json").exists():
+            raise IGSError(f"{self.model_dir}: preprocessor_config.json missing (download the whole checkpoint folder)")
+        try:
+            cfg = json.loads(config.read_text())
+        except json.JSONDecodeError as e:
+            raise IGSError(f"{config}: not valid JSON ({e})") from e
+        if cfg.get("model_type") != "depth_anything":
+            raise IGSError(f"{config}: model_type is '{cfg.get('model_type')}', not 'depth_anything'")
+        metric = cfg.get("depth_estimation_type", "relative") == "metric"
+        self.kind = "depth" if metric else "disparity"
+        self.fit = ("scale" if metric else "scale_shift") if fit == "auto" else fit
+        self.device_name = device
+        self.model = None  # loaded on first use: specs are validated before any long work starts
+
+    def _load(self) -> None:
+        import torch
+        from transformers import AutoImageProcessor, DepthAnythingForDepthEstimation
+        from transformers.utils import logging as hf_logging
+
+        hf_logging.set_verbosity_error()  # our own progress bars and messages only
+        hf_logging.disable_progress_bar()
+        try:
+            self.model = DepthAnythingForDepthEstimation.from_pretrained(str(self.model_dir), local_files_only=True)
+            self.processor = AutoImageProcessor.from_pretrained(str(self.model_dir), local_files_only=True)
+        except Exception as e:
+            raise IGSError(f"{self.model_dir}: could not load the Depth Anything checkpoint ({e})") from e
+        device = self.device_name
+        if device == "auto":
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+        self.device = torch.device(device)
+        self.model.to(self.device).eval()
+
+    def predict(self, frame: PriorFrame, image: np.ndarray) -> np.ndarray:
+        import torch
+
+        if self.model is None:
+            self._load()
+        inputs = self.processor(images=image, return_tensors="pt")
+        with torch.no_grad():
+            out = self.model(pixel_values=inputs["pixel_values"].to(self.device)).predicted_depth
+        return out[0].float().cpu().numpy()
+
+    def stamp(self) -> dict:
+        return {**super().stamp(), "model": str(self.model_dir.resolve())}
+
+
+def make_depth_predictor(spec: str, gt_dir: Path | None, num_frames: int, num_video_frames: int | None,
+                         options: DepthOptions = DepthOptions()) -> DepthPredictor | None:
+    """The predictor named by ``spec`` (see :data:`DEPTH_SPECS`), or None for 'none'."""
+    fit = options.fit
+    if fit not in ("auto", "scale", "scale_shift"):
+        raise IGSError(f"--depth-fit must be auto, scale or scale_shift (got '{fit}')")
+    if spec in ("", "none"):
+        return None
+    if spec == "gt":
+        if gt_dir is None or not gt_dir.is_dir():
+            raise IGSError(f"--depth gt: the source has no ground-truth depth folder ({gt_dir or 'gt/depth'}); "
+                           "gt is for synthetic captures made with `igs synth`")
+        return GroundTruthDepth(FolderMaps(gt_dir, "ground-truth depth", num_frames, num_video_frames), "depth",
+                                "scale" if fit == "auto" else fit)
+    kind, _, arg = spec.partition(":")
+    if kind == "folder" and arg:
+        return FolderDepth(FolderMaps(Path(arg).expanduser(), "depth", num_frames, num_video_frames),
+                           options.folder_kind, "scale_shift" if fit == "auto" else fit)
+    if kind in ("depth-anything", "dav2") and arg:
+        return DepthAnythingV2(Path(arg).expanduser(), options.device, fit)
+    raise IGSError(f"--depth '{spec}': expected one of {DEPTH_SPECS}")
