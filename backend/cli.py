@@ -20,6 +20,7 @@ COMMAND_MODULES: list[str] = [
     "backend.capture.info",
     "backend.capture.import_commands",
     "backend.priors.commands",
+    "backend.capture.commands",
 ]
 
 

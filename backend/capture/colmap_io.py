@@ -37,16 +37,17 @@ def write_model(folder: str | Path, cameras: list[Camera], points: np.ndarray, c
     for i, cam in enumerate(cameras, start=1):
         cam_lines.append(f"{i} PINHOLE {cam.width} {cam.height} {cam.fx:.10g} {cam.fy:.10g} {cam.cx:.10g} {cam.cy:.10g}")
 
+    # Project every point once per camera (vectorised), then look observations up per track entry.
     obs: dict[str, list[tuple[float, float, int]]] = {cam.name: [] for cam in cameras}
+    uv_by_cam = {cam.name: cam.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))[0] for cam in cameras} \
+        if tracks is not None else {}
     track_lines: list[str] = []
-    by_name = {cam.name: cam for cam in cameras}
     for pid, (p, c) in enumerate(zip(points, colors), start=1):
         elems = []
         for name in (tracks[pid - 1] if tracks is not None else []):
-            cam = by_name[name]
-            uv, _ = cam.project(p[None])
+            u, v = uv_by_cam[name][pid - 1]
             elems.append(f"{name_to_id[name]} {len(obs[name])}")
-            obs[name].append((float(uv[0, 0]), float(uv[0, 1]), pid))
+            obs[name].append((float(u), float(v), pid))
         track_lines.append(f"{pid} {p[0]:.8g} {p[1]:.8g} {p[2]:.8g} {int(c[0])} {int(c[1])} {int(c[2])} 0 " + " ".join(elems))
 
     img_lines = ["# Image list with two lines of data per image:",

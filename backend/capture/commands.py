@@ -1,0 +1,41 @@
+"""Capture commands: ``igs synth`` (more import commands register here too)."""
+
+from __future__ import annotations
+
+import argparse
+
+from backend import events
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the capture room's subcommands."""
+    _register_synth(subparsers)
+
+
+def _register_synth(subparsers: argparse._SubParsersAction) -> None:
+    from backend.capture.synth import PRESETS
+
+    p = subparsers.add_parser(
+        "synth", help="render the synthetic room with Cycles into a workspace with exact ground truth",
+        description="Render the synthetic room (Cycles, CPU) into WORKSPACE: images, ground-truth albedo, "
+                    "shading, residual and depth, COLMAP cameras and points, and three edited versions "
+                    "(gt_edit/). Re-running the same command resumes an interrupted render.")
+    p.add_argument("workspace", help="folder to write (created if missing)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="demo",
+                   help="size and quality: " + "; ".join(
+                       f"{k}: {v.views} views {v.width}x{v.height}, {v.samples} spp" for k, v in PRESETS.items()))
+    p.add_argument("--seed", type=int, default=0, help="scene, camera path and sampling seed (default 0)")
+    p.add_argument("--views", type=int, default=None, help="number of views (default: the preset's)")
+    p.add_argument("--samples", type=int, default=None, help="Cycles samples per pixel (default: the preset's)")
+    p.add_argument("--threads", type=int, default=None, help="render threads (default: all cores)")
+    p.add_argument("--force", action="store_true",
+                   help="delete a previous synthetic capture in WORKSPACE rendered with other settings")
+    p.set_defaults(func=_run_synth)
+
+
+def _run_synth(args: argparse.Namespace) -> None:
+    from backend.capture.synth import synthesize
+
+    summary = synthesize(args.workspace, preset=args.preset, seed=args.seed, views=args.views,
+                         samples=args.samples, force=args.force, threads=args.threads)
+    events.output("workspace", summary["workspace"])

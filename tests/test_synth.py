@@ -1,0 +1,351 @@
+"""The synthetic Cycles capture: exact ground truth, camera consistency, edits, determinism, resume.
+
+Budget: about 30 s on 2 cores (the `test` preset once, plus two 2-view captures).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from backend import events
+from backend.capture import synth_textures
+from backend.capture.cameras import Camera
+from backend.capture.colmap_io import read_model
+from backend.capture.exr_layers import passes, read_multilayer_exr
+from backend.capture.imageio import read_exr, read_image, srgb_to_linear
+from backend.capture.synth import Renderer, SynthSettings, synthesize
+from backend.capture.synth_scene import build_scene, camera_path, mask_aov
+from backend.capture.workspace import load_capture
+from backend.errors import Cancelled, IGSError
+
+pytest.importorskip("bpy")
+
+EDITS = ("wall_decal", "rug_recolor", "column_decal")
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    ws = tmp_path_factory.mktemp("synth") / "ws"
+    summary = synthesize(ws, preset="test", seed=0)
+    return ws, summary
+
+
+def _names(ws: Path) -> list[str]:
+    return sorted(p.name for p in (ws / "images").glob("*.png"))
+
+
+def _read_u16(path: Path) -> np.ndarray:
+    """Raw integer PNG values, RGB, as float64."""
+    return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[..., ::-1].astype(np.float64)
+
+
+def _lin(srgb: np.ndarray) -> np.ndarray:
+    return srgb_to_linear(np.clip(srgb, 0.0, 1.0)).astype(np.float64)
+
+
+def test_writes_the_workspace_layout(capture):
+    ws, summary = capture
+    names = _names(ws)
+    assert len(names) == 16 and names[0] == "frame_0000.png"
+    meta = json.loads((ws / "capture.json").read_text())
+    assert meta["schema"] == 1 and meta["source"]["kind"] == "synthetic" and meta["source"]["preset"] == "test"
+    assert meta["frames"] == names and meta["size"] == [64, 48] and meta["edits"] == list(EDITS)
+    assert meta["priors"] == {"albedo": "gt", "depth": "gt"}
+    assert meta["source"]["blender"].startswith("5.")
+    for stem in (Path(n).stem for n in names):
+        for f in (f"gt/albedo/{stem}.png", f"gt/shading/{stem}.exr", f"gt/residual/{stem}.exr", f"gt/depth/{stem}.npy"):
+            assert (ws / f).exists(), f
+    assert summary["files"]["images"] == 16 and summary["rendered_views"] == 16
+    assert set(summary["seconds"]) >= {"build_scene", "render_views", "render_edits", "total"}
+
+    cap = load_capture(ws, need_albedo=True, need_depth=True)  # what every later stage reads
+    assert [f.name for f in cap.frames] == names
+    assert cap.frames[0].albedo == ws / "gt" / "albedo" / names[0]
+    assert set(cap.frames[0].gt) == {"albedo", "shading", "residual", "depth"}
+
+    tr = json.loads((ws / "transforms.json").read_text())
+    assert (tr["w"], tr["h"]) == (64, 48) and len(tr["frames"]) == 16
+    for frame, cam in zip(tr["frames"], cap.frames):
+        c2w = np.array(frame["transform_matrix"])
+        np.testing.assert_allclose(c2w[:3, 3], cam.camera.center, atol=1e-9)
+        # OpenGL: the camera looks down its -z, which is COLMAP's +z.
+        np.testing.assert_allclose(-c2w[:3, 2], cam.camera.R[2], atol=1e-9)
+
+
+def test_images_equal_albedo_times_shading_plus_residual(capture):
+    """In linear RGB, image = albedo * shading + residual per pixel, up to the file quantisation.
+
+    The identity is exact in the float passes (Cycles divides each light pass by its colour pass
+    per pixel; measured max error 1.5e-6). What remains is rounding of the stored files, bounded per
+    pixel: half an 8-bit sRGB step of the image and a 16-bit step of the albedo (mapped through the
+    sRGB curve's slope), half-float rounding (2^-11 relative) of shading and residual, plus 1e-5
+    for float32 arithmetic. Saturated channels (255) are skipped: the PNG clips Combined at 1.
+    """
+    ws, _ = capture
+    checked = total = 0
+    residual_pixels = 0
+    for name in _names(ws):
+        stem = Path(name).stem
+        k = _read_u16(ws / "images" / name)
+        a16 = _read_u16(ws / "gt" / "albedo" / name)
+        S = read_exr(ws / "gt" / "shading" / f"{stem}.exr").astype(np.float64)
+        R = read_exr(ws / "gt" / "residual" / f"{stem}.exr").astype(np.float64)
+        image, albedo = _lin(k / 255.0), _lin(a16 / 65535.0)
+        tol = ((_lin((k + 0.5) / 255.0) - image)
+               + (_lin((a16 + 0.5) / 65535.0) - albedo) * S
+               + albedo * (S * 2.0 ** -11 + 3e-8) + R * 2.0 ** -11 + 3e-8
+               + 1e-5 * (1.0 + albedo * S + R))
+        err = np.abs(image - (albedo * S + R))
+        ok = k < 255
+        assert (err[ok] <= tol[ok]).all(), f"{name}: worst error/tolerance {(err[ok] / tol[ok]).max():.3f}"
+        checked += ok.sum()
+        total += ok.size
+        residual_pixels += int((R.max(axis=2) > 0.01).sum())
+        assert (S >= 0).all() and (R >= 0).all()
+    assert checked > 0.9 * total  # the exposure leaves most pixels unclipped
+    assert residual_pixels > 50  # the glossy objects make a non-zero residual
+
+
+def test_depth_is_camera_z_and_points_reproject_into_their_views(capture):
+    """Each point comes from one view's Position pass: projected with our cameras it lands inside its
+    own pixel at exactly that pixel's depth (so the depth pass is z along the optical axis, and the
+    Blender camera, the COLMAP camera and the pixel-centre convention agree). In every other view
+    of its track the depth agrees to 2 %, and most points are seen by several views."""
+    ws, _ = capture
+    model = read_model(ws / "sparse" / "0")
+    cams = {c.name: c for c in model.cameras}
+    depth = {n: np.load(ws / "gt" / "depth" / f"{Path(n).stem}.npy") for n in cams}
+    assert len(model.points) >= 16 * 50
+    exact = 0
+    multi = 0
+    for p, track in zip(model.points, model.tracks):
+        assert track, "every point is seen at least by the view it was sampled from"
+        best = np.inf
+        for name in track:
+            uv, z = cams[name].project(p[None])
+            x, y = int(uv[0, 0]), int(uv[0, 1])
+            assert 0 <= x < 64 and 0 <= y < 48 and z[0] > 0
+            rel = abs(depth[name][y, x] - z[0]) / z[0]
+            assert rel <= 0.02
+            best = min(best, rel)
+        exact += best < 1e-5
+        multi += len(track) >= 3
+    assert exact == len(model.points)
+    assert multi > 0.5 * len(model.points)
+    # The room is closed: every pixel hits a surface, and nothing is nearer than the camera path allows.
+    for d in depth.values():
+        assert (d > 0.05).all() and (d < 9.0).all()
+
+
+def _bilinear(tex: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Sample an (H, W, 3) top-row-first texture at u (left to right), v (bottom to top) in [0, 1]."""
+    h, w = tex.shape[:2]
+    x = np.clip(u * w - 0.5, 0, w - 1)
+    y = np.clip((1 - v) * h - 0.5, 0, h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
+    bottom = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def _edit_uv(edit: dict, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s = edit["surface"]
+    if s["type"] == "plane":
+        rel = pts - np.array(s["center"])
+        return rel @ np.array(s["u_axis"]) / s["size"][0] + 0.5, rel @ np.array(s["v_axis"]) / s["size"][1] + 0.5
+    axis, ref = np.array(s["axis"]), np.array(s["ref_axis"])
+    rel = pts - np.array(s["base_center"])
+    theta = np.arctan2(rel @ np.cross(axis, ref), rel @ ref)
+    (t0, t1), (h0, h1) = s["theta_range"], s["height_range"]
+    return (theta - t0) / (t1 - t0), (rel @ axis - h0) / (h1 - h0)
+
+
+def test_edits_change_only_their_region(capture):
+    """Outside each edit's mask the edited render is bit-identical to the original (so the lighting did
+    not change anywhere); inside, a recolour's albedo is exactly its colour, and the image is still
+    albedo_edit * shading + residual with the original shading (in the mean: with 16 spp a pixel's
+    shading is a colour-weighted mean of noisy samples, so single pixels differ by ~10 %)."""
+    ws, _ = capture
+    for edit_name in EDITS:
+        folder = ws / "gt_edit" / edit_name
+        edit = json.loads((folder / "edit.json").read_text())
+        assert edit["name"] == edit_name and edit["kind"] in ("decal", "recolor")
+        assert (edit["texture"] is None) == (edit["kind"] == "recolor") == (edit["color"] is not None)
+        assert edit["texture"] is None or (folder / edit["texture"]).exists()
+        assert edit["surface"]["type"] == ("cylinder" if edit_name == "column_decal" else "plane")
+        # The rectangle of the edit view lies inside the region, in a training view.
+        x0, y0, x1, y1 = edit["rect"]
+        assert x1 > x0 and y1 > y0
+        assert int(Path(edit["edit_view"]).stem.split("_")[1]) % 8 != 0
+        mask_ev = read_image(folder / "mask" / edit["edit_view"])[..., 0] > 0.5
+        assert mask_ev[y0:y1, x0:x1].all()
+        seen = 0
+        albedo_err, sums = [], []
+        for name in _names(ws):
+            mask = read_image(folder / "mask" / name)[..., 0] > 0.5
+            orig, edited = _read_u16(ws / "images" / name), _read_u16(folder / "images" / name)
+            assert (orig[~mask] == edited[~mask]).all()
+            orig_a, edited_a = _read_u16(ws / "gt" / "albedo" / name), _read_u16(folder / "albedo" / name)
+            assert (orig_a[~mask] == edited_a[~mask]).all()
+            inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+            if not inner.any():
+                continue
+            seen += 1
+            a_lin = _lin(edited_a / 65535.0)[inner]
+            assert (np.abs(a_lin - _lin(orig_a / 65535.0)[inner]).max(axis=1) > 1e-3).mean() > 0.5
+            if edit["color"] is not None:
+                albedo_err.append(np.abs(a_lin - np.array(edit["color"])).max(axis=1))
+            unclipped = (edited[inner].max(axis=1) < 255)[:, None]
+            S = read_exr(ws / "gt" / "shading" / f"{Path(name).stem}.exr")[inner]
+            R = read_exr(ws / "gt" / "residual" / f"{Path(name).stem}.exr")[inner]
+            sums.append(((_lin(edited / 255.0)[inner] * unclipped).sum(), ((a_lin * S + R) * unclipped).sum()))
+        assert seen >= 2, f"{edit_name} is visible in too few views"
+        if edit["color"] is not None:
+            # A flat colour, exact up to 16-bit rounding where the pixel is fully covered; interior
+            # pixels of the (any-coverage) mask can still be cut by an occluder's edge.
+            assert (np.concatenate(albedo_err) < 2e-4).mean() > 0.9
+        total_img, total_model = np.sum(sums, axis=0)
+        assert abs(total_img / total_model - 1) < 0.05
+
+
+def test_decals_follow_the_geometry_in_edit_json(tmp_path):
+    """A close-up of each decal: every fully covered pixel's surface point (Position pass) maps inside
+    the decal through edit.json's plane/cylinder definition, and the rendered albedo is the texture
+    sampled there (and clearly not the texture flipped left-right or upside down)."""
+    scene = build_scene(0)
+    settings = SynthSettings("test", 0, 2, 96, 72, 8, 1, 10)
+    renderer = Renderer(scene, settings, threads=os.cpu_count() or 1)
+    for edit in (e for e in scene.edits if e.kind == "decal"):
+        spec = {"surface": edit.surface.to_json()}
+        s = edit.surface
+        if spec["surface"]["type"] == "plane":
+            target, up = np.array(s.center), s.v_axis
+            eye = target + 1.1 * np.array(s.normal)
+        else:
+            mid = np.array(s.base_center) + np.mean(s.height_range) * np.array(s.axis)
+            target, up = mid + s.radius * np.array(s.ref_axis), s.axis
+            eye = mid + (s.radius + 0.9) * np.array(s.ref_axis)
+        cam = Camera.look_at("close.png", eye, target, up, 96, 72, 60.0)
+        scene.set_edit(edit.name)
+        P = renderer.render(cam, tmp_path / "close.exr")
+        full = P[mask_aov(edit.name)][..., 0] >= 1.0 - 1e-6
+        assert full.sum() > 500
+        u, v = _edit_uv(spec, P["Position"][full].astype(np.float64))
+        assert (u >= -1e-3).all() and (u <= 1 + 1e-3).all() and (v >= -1e-3).all() and (v <= 1 + 1e-3).all()
+        tex = cv2.resize(_lin(edit.texture / 255.0).astype(np.float32), (48, 48), interpolation=cv2.INTER_AREA)
+        albedo = P["Diffuse Color"][full]
+        err = {flip: np.median(np.abs(albedo - _bilinear(tex, 1 - u if flip == "u" else u,
+                                                          1 - v if flip == "v" else v)).mean(axis=1))
+               for flip in ("none", "u", "v")}
+        assert err["none"] < 0.06 and err["none"] < 0.5 * min(err["u"], err["v"]), (edit.name, err)
+    scene.set_edit(None)
+
+
+def test_same_seed_gives_the_same_capture(capture, tmp_path):
+    """Two processes (the CLI and this one), same seed: the same files. Within one process Cycles is
+    bit-exact; across processes its float passes agree to ~1e-5 relative (measured), which the file
+    quantisation absorbs except for rare rounding flips, so values may differ by one step only."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    run = subprocess.run([sys.executable, "-m", "backend", "synth", str(a), "--preset", "test", "--views", "2"],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "total" in run.stderr  # the summary with its timings is printed
+    synthesize(b, preset="test", views=2)
+    files_a = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files_a == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    differing = 0
+    for rel in files_a:
+        fa, fb = a / rel, b / rel
+        if rel.name == "synth_summary.json":  # timings and the workspace path
+            continue
+        if rel.name == "capture.json":
+            ja, jb = json.loads(fa.read_text()), json.loads(fb.read_text())
+            for k in ("render_seconds", "cpu_seconds", "threads"):
+                ja.pop(k), jb.pop(k)
+            assert ja == jb
+        elif fa.read_bytes() != fb.read_bytes():
+            if rel.suffix == ".png":
+                va, vb = _read_u16(fa), _read_u16(fb)
+                assert np.abs(va - vb).max() <= 1, rel
+            elif rel.suffix == ".exr":
+                np.testing.assert_allclose(read_exr(fa), read_exr(fb), rtol=2e-3, atol=1e-6, err_msg=str(rel))
+            else:
+                raise AssertionError(f"{rel} differs between two renders with the same seed")
+            differing += 1
+    assert differing <= 2, f"{differing} files differ"
+
+
+def test_other_seeds_change_the_scene_and_camera_path():
+    a = camera_path(8, 64, 48, seed=0)
+    b = camera_path(8, 64, 48, seed=1)
+    assert not np.allclose(a[0].center, b[0].center)
+    tex0 = synth_textures.poster(np.random.default_rng(0))
+    tex1 = synth_textures.poster(np.random.default_rng(1))
+    assert tex0.shape == (256, 256, 3) and not np.array_equal(tex0, tex1)
+
+
+def test_resume_after_cancel_and_refuse_other_settings(tmp_path, monkeypatch):
+    ws = tmp_path / "ws"
+    calls = {"n": 0}
+
+    def cancel_after_first_view():
+        calls["n"] += 1
+        raise Cancelled("test")
+
+    monkeypatch.setattr(events, "check_cancel", cancel_after_first_view)
+    with pytest.raises(Cancelled):
+        synthesize(ws, preset="test", views=2)
+    monkeypatch.undo()
+    assert calls["n"] == 1
+    assert len(_names(ws)) == 1 and not (ws / "capture.json").exists()
+
+    summary = synthesize(ws, preset="test", views=2)
+    assert summary["rendered_views"] == 1 and summary["skipped_views"] == 1
+    assert (ws / "capture.json").exists() and len(_names(ws)) == 2
+
+    (ws / "gt" / "shading" / "frame_0001.exr").unlink()
+    assert synthesize(ws, preset="test", views=2)["rendered_views"] == 1
+
+    with pytest.raises(IGSError, match="samples=16"):
+        synthesize(ws, preset="test", views=2, samples=4)
+
+
+def test_refuses_a_workspace_that_is_not_synthetic(tmp_path):
+    ws = tmp_path / "ws"
+    ws.mkdir()
+    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "video"}}))
+    with pytest.raises(IGSError, match="capture.json"):
+        synthesize(ws, preset="test", views=2)
+    with pytest.raises(IGSError, match="--views"):
+        SynthSettings.from_preset("test", views=1)
+    with pytest.raises(IGSError, match="--preset"):
+        SynthSettings.from_preset("huge")
+
+
+def test_multilayer_exr_reader_reads_uncompressed_exrs(tmp_path):
+    rng = np.random.default_rng(0)
+    img = rng.random((5, 7, 3)).astype(np.float32)
+    path = tmp_path / "x.exr"
+    ok = cv2.imwrite(str(path), img[..., ::-1], [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_FLOAT,
+                                                 cv2.IMWRITE_EXR_COMPRESSION, cv2.IMWRITE_EXR_COMPRESSION_NO])
+    assert ok
+    chans = read_multilayer_exr(path)
+    np.testing.assert_array_equal(np.stack([chans["R"], chans["G"], chans["B"]], -1), img)
+    grouped = passes({"L.Diffuse Color.R": chans["R"], "L.Diffuse Color.G": chans["G"],
+                      "L.Diffuse Color.B": chans["B"]}, "L")
+    np.testing.assert_array_equal(grouped["Diffuse Color"], img)
+    path.write_bytes(b"not an exr")
+    with pytest.raises(IGSError, match="OpenEXR"):
+        read_multilayer_exr(path)
