@@ -17,6 +17,7 @@ from backend.errors import Cancelled, IGSError
 
 # Modules with a ``register(subparsers)`` function, in the order of the pipeline.
 COMMAND_MODULES: list[str] = [
+    "backend.demo",
     "backend.capture.info",
     "backend.capture.import_commands",
     "backend.priors.commands",
