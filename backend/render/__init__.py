@@ -1,1 +1,20 @@
-"""render"""
+"""The differentiable Gaussian rasterizer: one interface, three backends.
+
+``render(means, quats, scales, opacities, colors, camera, ...) -> RenderOutput`` renders one set of
+Gaussians; ``render_layers([Splats, ...], camera, ...)`` renders several sets for one camera in one
+fused pass. Backends: ``reference`` (pure torch, the oracle), ``cpu`` (compiled numba kernel with a
+hand-written backward), ``gsplat`` (CUDA); ``auto`` picks gsplat on CUDA when installed, else cpu.
+"""
+
+from backend.render.api import (
+    BACKENDS,
+    RenderOutput,
+    Splats,
+    gsplat_available,
+    render,
+    render_layers,
+    resolve_backend,
+)
+
+__all__ = ["BACKENDS", "RenderOutput", "Splats", "gsplat_available", "render", "render_layers",
+           "resolve_backend"]

@@ -1,0 +1,112 @@
+"""Compositing a rasterised proxy over a rendered albedo image with a depth test (paper section 3.4).
+
+A proxy fragment wins a pixel when the albedo field does not cover it (``albedo_alpha <
+min_alpha``), or when the albedo surface there is not in front of the proxy by more than a
+tolerance. A decal is meant to lie exactly *on* a surface, so equal depths (up to noise) must let
+the proxy win, while real occluders (furniture in front of a wall) must hide it. Two ways to tell:
+
+1. **Centre test** (preferred; used where ``albedo_ids``, ``centres`` and ``camera`` are given and a
+   pixel has a max-contributor): the centre of the pixel's max-contributing albedo Gaussian is
+   compared with the proxy's tangent plane at that pixel — its height above the plane, converted to a
+   depth offset along the view ray (``/ cos``), must not exceed ``rel_tolerance * proxy_depth +
+   abs_tolerance``. Centres of a surface's Gaussians lie on the surface whatever the Gaussians' size,
+   and the tangent plane extends the proxy to centres that project beside it, so this test has no
+   view-angle bias: with large splats the max-contributor at a slanted view can sit 15+ pixels away
+   from the pixel (front-to-back weights favour the near side), which defeats test 2.
+2. **Expected-depth test** (fallback): ``albedo_z`` is the render's expected depth (sum w z /
+   sum w), with an extra slope tolerance ``slope_pixels * (proxy_depth / focal) * tan(angle between
+   the view ray and the surface normal)``, because the expected depth of a slanted surface is biased
+   towards the camera (front-to-back weights favour the nearer of the overlapping splats, each with
+   one constant depth). Measured on a wall of spawned Gaussians (sigma ~ 2 px) seen at 20/40/60/70
+   degrees: median bias 1.3/3.0/4.7/5.7 %, 99th percentile 1.9/4.7/8.3/10 %; the default 2 % + 4
+   footprints x tan allows 3.7/6.0/10.3/15 %, so the decal wins everywhere on its wall while an
+   occluder 10 % in front still hides it. With splats three times larger the bias reaches 7 % at
+   20 degrees and this test loses the decal; the centre test keeps it at every angle up to 70.
+
+Where the proxy wins, the edited albedo is ``albedo (1 - a) + proxy_colour a`` with ``a`` the
+proxy's alpha (texture alpha x opacity); the edit mask is those pixels with ``a > 0``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from backend.capture.cameras import Camera
+from backend.edit.mesh_raster import GRAZING_COS, ProxyRender
+
+
+@dataclass(frozen=True)
+class CompositeConfig:
+    """Depth-test settings of :func:`composite_over_albedo`."""
+
+    rel_tolerance: float = 0.02
+    """The proxy may lie this fraction of the albedo depth behind the albedo surface and still win."""
+    abs_tolerance: float = 0.0
+    """Extra absolute depth tolerance (world units)."""
+    slope_pixels: float = 4.0
+    """Expected-depth test only: extra tolerance of this many pixel footprints times tan(view angle)."""
+    min_alpha: float = 0.5
+    """Albedo pixels with accumulated alpha below this count as empty (the proxy wins)."""
+
+
+def _np(x) -> np.ndarray:
+    if hasattr(x, "detach"):  # a torch tensor from the renderer
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def proxy_wins(albedo_depth, albedo_alpha, proxy: ProxyRender, config: CompositeConfig = CompositeConfig(), *,
+               albedo_ids=None, centres=None, camera: Camera | None = None) -> np.ndarray:
+    """(H, W) bool: where the proxy is visible over the albedo field (rules in the module docstring).
+
+    albedo_depth: (H, W) expected camera z; albedo_alpha: (H, W); albedo_ids: (H, W) int64
+    max-contributor ids (-1: none) with centres: (N, 3) albedo Gaussian means and the ``camera``
+    of the render, to use the centre test.
+    """
+    d = _np(albedo_depth).astype(np.float64)
+    w = _np(albedo_alpha).astype(np.float64)
+    H, W = proxy.mask.shape
+    if d.shape != (H, W) or w.shape != (H, W):
+        raise ValueError(f"composite: shapes differ: depth {d.shape}, alpha {w.shape}, proxy render {(H, W)}")
+    empty = (w < config.min_alpha) | ~np.isfinite(d) | (d <= 0)
+    zp = proxy.depth.astype(np.float64)
+    cos = np.clip(proxy.cos.astype(np.float64), GRAZING_COS, 1.0)
+    slope = config.slope_pixels * (zp / proxy.focal) * np.sqrt(1.0 - cos * cos) / cos
+    wins = zp <= d * (1.0 + config.rel_tolerance) + config.abs_tolerance + slope
+    if albedo_ids is not None and centres is not None and camera is not None:
+        ids = _np(albedo_ids).astype(np.int64)
+        if ids.shape != (H, W):
+            raise ValueError(f"composite: ids shape {ids.shape} != proxy render {(H, W)}")
+        rows, cols = np.nonzero(proxy.mask & (ids >= 0))
+        c = _np(centres).astype(np.float64)[ids[rows, cols]]
+        z_s = zp[rows, cols]
+        rays = np.stack([(cols + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy,
+                         np.ones(len(rows))], axis=1)
+        surf = (rays * z_s[:, None] - camera.t) @ camera.R  # the proxy's surface point at the pixel
+        n = proxy.normal[rows, cols].astype(np.float64)  # towards the camera
+        # Height of the centre above the proxy's tangent plane, as a depth offset along the view ray.
+        ahead = np.sum((c - surf) * n, axis=1) / cos[rows, cols]
+        wins[rows, cols] = ahead <= z_s * config.rel_tolerance + config.abs_tolerance
+    return proxy.mask & (empty | wins)
+
+
+def composite_over_albedo(albedo, albedo_depth, albedo_alpha, proxy: ProxyRender,
+                          config: CompositeConfig = CompositeConfig(), *, albedo_ids=None, centres=None,
+                          camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Composite ``proxy`` over an albedo render.
+
+    albedo: (H, W, 3) linear RGB; albedo_depth: (H, W) expected camera z (sum w z / sum w);
+    albedo_alpha: (H, W) accumulated alpha; optional albedo_ids (H, W), centres (N, 3) and camera for
+    the centre test (numpy arrays or torch tensors). Returns the edited albedo (H, W, 3) float32 and
+    the edit mask (H, W) bool.
+    """
+    a = _np(albedo).astype(np.float32)
+    if a.shape != (*proxy.mask.shape, 3):
+        raise ValueError(f"composite: albedo shape {a.shape} != proxy render {proxy.mask.shape} x 3")
+    wins = proxy_wins(albedo_depth, albedo_alpha, proxy, config, albedo_ids=albedo_ids, centres=centres,
+                      camera=camera)
+    alpha = np.where(wins, proxy.alpha, 0.0).astype(np.float32)
+    edited = a * (1.0 - alpha[..., None]) + proxy.color * alpha[..., None]
+    return edited.astype(np.float32), alpha > 0

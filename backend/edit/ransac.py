@@ -1,0 +1,428 @@
+"""Robust fits of the edit proxies over Gaussian centres: RANSAC planes and cylinders.
+
+Both fits score hypotheses with MSAC (truncated squared residuals: inliers count by how well they
+fit, outliers by a constant) and stop adaptively once the probability of having missed an
+all-inlier sample drops below ``1 - confidence``; the winner is refined by least squares on its
+inliers and the inlier set recomputed, twice.
+
+The threshold is the inlier distance in world units. Left at ``None`` it is
+``AUTO_THRESHOLD_RATIO`` (2 %) of the points' robust size (the median distance to the
+coordinate-wise median), which suits albedo Gaussian centres that scatter around the surface by a
+fraction of the selected patch.
+
+Cylinder hypotheses (why this way): albedo Gaussian centres carry no reliable orientation, so unless
+the caller passes normals (e.g. the shortest axis of flat Gaussians) they are estimated by local PCA
+(the smallest-variance direction of the ``k`` nearest neighbours). Two oriented points then fix a
+cylinder: the axis is perpendicular to both normals (``n1 x n2``), and in the plane perpendicular to
+the axis the two normal lines meet at the axis. This is the minimal sample (2 instead of the 5 of a
+normal-free solver), so RANSAC needs few iterations even with 30-50 % outliers, and noisy PCA
+normals only make hypotheses approximate: the final Levenberg-Marquardt refinement of the
+point-to-surface distance (axis direction, axis position, radius) uses positions only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from backend.errors import IGSError
+
+AUTO_THRESHOLD_RATIO = 0.02
+MIN_PLANE_POINTS = 3
+MIN_CYLINDER_POINTS = 10
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """A plane ``normal . (x - center) = 0`` with an orthonormal in-plane frame."""
+
+    center: np.ndarray
+    """(3,) centroid of the inliers (on the plane)."""
+    normal: np.ndarray
+    """(3,) unit normal; ``u_axis x v_axis = normal``."""
+    u_axis: np.ndarray
+    """(3,) unit in-plane axis."""
+    v_axis: np.ndarray
+    """(3,) unit in-plane axis."""
+    inliers: np.ndarray
+    """(N,) bool, points within ``threshold`` of the plane."""
+    threshold: float
+    """Inlier distance used (world units)."""
+    rms: float
+    """Root-mean-square distance of the inliers to the plane."""
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) signed distances of ``points`` (N, 3) along ``normal``."""
+        return (np.asarray(points, dtype=np.float64) - self.center) @ self.normal
+
+
+@dataclass(frozen=True)
+class CylinderFit:
+    """An infinite cylinder (axis line, radius) and the height range its inliers cover."""
+
+    point: np.ndarray
+    """(3,) a point on the axis: the inliers' centroid projected onto it."""
+    axis: np.ndarray
+    """(3,) unit axis direction."""
+    radius: float
+    """Radius (world units)."""
+    inliers: np.ndarray
+    """(N,) bool, points within ``threshold`` of the surface."""
+    height_range: tuple[float, float]
+    """(h0, h1): inliers span ``point + h axis`` for h in [h0, h1]."""
+    threshold: float
+    """Inlier distance used (world units)."""
+    rms: float
+    """Root-mean-square surface distance of the inliers."""
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) signed distances of ``points`` (N, 3) to the surface (positive outside)."""
+        return _cylinder_residuals(np.asarray(points, dtype=np.float64), self.point, self.axis, self.radius)
+
+
+def _as_points(points, what: str, minimum: int) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise IGSError(f"{what}: points must have shape (N, 3), got {p.shape}")
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < minimum:
+        raise IGSError(f"{what}: too few points ({len(p)} finite, need at least {minimum}); select a larger region")
+    return p
+
+
+def robust_size(points: np.ndarray) -> float:
+    """Median distance of ``points`` (N, 3) to their coordinate-wise median."""
+    return float(np.median(np.linalg.norm(points - np.median(points, axis=0), axis=1)))
+
+
+def _auto_threshold(points: np.ndarray, threshold: float | None, what: str) -> float:
+    if threshold is None:
+        size = robust_size(points)
+        if size <= 0:
+            raise IGSError(f"{what}: the points are (almost) all identical; nothing to fit")
+        return AUTO_THRESHOLD_RATIO * size
+    if not (np.isfinite(threshold) and threshold > 0):
+        raise IGSError(f"{what}: --threshold must be a positive number, got {threshold}")
+    return float(threshold)
+
+
+def _needed_iterations(inlier_ratio: float, sample_size: int, confidence: float) -> float:
+    good = inlier_ratio**sample_size
+    if good >= 1.0:
+        return 1.0
+    if good <= 0.0:
+        return np.inf
+    return np.log(1.0 - confidence) / np.log(1.0 - good)
+
+
+def orthonormal_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (u, v) with u x v = ``normal`` (unit)."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(helper, normal)
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
+# ----------------------------------------------------------------------------------------------
+# Plane
+
+
+def _plane_lsq(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    c = points.mean(axis=0)
+    _, s, vt = np.linalg.svd(points - c, full_matrices=False)
+    if len(s) < 2 or s[1] <= 1e-9 * max(s[0], 1e-300):
+        raise IGSError(f"{what}: the inlier points are (almost) collinear; a plane is not defined")
+    return c, vt[2]
+
+
+def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2000, seed: int = 0,
+                     confidence: float = 0.999, min_inlier_ratio: float = 0.2) -> PlaneFit:
+    """RANSAC (MSAC) plane through ``points`` (N, 3) with an SVD refit on the inliers.
+
+    ``iterations`` is the upper bound (adaptive stopping at ``confidence``). Raises IGSError for
+    fewer than 3 finite points, collinear configurations, or when fewer than ``min_inlier_ratio``
+    of the points lie on the best plane.
+    """
+    what = "plane fit"
+    p = _as_points(points, what, MIN_PLANE_POINTS)
+    thr = _auto_threshold(p, threshold, what)
+    rng = np.random.default_rng(seed)
+    n_pts = len(p)
+    chunk = int(max(8, min(256, 4_000_000 // n_pts)))
+    best_cost, best = np.inf, None
+    done, needed = 0, float(iterations)
+    scale = max(robust_size(p), 1e-300)
+    while done < min(iterations, needed):
+        m = int(min(chunk, iterations - done))
+        if n_pts < 64:  # few points: avoid wasting samples on repeated indices
+            idx = np.stack([rng.choice(n_pts, 3, replace=False) for _ in range(m)])
+        else:
+            idx = rng.integers(0, n_pts, size=(m, 3))
+        a, b, c = p[idx[:, 0]], p[idx[:, 1]], p[idx[:, 2]]
+        nrm = np.cross(b - a, c - a)
+        length = np.linalg.norm(nrm, axis=1)
+        ok = length > 1e-9 * scale * scale  # three (almost) collinear samples give no plane
+        done += m
+        if not ok.any():
+            continue
+        nrm = nrm[ok] / length[ok, None]
+        d = np.abs(p @ nrm.T - np.sum(a[ok] * nrm, axis=1))  # (N, m') point-to-plane distances
+        cost = np.minimum(d * d, thr * thr).sum(axis=0)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            best_cost, best = cost[k], (a[ok][k], nrm[k])
+            ratio = float((d[:, k] < thr).mean())
+            needed = _needed_iterations(ratio, 3, confidence)
+    if best is None:
+        raise IGSError(f"{what}: all sampled point triples are collinear; the points do not span a plane")
+    center, normal = best
+    inl = np.abs((p - center) @ normal) < thr
+    for _ in range(3):  # least-squares refit, then re-select the inliers
+        if inl.sum() < 3:
+            break
+        center, normal = _plane_lsq(p[inl], what)
+        inl = np.abs((p - center) @ normal) < thr
+    ratio = float(inl.mean())
+    if inl.sum() < 3 or ratio < min_inlier_ratio:
+        raise IGSError(f"{what}: only {ratio:.0%} of the {n_pts} selected points lie within {thr:.3g} of one plane "
+                       f"(need {min_inlier_ratio:.0%}); select a flatter region or raise --threshold")
+    center = p[inl].mean(axis=0)
+    u, v = orthonormal_axes(normal)
+    # Report the mask over the caller's points (non-finite rows are never inliers).
+    full = _full_mask(points, inl)
+    rms = float(np.sqrt(np.mean(((p[inl] - center) @ normal) ** 2)))
+    return PlaneFit(center, normal, u, v, full, thr, rms)
+
+
+def _full_mask(points, inl_finite: np.ndarray) -> np.ndarray:
+    raw = np.asarray(points, dtype=np.float64)
+    finite = np.isfinite(raw).all(axis=1)
+    full = np.zeros(len(raw), dtype=bool)
+    full[np.flatnonzero(finite)] = inl_finite
+    return full
+
+
+# ----------------------------------------------------------------------------------------------
+# Cylinder
+
+
+def estimate_normals(points, k: int = 16) -> np.ndarray:
+    """(N, 3) unit normals of ``points`` (N, 3) by PCA of the ``k`` nearest neighbours (brute force).
+
+    Orientation is arbitrary (the cylinder fit does not need it). Meant for a few thousand points.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    n = len(p)
+    k = int(min(max(k, 3), n))
+    out = np.empty((n, 3))
+    sq = np.sum(p * p, axis=1)
+    for s in range(0, n, 512):  # chunks keep the distance matrix small
+        e = min(n, s + 512)
+        d2 = sq[s:e, None] - 2.0 * p[s:e] @ p.T + sq[None, :]
+        nn = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        nb = p[nn]  # (c, k, 3)
+        nb = nb - nb.mean(axis=1, keepdims=True)
+        cov = np.einsum("cki,ckj->cij", nb, nb)
+        _, vecs = np.linalg.eigh(cov)
+        out[s:e] = vecs[:, :, 0]
+    return out
+
+
+def _cylinder_residuals(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
+    q = p - point
+    radial = q - np.outer(q @ axis, axis)
+    return np.linalg.norm(radial, axis=1) - radius
+
+
+def _two_point_cylinders(p1, n1, p2, n2) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cylinders through two oriented points each: (axis (m,3), point (m,3), radius (m,), valid (m,))."""
+    axis = np.cross(n1, n2)
+    sin = np.linalg.norm(axis, axis=1)
+    valid = sin > 0.2  # normals within ~11 degrees give an unstable axis
+    axis = axis / np.maximum(sin, 1e-300)[:, None]
+
+    def flat(x):  # the component perpendicular to the axis
+        return x - np.sum(x * axis, axis=1, keepdims=True) * axis
+
+    q1, q2, m1, m2 = flat(p1), flat(p2), flat(n1), flat(n2)
+    # Closest approach of the lines q1 + s m1 and q2 + t m2 (they meet at the axis).
+    w = q1 - q2
+    a, b, c = np.sum(m1 * m1, 1), np.sum(m1 * m2, 1), np.sum(m2 * m2, 1)
+    d, e = np.sum(m1 * w, 1), np.sum(m2 * w, 1)
+    den = a * c - b * b
+    valid &= den > 1e-12
+    den = np.where(valid, den, 1.0)
+    s = (b * e - c * d) / den
+    t = (a * e - b * d) / den
+    centre = 0.5 * ((q1 + s[:, None] * m1) + (q2 + t[:, None] * m2))
+    radius = 0.5 * (np.linalg.norm(q1 - centre, axis=1) + np.linalg.norm(q2 - centre, axis=1))
+    return axis, centre, radius, valid & (radius > 0)
+
+
+def _refine_cylinder(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius: float,
+                     steps: int = 30) -> tuple[np.ndarray, np.ndarray, float]:
+    """Levenberg-Marquardt on sum (|radial(x - c)| - r)^2 over (axis tilt 2, axis shift 2, radius)."""
+    lam = 1e-3
+    cur = (point, axis, float(radius))
+
+    def model(base, x):
+        pt, ax, _ = base
+        e1, e2 = orthonormal_axes(ax)
+        new_ax = ax + x[0] * e1 + x[1] * e2
+        new_ax /= np.linalg.norm(new_ax)
+        return pt + x[2] * e1 + x[3] * e2, new_ax, base[2] + x[4]
+
+    def res(params):
+        return _cylinder_residuals(p, params[0], params[1], params[2])
+
+    r0 = res(cur)
+    cost = float(r0 @ r0)
+    scale = max(radius, 1e-12)
+    for _ in range(steps):
+        h = np.array([1e-6, 1e-6, 1e-6 * scale, 1e-6 * scale, 1e-6 * scale])
+        J = np.empty((len(p), 5))
+        for j in range(5):
+            dx = np.zeros(5)
+            dx[j] = h[j]
+            J[:, j] = (res(model(cur, dx)) - res(model(cur, -dx))) / (2 * h[j])
+        JtJ, Jtr = J.T @ J, J.T @ r0
+        improved = False
+        for _ in range(10):
+            try:
+                dx = -np.linalg.solve(JtJ + lam * np.diag(np.diag(JtJ) + 1e-12), Jtr)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            cand = model(cur, dx)
+            rc = res(cand)
+            c_cost = float(rc @ rc)
+            if c_cost < cost:
+                cur, r0, improved = cand, rc, cost - c_cost > 1e-12 * max(cost, 1e-300)
+                cost = c_cost
+                lam = max(lam / 10, 1e-9)
+                break
+            lam *= 10
+        if not improved:
+            break
+    pt, ax, r = cur
+    return pt, ax, abs(r)
+
+
+def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, iterations: int = 3000,
+                        seed: int = 0, confidence: float = 0.999, min_inlier_ratio: float = 0.2,
+                        max_points: int = 4000, knn: int = 16) -> CylinderFit:
+    """RANSAC cylinder through ``points`` (N, 3), optional ``normals`` (N, 3) (any orientation).
+
+    Without normals they come from :func:`estimate_normals`. At most ``max_points`` random points
+    drive the search (the final inlier mask covers all points). Raises IGSError for too few points,
+    configurations with no cylinder (e.g. all normals parallel: a plane), a radius much larger than
+    the selection (the points are flat: fit a plane), or too few inliers.
+    """
+    what = "cylinder fit"
+    raw = np.asarray(points, dtype=np.float64)
+    p_all = _as_points(raw, what, MIN_CYLINDER_POINTS)
+    finite = np.isfinite(raw).all(axis=1)
+    thr = _auto_threshold(p_all, threshold, what)
+    rng = np.random.default_rng(seed)
+    sub = rng.choice(len(p_all), max_points, replace=False) if len(p_all) > max_points else np.arange(len(p_all))
+    p = p_all[sub]
+    if normals is None:
+        nrm = estimate_normals(p, knn)
+    else:
+        nrm = np.asarray(normals, dtype=np.float64)
+        if nrm.shape != raw.shape:
+            raise IGSError(f"{what}: normals must have the same shape as points {raw.shape}, got {nrm.shape}")
+        nrm = nrm[finite][sub]
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        if not (np.isfinite(nrm).all() and (length > 0).all()):
+            raise IGSError(f"{what}: normals must be finite and non-zero")
+        nrm = nrm / length
+    size = robust_size(p_all)
+    n_pts = len(p)
+    chunk = int(max(8, min(256, 4_000_000 // n_pts)))
+    best_cost, best = np.inf, None
+    done, needed = 0, float(iterations)
+    while done < min(iterations, needed):
+        m = int(min(chunk, iterations - done))
+        i, j = rng.integers(0, n_pts, size=m), rng.integers(0, n_pts, size=m)
+        axis, centre, radius, ok = _two_point_cylinders(p[i], nrm[i], p[j], nrm[j])
+        ok &= (i != j) & (radius < 100.0 * size)
+        done += m
+        if not ok.any():
+            continue
+        axis, centre, radius = axis[ok], centre[ok], radius[ok]
+        # Distance to each hypothesis' axis: |q|^2 - (q.a)^2 with q = x - c, for all points at once.
+        along = p @ axis.T - np.sum(centre * axis, axis=1)  # (N, m')
+        q2 = np.sum(p * p, 1)[:, None] - 2.0 * p @ centre.T + np.sum(centre * centre, 1)[None, :]
+        dist = np.abs(np.sqrt(np.maximum(q2 - along * along, 0.0)) - radius[None, :])
+        cost = np.minimum(dist * dist, thr * thr).sum(axis=0)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            best_cost, best = cost[k], (centre[k], axis[k], float(radius[k]))
+            needed = _needed_iterations(float((dist[:, k] < thr).mean()), 2, confidence)
+    if best is None:
+        raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
+                       "the selection looks planar; use fit-plane)")
+    point, axis, radius = best
+    inl = np.abs(_cylinder_residuals(p, point, axis, radius)) < thr
+    for _ in range(2):
+        if inl.sum() < MIN_CYLINDER_POINTS:
+            break
+        point, axis, radius = _refine_cylinder(p[inl], point, axis, radius)
+        inl = np.abs(_cylinder_residuals(p, point, axis, radius)) < thr
+    if radius > 50.0 * size:
+        raise IGSError(f"{what}: the best cylinder has radius {radius:.3g}, far larger than the selection "
+                       f"({size:.3g}); the points look planar, use fit-plane")
+    inl_all = np.abs(_cylinder_residuals(p_all, point, axis, radius)) < thr
+    ratio = float(inl_all.mean())
+    if inl_all.sum() < MIN_CYLINDER_POINTS or ratio < min_inlier_ratio:
+        raise IGSError(f"{what}: only {ratio:.0%} of the {len(p_all)} selected points lie within {thr:.3g} of one "
+                       f"cylinder (need {min_inlier_ratio:.0%}); select a cleaner region or raise --threshold")
+    q = p_all[inl_all]
+    h = (q - point) @ axis
+    point = point + h.mean() * axis  # centre the axis point on the inliers
+    h = h - h.mean()
+    res = _cylinder_residuals(q, point, axis, radius)
+    return CylinderFit(point, axis, float(radius), _full_mask(raw, inl_all), (float(h.min()), float(h.max())),
+                       thr, float(np.sqrt(np.mean(res * res))))
+
+
+# ----------------------------------------------------------------------------------------------
+# Extents
+
+
+def plane_extent(fit_center: np.ndarray, u_axis: np.ndarray, v_axis: np.ndarray,
+                 points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(center (3,), size (2,)) of the smallest u/v-aligned rectangle covering ``points`` projected on the plane."""
+    q = np.asarray(points, dtype=np.float64) - fit_center
+    uu, vv = q @ u_axis, q @ v_axis
+    lo, hi = np.array([uu.min(), vv.min()]), np.array([uu.max(), vv.max()])
+    mid = 0.5 * (lo + hi)
+    return fit_center + mid[0] * u_axis + mid[1] * v_axis, hi - lo
+
+
+def cylinder_angles(points: np.ndarray, point: np.ndarray, axis: np.ndarray, x_dir: np.ndarray) -> np.ndarray:
+    """(N,) angles in degrees of ``points`` about ``axis`` measured from ``x_dir`` (right-handed), in (-180, 180]."""
+    x = x_dir - np.dot(x_dir, axis) * axis
+    x /= np.linalg.norm(x)
+    y = np.cross(axis, x)
+    q = np.asarray(points, dtype=np.float64) - point
+    return np.degrees(np.arctan2(q @ y, q @ x))
+
+
+def angle_cover(angles_deg: np.ndarray) -> tuple[float, float]:
+    """The shortest arc [a0, a1] (degrees, a0 in (-180, 180], a1 - a0 <= 360) covering all angles.
+
+    The arc is the complement of the largest gap between consecutive sorted angles.
+    """
+    a = np.sort(np.mod(np.asarray(angles_deg, dtype=np.float64), 360.0))
+    if len(a) == 0:
+        raise IGSError("cylinder extent: no points")
+    gaps = np.diff(np.concatenate([a, [a[0] + 360.0]]))
+    k = int(np.argmax(gaps))
+    start = a[(k + 1) % len(a)]
+    span = 360.0 - gaps[k]
+    if start > 180.0:
+        start -= 360.0
+    return float(start), float(start + span)

@@ -1,0 +1,179 @@
+"""The ``cpu`` backend: the numba kernels of ``cpu_projection.py`` and ``cpu_kernel.py`` as torch
+autograd Functions.
+
+Same contracts as :func:`backend.render.projection.project` and
+:func:`backend.render.reference.rasterize`. The kernels run in float32 (the projection in float64
+internally); inputs of another dtype are converted at the boundary and gradients are returned in
+the inputs' dtype. :func:`record_timings` collects where the time goes (for the benchmark).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from backend.render import cpu_kernel as K
+from backend.render import cpu_projection as P
+from backend.render.projection import BOX_MARGIN, EPS2D, CameraTensors, Projected, tile_grid
+from backend.render.threads import get_threads, run_chunks
+
+_timings: dict[str, float] | None = None
+# Work per chunk handed to a thread: large enough that a chunk's call overhead (~10 us) is noise,
+# small enough that the chunks balance the threads.
+GAUSSIANS_PER_CHUNK = 8_192
+EVALUATIONS_PER_CHUNK = 40_000
+
+
+@contextmanager
+def record_timings() -> Iterator[dict[str, float]]:
+    """Accumulate wall seconds per kernel stage into the yielded dict while the block runs."""
+    global _timings
+    _timings = {}
+    try:
+        yield _timings
+    finally:
+        _timings = None
+
+
+def _range_chunks(n: int, per_chunk: int) -> list[tuple[int, int]]:
+    k = max(1, min(-(-n // per_chunk), 4 * get_threads()))
+    edges = np.linspace(0, n, k + 1).astype(np.int64)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def _tile_chunks(cost: np.ndarray) -> list[np.ndarray]:
+    """Tiles (heaviest first) in chunks of similar cost, a few per thread."""
+    n_chunks = int(min(4 * get_threads(), max(1, cost.sum() // EVALUATIONS_PER_CHUNK)))
+    tiles, offsets = K.chunk_tiles(cost, n_chunks)
+    return [tiles[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
+
+
+def _tick(name: str, t0: float) -> float:
+    t1 = time.perf_counter()
+    if _timings is not None:
+        _timings[name] = _timings.get(name, 0.0) + t1 - t0
+    return t1
+
+
+def _np32(t: Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to(device="cpu", dtype=torch.float32).numpy())
+
+
+def _camera_args(cam: CameraTensors) -> tuple:
+    return (np.ascontiguousarray(cam.R.detach().cpu().double().numpy()),
+            np.ascontiguousarray(cam.t.detach().cpu().double().numpy()),
+            cam.fx, cam.fy, cam.cx, cam.cy, float(cam.width), float(cam.height))
+
+
+class _Project(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, cam, near, far):
+        t0 = time.perf_counter()
+        args = (_np32(means), _np32(quats), _np32(scales))
+        cam_args = _camera_args(cam)
+        n = args[0].shape[0]
+        bufs = P.forward_buffers(n)
+        fixed = (*args, _np32(opacities), *cam_args, near, far, EPS2D, BOX_MARGIN, *bufs)
+        run_chunks(P.project_forward_range, [(a, b, *fixed) for a, b in _range_chunks(n, GAUSSIANS_PER_CHUNK)])
+        m2d, con, dep, bbox, radii = bufs
+        ctx.saved = (args, cam_args, near, far)
+        ctx.dtypes = (means.dtype, quats.dtype, scales.dtype)
+        dev, dt = means.device, means.dtype
+        out = (torch.from_numpy(m2d).to(dev, dt), torch.from_numpy(con).to(dev, dt), torch.from_numpy(dep).to(dev, dt),
+               torch.from_numpy(bbox).to(dev), torch.from_numpy(radii).to(dev))
+        ctx.mark_non_differentiable(out[3], out[4])
+        _tick("project forward", t0)
+        return out
+
+    @staticmethod
+    def backward(ctx, g_m2d, g_con, g_dep, _g_bbox, _g_radii):
+        t0 = time.perf_counter()
+        args, cam_args, near, far = ctx.saved
+        n = args[0].shape[0]
+        z = lambda shape: np.zeros(shape, np.float32)  # noqa: E731
+        gm = z((n, 2)) if g_m2d is None else _np32(g_m2d)
+        gc = z((n, 3)) if g_con is None else _np32(g_con)
+        gd = z(n) if g_dep is None else _np32(g_dep)
+        bufs = P.backward_buffers(n)
+        fixed = (*args, *cam_args, near, far, EPS2D, gm, gc, gd, *bufs)
+        run_chunks(P.project_backward_range, [(a, b, *fixed) for a, b in _range_chunks(n, GAUSSIANS_PER_CHUNK)])
+        d_means, d_quats, d_scales = bufs
+        dm, dq, ds = ctx.dtypes
+        dev = g_m2d.device if g_m2d is not None else torch.device("cpu")
+        _tick("project backward", t0)
+        return (torch.from_numpy(d_means).to(dev, dm), torch.from_numpy(d_quats).to(dev, dq),
+                torch.from_numpy(d_scales).to(dev, ds), None, None, None, None)
+
+
+def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam: CameraTensors,
+            near: float = 0.01, far: float = 1e10) -> Projected:
+    """See :func:`backend.render.projection.project` (same arguments and results)."""
+    m2d, con, dep, bbox, radii = _Project.apply(means, quats, scales, opacities, cam, near, far)
+    return Projected(m2d, con, dep, opacities, bbox, radii)
+
+
+class _Rasterize(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height):
+        t0 = time.perf_counter()
+        tiles_x, tiles_y = tile_grid(width, height)
+        layer_np = np.ascontiguousarray(layer.cpu().numpy().astype(np.int32))
+        bbox_np = np.ascontiguousarray(bbox.cpu().numpy().astype(np.int32))
+        # Same order as projection.depth_order (stable: ties keep index order), without torch's threads.
+        visible = np.flatnonzero(bbox_np[:, 0] <= bbox_np[:, 1])
+        order = visible[np.argsort(_np32(depths)[visible], kind="stable")].astype(np.int64)
+        t0 = _tick("sort", t0)
+        gdat, gfeat, glay, gbox = K.pack(order, _np32(means2d), _np32(conics), _np32(opacities), _np32(feats),
+                                         layer_np, bbox_np)
+        tile_offsets, isect, rank_offsets, isect_of_rank, cost = K.bin_tiles(gbox, tiles_x, tiles_y)
+        t0 = _tick("pack and bin", t0)
+        bufs = K.forward_buffers(n_layers, height, width, gfeat.shape[1], tiles_x * tiles_y)
+        fixed = (tile_offsets, isect, gdat, gfeat, glay, gbox, order, tiles_x, *bufs)
+        run_chunks(K.rasterize_forward_tiles, [(tiles, *fixed) for tiles in _tile_chunks(cost)])
+        out_feat, out_T, last, ids, evals = bufs
+        t0 = _tick("raster forward", t0)
+        if _timings is not None:
+            _timings["forward evaluations"] = _timings.get("forward evaluations", 0.0) + float(evals.sum())
+            _timings["intersections"] = _timings.get("intersections", 0.0) + float(isect.shape[0])
+        ctx.kernel_state = (tile_offsets, isect, rank_offsets, isect_of_rank, order, evals, gdat, gfeat, glay, gbox,
+                            tiles_x, out_T, last, means2d.shape[0])
+        ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, feats.dtype)
+        ctx.device = means2d.device
+        dev, dt = feats.device, feats.dtype
+        alpha = torch.from_numpy(1.0 - out_T).to(device=dev, dtype=dt)
+        ids_t = torch.from_numpy(ids).to(dev)
+        ctx.mark_non_differentiable(ids_t)
+        return torch.from_numpy(out_feat).to(device=dev, dtype=dt), alpha, ids_t
+
+    @staticmethod
+    def backward(ctx, grad_feat, grad_alpha, _grad_ids):
+        t0 = time.perf_counter()
+        (tile_offsets, isect, rank_offsets, isect_of_rank, order, evals, gdat, gfeat, glay, gbox, tiles_x, out_T,
+         last, n) = ctx.kernel_state
+        gf = np.zeros((*out_T.shape, gfeat.shape[1]), np.float32) if grad_feat is None else _np32(grad_feat)
+        ga = np.zeros(out_T.shape, np.float32) if grad_alpha is None else _np32(grad_alpha)
+        # The backward visits what the forward evaluated (early stops included): balance on that.
+        cost = evals + 4.0 * np.diff(tile_offsets)
+        rows = np.zeros((isect.shape[0], K.N_GRAD_COLS + gfeat.shape[1]), np.float32)
+        fixed = (tile_offsets, isect, gdat, gfeat, glay, gbox, tiles_x, out_T, last, gf, ga, rows)
+        run_chunks(K.rasterize_backward_tiles, [(tiles, *fixed) for tiles in _tile_chunks(cost)])
+        t0 = _tick("raster backward", t0)
+        g = torch.from_numpy(K.reduce_rows(rows, order, rank_offsets, isect_of_rank, n)).to(ctx.device)
+        _tick("reduce", t0)
+        d_m, d_c, d_o, d_f = ctx.dtypes
+        return (g[:, 0:2].to(d_m), g[:, 2:5].to(d_c), g[:, 5].to(d_o), g[:, 6:].to(d_f),
+                None, None, None, None, None, None)
+
+
+def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, depths: Tensor,
+              bbox: Tensor, layer: Tensor | None, n_layers: int, width: int, height: int
+              ) -> tuple[Tensor, Tensor, Tensor]:
+    """See :func:`backend.render.reference.rasterize` (same arguments and results)."""
+    if layer is None:
+        layer = torch.zeros(means2d.shape[0], dtype=torch.int32)
+    return _Rasterize.apply(means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height)

@@ -1,0 +1,76 @@
+"""The ``gsplat`` backend: the same interface through gsplat's CUDA ``rasterization()``.
+
+Written against gsplat's documented API (1.x: ``rasterization(means, quats, scales, opacities, colors,
+viewmats [C,4,4], Ks [C,3,3], width, height, near_plane, far_plane, radius_clip, eps2d, sh_degree,
+packed, tile_size, backgrounds, render_mode, ...)`` returning ``(colors [C,H,W,D], alphas [C,H,W,1],
+meta)``). Its conventions match ours: wxyz quaternions, activated scales and opacities, OpenCV camera
+axes, pixel centres at +0.5, EWA with eps2d = 0.3, SH colours ``max(SH + 0.5, 0)``, "ED" = expected
+z-depth. Not verified on a GPU in this repository's CI (no CUDA there): its tests skip without CUDA.
+
+gsplat has no max-contributor output; when ids are asked for they are computed by the ``reference``
+rasterizer on the same device from our own projection (same conventions, no gradient).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from backend.capture.cameras import Camera
+from backend.errors import IGSError
+
+
+def _require_gsplat():
+    if not torch.cuda.is_available():
+        raise IGSError("backend 'gsplat' needs an NVIDIA GPU with CUDA; none is available here "
+                       "(use backend='cpu' or 'auto')")
+    try:
+        import gsplat  # noqa: PLC0415
+    except ImportError as e:
+        raise IGSError("backend 'gsplat' needs the gsplat package (pip install gsplat); "
+                       f"it could not be imported: {e}") from e
+    return gsplat
+
+
+def render_splats(splats, camera: Camera, background, near: float, far: float, return_ids: bool):
+    """Render one :class:`backend.render.api.Splats` with gsplat. Returns a RenderOutput."""
+    from backend.render.api import RenderOutput, _background  # noqa: PLC0415 (api imports this module lazily)
+
+    gsplat = _require_gsplat()
+    means = splats.means
+    if means.device.type != "cuda":
+        raise IGSError(f"backend 'gsplat' needs the Gaussians on a CUDA device, they are on {means.device}")
+    dtype = torch.float32
+    scales = torch.exp(splats.scales) if splats.log_scales else splats.scales
+    viewmats = torch.as_tensor(camera.world_to_cam, device=means.device, dtype=dtype)[None]
+    Ks = torch.as_tensor(camera.K, device=means.device, dtype=dtype)[None]
+    colors = splats.colors.to(dtype)
+    render_colors, render_alphas, meta = gsplat.rasterization(
+        means.to(dtype), splats.quats.to(dtype), scales.to(dtype), splats.opacities.to(dtype), colors,
+        viewmats, Ks, int(camera.width), int(camera.height), near_plane=near, far_plane=far,
+        eps2d=0.3, sh_degree=splats.sh_degree, packed=False, tile_size=16, backgrounds=None,
+        render_mode="RGB+ED", rasterize_mode="classic")
+    n_ch = colors.shape[-1]
+    color = render_colors[0, ..., :n_ch]
+    depth = render_colors[0, ..., n_ch]
+    alpha = render_alphas[0, ..., 0]
+    bg = _background(background, n_ch, means.device, dtype, 0)
+    if bg is not None:
+        color = color + (1.0 - alpha)[..., None] * bg
+    node = meta["means2d"]  # (1, N, 2) in pixels; keep the graph node so its .grad fills in
+    if node.requires_grad:
+        node.retain_grad()
+    radii = meta["radii"][0]
+    if radii.dim() == 2:  # gsplat >= 1.5 gives per-axis radii
+        radii = radii.max(dim=-1).values
+    ids = _reference_ids(splats, camera, near, far) if return_ids else None
+    return RenderOutput(color, depth, alpha, ids, node.detach()[0], radii.to(torch.int32), _means2d_node=node)
+
+
+@torch.no_grad()
+def _reference_ids(splats, camera: Camera, near: float, far: float) -> torch.Tensor:
+    from backend.render.api import _render_fused  # noqa: PLC0415
+
+    plain = type(splats)(splats.means, splats.quats, splats.scales, splats.opacities,
+                         splats.colors[..., :1] if splats.sh_degree is None else splats.colors[:, :1, :1],
+                         0 if splats.sh_degree is not None else None, splats.log_scales)
+    return _render_fused([plain], camera, [None], near, far, "reference", True)[0].ids

@@ -1,0 +1,208 @@
+"""The compiled ``cpu`` backend against the ``reference`` oracle: forward and every gradient."""
+
+import numpy as np
+import pytest
+import torch
+from _render_scenes import PARAMS, make_camera, random_splats, weighted_loss, with_grad
+
+from backend.render import Splats, render, render_layers
+
+
+def _render(s: Splats, cam, backend: str, background=None):
+    return render(s.means, s.quats, s.scales, s.opacities, s.colors, cam, sh_degree=s.sh_degree,
+                  log_scales=s.log_scales, background=background, backend=backend, return_ids=True)
+
+
+def _run(s: Splats, cam, backend: str, background=None):
+    leaf = with_grad(s)
+    out = _render(leaf, cam, backend, background)
+    out.means2d.retain_grad()
+    weighted_loss([out]).backward()
+    grads = {p: getattr(leaf, p).grad for p in PARAMS}
+    return out, grads
+
+
+def assert_close_grads(g_cpu, g_ref, rel=2e-4):
+    for name in PARAMS:
+        a, b = g_cpu[name], g_ref[name]
+        assert a is not None and b is not None, name
+        scale = max(float(b.abs().max()), 1e-6)
+        err = float((a - b).abs().max())
+        assert err <= rel * scale + 1e-6, f"d{name}: max error {err:.3g} vs max |grad| {scale:.3g}"
+
+
+def compare(s: Splats, cam, background=None):
+    out_c, g_c = _run(s, cam, "cpu", background)
+    out_r, g_r = _run(s, cam, "reference", background)
+    np.testing.assert_allclose(out_c.color.detach(), out_r.color.detach(), atol=2e-5)
+    np.testing.assert_allclose(out_c.alpha.detach(), out_r.alpha.detach(), atol=2e-5)
+    np.testing.assert_allclose((out_c.depth * out_c.alpha).detach(), (out_r.depth * out_r.alpha).detach(),
+                               rtol=1e-5, atol=1e-4)
+    assert (out_c.ids == out_r.ids).float().mean() > 0.999
+    assert torch.equal(out_c.radii, out_r.radii)
+    assert_close_grads(g_c, g_r)
+    np.testing.assert_allclose(out_c.means2d_grad, out_r.means2d_grad,
+                               atol=2e-4 * float(out_r.means2d_grad.abs().max()) + 1e-6)
+    return out_c, out_r, g_c
+
+
+@pytest.mark.parametrize("width,height,channels", [(37, 29, 3), (16, 16, 1), (50, 33, 7), (1, 1, 3)])
+def test_cpu_matches_reference_on_random_scenes(width, height, channels):
+    cam = make_camera(width, height)
+    s = random_splats(120, seed=width + channels, channels=channels)
+    out_c, out_r, g_c = compare(s, cam, background=torch.linspace(0.1, 0.9, channels))
+    assert out_r.alpha.max() > 0.5  # the scene is actually drawn
+    # Culled Gaussians (behind the camera, before the near plane) get exactly zero gradient.
+    assert (g_c["means"][:2] == 0).all() and (g_c["colors"][:2] == 0).all()
+
+
+def test_cpu_matches_reference_for_huge_tiny_and_nearly_opaque_gaussians():
+    cam = make_camera(45, 35)
+    s = random_splats(12, seed=11)
+    s.opacities[8:] = 0.9995  # several clamped at alpha 0.99: no gradient through the clamp
+    s.scales[9] = 5.0  # huge, in front of everything
+    s.means[9] = torch.tensor([0.0, 0.0, 1.0])
+    s.scales[10] = 1e-5  # tiny
+    out_c, out_r, g_c = compare(s, cam)
+    assert (out_r.alpha > 0.999).any()
+
+
+def test_cpu_matches_reference_with_spherical_harmonics():
+    cam = make_camera(33, 20)
+    s = random_splats(80, seed=4, sh_degree=3)
+    compare(s, cam, background=0.25)
+
+
+def test_cpu_matches_reference_with_log_scales():
+    cam = make_camera(24, 18)
+    s = random_splats(40, seed=9)
+    s = Splats(s.means, s.quats, torch.log(s.scales), s.opacities, s.colors, log_scales=True)
+    compare(s, cam)
+
+
+def test_no_gaussians_gives_the_background():
+    cam = make_camera(20, 17)
+    e = Splats(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3))
+    for backend in ("cpu", "reference"):
+        o = _render(e, cam, backend, background=[0.1, 0.2, 0.3])
+        assert o.color.shape == (17, 20, 3)
+        assert torch.allclose(o.color, torch.tensor([0.1, 0.2, 0.3]).expand(17, 20, 3))
+        assert (o.alpha == 0).all() and (o.depth == 0).all() and (o.ids == -1).all()
+
+
+def test_all_gaussians_culled_gives_zero_gradients():
+    cam = make_camera(20, 17)
+    s = random_splats(10, seed=0)
+    s.means[:, 2] = -s.means[:, 2].abs()  # all behind the camera
+    out, grads = _run(s, cam, "cpu")
+    assert (out.alpha == 0).all()
+    assert all(float(g.abs().max()) == 0 for g in grads.values())
+
+
+def test_ids_are_the_largest_weight_gaussian():
+    cam = make_camera(30, 22)
+    s = random_splats(50, seed=8)
+    o = _render(s, cam, "cpu")
+    # Removing a pixel's max contributor must change that pixel by at least its weight * colour contrast;
+    # simpler and exact: with one-hot colours per Gaussian, the largest channel is the id.
+    onehot = torch.eye(50)
+    o1 = render(s.means, s.quats, s.scales, s.opacities, onehot, cam, backend="cpu", return_ids=True)
+    w_max, arg = o1.color.max(dim=-1)
+    drawn = o1.alpha > 0
+    assert torch.equal(o1.ids[drawn], arg[drawn])
+    assert torch.equal(o.ids, o1.ids)
+    assert (o1.ids[~drawn] == -1).all()
+
+
+def test_cpu_backward_is_deterministic_whatever_the_threads(monkeypatch):
+    from backend.render import cpu as cpu_backend
+    from backend.render import threads
+
+    # Small chunks so that the tiles and Gaussians really are spread over threads.
+    monkeypatch.setattr(cpu_backend, "EVALUATIONS_PER_CHUNK", 200)
+    monkeypatch.setattr(cpu_backend, "GAUSSIANS_PER_CHUNK", 16)
+    cam = make_camera(64, 48)
+    s = random_splats(400, seed=12)
+    saved = threads.get_threads()
+    try:
+        results = []
+        for n in (3, 3, 1):
+            threads.set_threads(n)
+            results.append(_run(s, cam, "cpu"))
+    finally:
+        threads.set_threads(saved)
+    (o1, g1), (o2, g2), (o3, g3) = results
+    assert torch.equal(o1.color, o3.color) and torch.equal(o1.ids, o3.ids)
+    for p in PARAMS:
+        assert torch.equal(g1[p], g2[p]) and torch.equal(g1[p], g3[p]), p
+
+
+def test_cpu_accepts_float64_and_returns_float64_gradients():
+    cam = make_camera(20, 15)
+    s = random_splats(30, seed=6, dtype=torch.float64)
+    out, grads = _run(s, cam, "cpu")
+    assert out.color.dtype == torch.float64
+    assert all(g.dtype == torch.float64 for g in grads.values())
+    out_r, grads_r = _run(s, cam, "reference")
+    np.testing.assert_allclose(out.color.detach(), out_r.color.detach(), atol=1e-5)
+    assert_close_grads(grads, grads_r, rel=1e-3)
+
+
+def test_depth_is_the_expected_z():
+    cam = make_camera(16, 12)
+    # One opaque wall of Gaussians at z = 3: the expected depth is 3 wherever something is drawn.
+    n = 64
+    g = torch.Generator().manual_seed(0)
+    means = torch.cat([(torch.rand(n, 2, generator=g) - 0.5) * 4, torch.full((n, 1), 3.0)], 1)
+    s = Splats(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 0.3),
+               torch.full((n,), 0.7), torch.rand(n, 3, generator=g))
+    for backend in ("cpu", "reference"):
+        o = _render(s, cam, backend)
+        drawn = o.alpha > 0.01
+        assert drawn.all()
+        assert torch.allclose(o.depth[drawn], torch.tensor(3.0), atol=1e-4)
+
+
+def test_render_layers_one_layer_equals_render():
+    cam = make_camera(20, 20)
+    s = random_splats(30, seed=3)
+    a = _render(s, cam, "cpu")
+    b = render_layers([s], cam, backend="cpu", return_ids=True)[0]
+    assert torch.equal(a.color, b.color) and torch.equal(a.ids, b.ids)
+
+
+def test_cpu_projection_matches_torch_projection_and_its_gradients():
+    from backend.render import cpu as cpu_backend
+    from backend.render.projection import CameraTensors, project
+
+    cam = make_camera(57, 41)
+    s = random_splats(300, seed=13, dtype=torch.float64)
+    s.quats[7] = 0.0  # a degenerate quaternion stays finite
+    ct = CameraTensors.of(cam, torch.device("cpu"), torch.float64)
+    leaves = [with_grad(s) for _ in range(2)]
+    outs = [fn(x.means, x.quats, x.scales, x.opacities, ct) for fn, x in zip((project, cpu_backend.project), leaves)]
+    ref, got = outs
+    torch.testing.assert_close(got.means2d, ref.means2d, rtol=1e-6, atol=1e-4)
+    torch.testing.assert_close(got.conics, ref.conics, rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(got.depths, ref.depths, rtol=1e-6, atol=1e-6)
+    assert (got.bbox != ref.bbox).sum() <= 2 and (got.radii != ref.radii).sum() <= 2  # float32 rounding only
+    g = torch.Generator().manual_seed(0)
+    w = [torch.randn(t.shape, generator=g, dtype=torch.float64) for t in (ref.means2d, ref.conics, ref.depths)]
+    for o in outs:
+        (sum((wi * t).sum() for wi, t in zip(w, (o.means2d, o.conics * 100.0, o.depths)))).backward()
+    for p in ("means", "quats", "scales"):
+        a, b = getattr(leaves[1], p).grad, getattr(leaves[0], p).grad
+        torch.testing.assert_close(a, b, atol=1e-4 * float(b.abs().max()), rtol=1e-4, msg=p)
+
+
+def test_broken_gaussians_are_culled_not_smeared():
+    cam = make_camera(30, 20)
+    s = random_splats(40, seed=14)
+    s.means[10] = float("nan")
+    s.scales[11] = float("inf")
+    s.means[12] = torch.tensor([0.0, 0.0, 0.0100001])  # just past the near plane: enormous footprint
+    s.scales[13] = 1e8
+    for backend in ("cpu", "reference"):
+        o = _render(s, cam, backend)
+        assert o.radii[10] == 0
+        assert torch.isfinite(o.color).all() and torch.isfinite(o.alpha).all()

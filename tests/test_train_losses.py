@@ -1,0 +1,75 @@
+import numpy as np
+import torch
+
+from backend.train.losses import depth_l1, gray_reg, inverse_domain, l1, photometric, scale_reg, ssim, ssim_map
+
+
+def _naive_ssim_at(a, b, y, x, c, size=11, sigma=1.5):
+    """SSIM at one interior pixel, straight from the definition with a Gaussian window."""
+    r = np.arange(size) - size // 2
+    w = np.exp(-(r[:, None] ** 2 + r[None] ** 2) / (2 * sigma**2))
+    w /= w.sum()
+    pa = a[y - 5:y + 6, x - 5:x + 6, c]
+    pb = b[y - 5:y + 6, x - 5:x + 6, c]
+    ma, mb = (w * pa).sum(), (w * pb).sum()
+    va, vb = (w * pa * pa).sum() - ma**2, (w * pb * pb).sum() - mb**2
+    cov = (w * pa * pb).sum() - ma * mb
+    c1, c2 = 0.01**2, 0.03**2
+    return ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma**2 + mb**2 + c1) * (va + vb + c2))
+
+
+def test_ssim_matches_the_definition_and_is_one_for_equal_images():
+    rng = np.random.default_rng(0)
+    a = rng.random((24, 30, 3)).astype(np.float32)
+    b = np.clip(a + 0.1 * rng.normal(size=a.shape), 0, 1).astype(np.float32)
+    m = ssim_map(torch.from_numpy(a), torch.from_numpy(b)).numpy()
+    for (y, x, c) in [(12, 15, 0), (6, 5, 2), (17, 24, 1)]:
+        np.testing.assert_allclose(m[y, x, c], _naive_ssim_at(a, b, y, x, c), rtol=1e-4)
+    ta = torch.from_numpy(a)
+    assert abs(float(ssim(ta, ta)) - 1) < 1e-5
+    assert float(ssim(ta, torch.from_numpy(b))) < 0.98
+
+
+def test_photometric_is_zero_at_equality_and_differentiable():
+    a = torch.rand(16, 16, 3)
+    b = torch.rand(16, 16, 3, requires_grad=True)
+    assert float(photometric(a, a)) < 1e-6
+    loss = photometric(b, a, lambda_dssim=0.2)
+    loss.backward()
+    assert b.grad.abs().sum() > 0
+    torch.testing.assert_close(photometric(b, a, 0.0), l1(b, a))
+
+
+def test_l1_mask_and_depth_l1_ignore_pixels_without_data():
+    pred = torch.full((4, 5), 2.0)
+    target = torch.full((4, 5), 3.0)
+    target[0] = 0.0          # no depth prior there
+    target[1, 0] = float("nan")
+    pred[0] = 100.0
+    assert abs(float(depth_l1(pred, target)) - 1.0) < 1e-6
+    assert float(depth_l1(pred, torch.zeros(4, 5))) == 0.0
+    mask = torch.zeros(4, 5, dtype=torch.bool)
+    mask[2] = True
+    img = torch.zeros(4, 5, 3)
+    img[2] = 1.0
+    assert abs(float(l1(img, torch.zeros(4, 5, 3), mask)) - 1.0) < 1e-6
+
+
+def test_regularisers():
+    scales = torch.tensor([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]])
+    assert abs(float(scale_reg(scales)) - 1.0) < 1e-6
+    colors = torch.tensor([[0.5, 0.5, 0.5], [0.1, 0.9, 0.3]])
+    assert abs(float(gray_reg(colors)) - 0.4) < 1e-6
+    x = torch.tensor([0.0, 1.0, 3.0, -2.0])
+    torch.testing.assert_close(inverse_domain(x), torch.tensor([1.0, 0.5, 0.25, 1.0]))
+
+
+def test_closed_form_ssim_gradient_matches_autograd_and_finite_differences():
+    torch.manual_seed(0)
+    a = torch.rand(13, 17, 3, dtype=torch.float64, requires_grad=True)
+    b = torch.rand(13, 17, 3, dtype=torch.float64)
+    g_fast, = torch.autograd.grad(ssim(a, b), a)
+    g_ref, = torch.autograd.grad(ssim_map(a, b).mean(), a)
+    torch.testing.assert_close(g_fast, g_ref, rtol=1e-9, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda t: ssim(t, b), (a,))
+    torch.testing.assert_close(ssim(a, b), ssim_map(a, b).mean())
