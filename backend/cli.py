@@ -22,6 +22,7 @@ COMMAND_MODULES: list[str] = [
     "backend.capture.import_commands",
     "backend.priors.commands",
     "backend.capture.commands",
+    "backend.train.commands",
 ]
 
 
