@@ -37,6 +37,8 @@ from backend.io_utils import write_json
 from backend.render import Splats, gsplat_available, render, render_layers
 from backend.render import cpu as cpu_backend
 from backend.render import threads as render_threads
+from backend.render.projection import CameraTensors
+from backend.render.sh import sh_to_color
 
 
 @dataclass
@@ -101,6 +103,22 @@ def _time(fn, repeats: int, device: torch.device, warmup: bool = True) -> tuple[
         walls.append((time.perf_counter() - t0) * 1e3)
         cpus.append((time.process_time() - c0) * 1e3)
     return statistics.median(walls), statistics.median(cpus)
+
+
+def _time_interleaved(fns: dict, repeats: int) -> dict[str, tuple[float, float]]:
+    """Median (wall ms, CPU ms) of each function, run in turn within each repeat so that a change in
+    the machine's load hits all of them alike."""
+    for fn in fns.values():
+        fn()
+    walls = {k: [] for k in fns}
+    cpus = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            fn()
+            walls[k].append((time.perf_counter() - t0) * 1e3)
+            cpus[k].append((time.process_time() - c0) * 1e3)
+    return {k: (statistics.median(walls[k]), statistics.median(cpus[k])) for k in fns}
 
 
 def _render_fn(sets: list[Splats], cam, backend: str, grad: bool, fused: bool):
@@ -193,9 +211,6 @@ def bench_fused(cfg: BenchConfig, log) -> list[dict]:
         sets = list(layers.values())
         # "One render of the same total count": the union of the three sets as one set of colours
         # (the residual's SH evaluated to RGB, as the fused pass does before blending).
-        from backend.render.projection import CameraTensors
-        from backend.render.sh import sh_to_color
-
         ct = CameraTensors.of(cam, cpu, torch.float32)
         rgb = [x.colors if x.sh_degree is None else sh_to_color(x.sh_degree, x.colors, x.means, ct.center)
                for x in sets]
@@ -204,12 +219,23 @@ def bench_fused(cfg: BenchConfig, log) -> list[dict]:
                        torch.cat(rgb).detach())
         row = {"width": w, "height": h, "gaussians": cfg.fused_count,
                "layers": {k: len(v) for k, v in layers.items()}}
+        # Pixel work, independent of the machine's load: the fused pass keeps each layer blending until
+        # that layer saturates, the union stops a pixel when all of them together do.
+        for name, fn in (("fused", _render_fn(sets, cam, "cpu", False, True)),
+                         ("separate", _render_fn(sets, cam, "cpu", False, False)),
+                         ("union", _render_fn([union], cam, "cpu", False, False))):
+            with cpu_backend.record_timings() as t:
+                fn()
+            row[f"{name}_evaluations"] = t["forward evaluations"]
         for grad, tag in ((False, "forward"), (True, "fwdbwd")):
-            row[f"fused_{tag}_ms"] = _time(_render_fn(sets, cam, "cpu", grad, True), cfg.repeats, cpu)[0]
-            row[f"separate_{tag}_ms"] = _time(_render_fn(sets, cam, "cpu", grad, False), cfg.repeats, cpu)[0]
-            row[f"union_{tag}_ms"] = _time(_render_fn([union], cam, "cpu", grad, False), cfg.repeats, cpu)[0]
-            row[f"fused_over_union_{tag}"] = row[f"fused_{tag}_ms"] / row[f"union_{tag}_ms"]
-            row[f"separate_over_union_{tag}"] = row[f"separate_{tag}_ms"] / row[f"union_{tag}_ms"]
+            timed = _time_interleaved({"fused": _render_fn(sets, cam, "cpu", grad, True),
+                                       "separate": _render_fn(sets, cam, "cpu", grad, False),
+                                       "union": _render_fn([union], cam, "cpu", grad, False)}, cfg.repeats)
+            for name, (wall, cpu_ms) in timed.items():
+                row[f"{name}_{tag}_ms"], row[f"{name}_{tag}_cpu_ms"] = wall, cpu_ms
+            for name in ("fused", "separate"):
+                row[f"{name}_over_union_{tag}"] = row[f"{name}_{tag}_ms"] / row[f"union_{tag}_ms"]
+                row[f"{name}_over_union_{tag}_cpu"] = row[f"{name}_{tag}_cpu_ms"] / row[f"union_{tag}_cpu_ms"]
         log(f"  {w}x{h} fused {row['fused_fwdbwd_ms']:.1f} ms, separate {row['separate_fwdbwd_ms']:.1f} ms, "
             f"union {row['union_fwdbwd_ms']:.1f} ms (forward+backward)")
         rows.append(row)
@@ -229,32 +255,40 @@ def profile_cpu(cfg: BenchConfig, threads: int) -> dict:
             run()
         wall = (time.perf_counter() - t0) * 1e3 / reps
         cpu_ms = (time.process_time() - c0) * 1e3 / reps
-    stages = {k: v * 1e3 / reps for k, v in t.items() if k not in ("forward evaluations", "intersections")}
+    counts = ("forward evaluations", "intersections")
+    stages = {k: v * 1e3 / reps for k, v in t.items() if k not in counts and not k.endswith(" cpu")}
+    stages_cpu = {k[:-4]: v * 1e3 / reps for k, v in t.items() if k.endswith(" cpu")}
     evals = t.get("forward evaluations", 0.0) / reps
-    kernel_s = stages.get("raster forward", 0.0) / 1e3
+    kernel_cpu_s = stages_cpu.get("raster forward", 0.0) / 1e3
     return {
         "width": w, "height": h, "gaussians": n, "threads": threads,
         "fwdbwd_wall_ms": wall, "fwdbwd_cpu_ms": cpu_ms,
-        "stages_ms": stages,
+        "stages_ms": stages, "stages_cpu_ms": stages_cpu,
         "other_ms": wall - sum(stages.values()),
+        "other_cpu_ms": cpu_ms - sum(stages_cpu.values()),
         "intersections": t.get("intersections", 0.0) / reps,
         "forward_evaluations": evals,
-        "forward_evaluations_per_s_per_core": evals / max(kernel_s * threads, 1e-12),
+        # per second of CPU time spent in the kernel: per busy core, whatever the machine's load
+        "forward_evaluations_per_s_per_core": evals / max(kernel_cpu_s, 1e-12),
+        "us_per_pixel": wall * 1e3 / (w * h),
+        "cpu_us_per_pixel": cpu_ms * 1e3 / (w * h),
     }
 
 
 def format_report(result: dict) -> str:
     scene = result["config"].get("workspace") or "procedural room scene"
+    # "x CPU": the same ratio in process CPU time, which a busy machine distorts less than wall time.
     lines = ["", f"Rasterizer: reference (pure torch) vs cpu (numba kernel), {scene}",
              f"{'size':>9} {'N':>7} | {'ref fwd':>9} {'cpu fwd':>8} {'x':>5} | {'ref f+b':>9} {'cpu f+b':>8} "
-             f"{'x':>5} | {'cpu us/px':>9}" + (" | gsplat fwd  f+b" if any("gsplat_forward_ms" in r for r in
+             f"{'x':>5} {'x CPU':>6} | {'cpu us/px':>9}" + (" | gsplat fwd  f+b" if any("gsplat_forward_ms" in r for r in
                                                                             result["backends"]) else "")]
     for r in result["backends"]:
         ref_fb = r.get("reference_fwdbwd_ms")
         line = (f"{r['width']:>4}x{r['height']:<4} {r['gaussians']:>7} | {r['reference_forward_ms']:>7.0f}ms "
                 f"{r['cpu_forward_ms']:>6.1f}ms {r['reference_forward_ms'] / r['cpu_forward_ms']:>5.0f} | "
-                + (f"{ref_fb:>7.0f}ms {r['cpu_fwdbwd_ms']:>6.1f}ms {ref_fb / r['cpu_fwdbwd_ms']:>5.0f}"
-                   if ref_fb is not None else f"{'skipped':>9} {r['cpu_fwdbwd_ms']:>6.1f}ms {'-':>5}")
+                + (f"{ref_fb:>7.0f}ms {r['cpu_fwdbwd_ms']:>6.1f}ms {ref_fb / r['cpu_fwdbwd_ms']:>5.0f} "
+                   f"{r['reference_fwdbwd_cpu_ms'] / r['cpu_fwdbwd_cpu_ms']:>6.0f}"
+                   if ref_fb is not None else f"{'skipped':>9} {r['cpu_fwdbwd_ms']:>6.1f}ms {'-':>5} {'-':>6}")
                 + f" | {r['cpu_fwdbwd_us_per_pixel']:>9.2f}")
         if "gsplat_forward_ms" in r:
             line += f" | {r['gsplat_forward_ms']:>7.2f}ms {r['gsplat_fwdbwd_ms']:.2f}ms"
@@ -263,23 +297,28 @@ def format_report(result: dict) -> str:
             lines.append(f"{'':>18}reference: {r['reference_note']}")
     lines += ["", "Three layers (albedo/shading/residual) for one camera, cpu backend",
               f"{'size':>9} {'N':>7} | {'fused':>8} {'separate':>9} {'union':>8} | {'fused/union':>11} "
-              f"{'separate/union':>14}   (forward+backward; forward in brackets)"]
+              f"{'separate/union':>14} | {'in CPU time':>11} | {'evaluations':>11}   (fused/union and separate/union; "
+              f"forward+backward, forward in brackets)"]
     for r in result["fused"]:
         lines.append(f"{r['width']:>4}x{r['height']:<4} {r['gaussians']:>7} | {r['fused_fwdbwd_ms']:>6.1f}ms "
                      f"{r['separate_fwdbwd_ms']:>7.1f}ms {r['union_fwdbwd_ms']:>6.1f}ms | "
                      f"{r['fused_over_union_fwdbwd']:>5.2f} ({r['fused_over_union_forward']:.2f}) "
-                     f"{r['separate_over_union_fwdbwd']:>8.2f} ({r['separate_over_union_forward']:.2f})")
+                     f"{r['separate_over_union_fwdbwd']:>8.2f} ({r['separate_over_union_forward']:.2f}) | "
+                     f"{r['fused_over_union_fwdbwd_cpu']:.2f} {r['separate_over_union_fwdbwd_cpu']:.2f} | "
+                     f"{r['fused_evaluations'] / r['union_evaluations']:>11.2f}")
     p = result["profile"]
     m = result["machine"]
     lines += ["", f"cpu forward+backward at {p['width']}x{p['height']}, {p['gaussians']} Gaussians, "
                   f"{p['threads']} kernel threads, {m['torch_threads']} torch threads, load average "
                   f"{m['load_average'][0]:.1f}: {p['fwdbwd_wall_ms']:.1f} ms wall, {p['fwdbwd_cpu_ms']:.1f} ms CPU"]
+    lines.append(f"  {'stage':<20} {'wall ms':>8} {'CPU ms':>8}")
     for k, v in p["stages_ms"].items():
-        lines.append(f"  {k:<20} {v:7.2f} ms  {100 * v / p['fwdbwd_wall_ms']:5.1f} %")
-    lines.append(f"  {'torch glue + SH':<20} {p['other_ms']:7.2f} ms  {100 * p['other_ms'] / p['fwdbwd_wall_ms']:5.1f} %")
+        lines.append(f"  {k:<20} {v:8.2f} {p['stages_cpu_ms'].get(k, 0.0):8.2f}")
+    lines.append(f"  {'torch glue + SH':<20} {p['other_ms']:8.2f} {p['other_cpu_ms']:8.2f}")
     lines.append(f"  {p['intersections']:.0f} tile intersections, {p['forward_evaluations']:.0f} forward "
-                 f"(pixel, Gaussian) evaluations: {p['forward_evaluations_per_s_per_core'] / 1e6:.0f} M/s per core "
-                 f"in the forward kernel")
+                 f"(pixel, Gaussian) evaluations: {p['forward_evaluations_per_s_per_core'] / 1e6:.0f} M per CPU "
+                 f"second in the forward kernel; {p['us_per_pixel']:.2f} us wall, {p['cpu_us_per_pixel']:.2f} "
+                 f"us CPU per pixel for forward+backward")
     return "\n".join(lines)
 
 

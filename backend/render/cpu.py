@@ -31,7 +31,8 @@ EVALUATIONS_PER_CHUNK = 40_000
 
 @contextmanager
 def record_timings() -> Iterator[dict[str, float]]:
-    """Accumulate wall seconds per kernel stage into the yielded dict while the block runs."""
+    """Accumulate seconds per kernel stage into the yielded dict while the block runs: ``name`` wall
+    seconds, ``name cpu`` process CPU seconds (all threads), plus evaluation and intersection counts."""
     global _timings
     _timings = {}
     try:
@@ -53,10 +54,15 @@ def _tile_chunks(cost: np.ndarray) -> list[np.ndarray]:
     return [tiles[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
 
 
-def _tick(name: str, t0: float) -> float:
-    t1 = time.perf_counter()
+def _now() -> tuple[float, float]:
+    return time.perf_counter(), time.process_time()
+
+
+def _tick(name: str, t0: tuple[float, float]) -> tuple[float, float]:
+    t1 = _now()
     if _timings is not None:
-        _timings[name] = _timings.get(name, 0.0) + t1 - t0
+        _timings[name] = _timings.get(name, 0.0) + t1[0] - t0[0]
+        _timings[name + " cpu"] = _timings.get(name + " cpu", 0.0) + t1[1] - t0[1]
     return t1
 
 
@@ -73,7 +79,7 @@ def _camera_args(cam: CameraTensors) -> tuple:
 class _Project(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, cam, near, far):
-        t0 = time.perf_counter()
+        t0 = _now()
         args = (_np32(means), _np32(quats), _np32(scales))
         cam_args = _camera_args(cam)
         n = args[0].shape[0]
@@ -92,7 +98,7 @@ class _Project(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_m2d, g_con, g_dep, _g_bbox, _g_radii):
-        t0 = time.perf_counter()
+        t0 = _now()
         args, cam_args, near, far = ctx.saved
         n = args[0].shape[0]
         z = lambda shape: np.zeros(shape, np.float32)  # noqa: E731
@@ -120,7 +126,7 @@ def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height):
-        t0 = time.perf_counter()
+        t0 = _now()
         tiles_x, tiles_y = tile_grid(width, height)
         layer_np = np.ascontiguousarray(layer.cpu().numpy().astype(np.int32))
         bbox_np = np.ascontiguousarray(bbox.cpu().numpy().astype(np.int32))
@@ -152,7 +158,7 @@ class _Rasterize(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_feat, grad_alpha, _grad_ids):
-        t0 = time.perf_counter()
+        t0 = _now()
         (tile_offsets, isect, rank_offsets, isect_of_rank, order, evals, gdat, gfeat, glay, gbox, tiles_x, out_T,
          last, n) = ctx.kernel_state
         gf = np.zeros((*out_T.shape, gfeat.shape[1]), np.float32) if grad_feat is None else _np32(grad_feat)

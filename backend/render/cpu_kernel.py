@@ -144,41 +144,43 @@ def chunk_tiles(cost, n_chunks):
 
 
 @njit(cache=True, inline="always")
-def _row_span(gdat, r, y, x0, x1):
+def _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1):
     """Pixels [xa, xb] of row y (within [x0, x1]) inside the ellipse where power >= the cut-off.
 
     The box bounds the whole ellipse; on one row the ellipse is an interval, and skipping the box's
     corners saves a fifth to a half of the visits. Float64 and a margin: an excluded pixel has
     power < cut-off by far, so the decision stays with :func:`_alpha`.
     """
-    ca, cb, cc = np.float64(gdat[r, 2]), np.float64(gdat[r, 3]), np.float64(gdat[r, 4])
-    q = -2.0 * np.float64(gdat[r, 6])  # ca dx^2 + 2 cb dx dy + cc dy^2 <= q
-    dy = np.float64(gdat[r, 1]) - (y + 0.5)
-    bdy = cb * dy
-    disc = bdy * bdy - ca * (cc * dy * dy - q)
+    a, b, c = np.float64(ca), np.float64(cb), np.float64(cc)
+    q = -2.0 * np.float64(pcut)  # a dx^2 + 2 b dx dy + c dy^2 <= q
+    dy = np.float64(my) - (y + 0.5)
+    bdy = b * dy
+    disc = bdy * bdy - a * (c * dy * dy - q)
     if not disc >= 0.0:  # also false for NaN
         return x0, x0 - 1
     sq = math.sqrt(disc)
-    mx = np.float64(gdat[r, 0])
+    m = np.float64(mx)
     # Clamp in float before rounding: huge footprints must not overflow the integer conversion.
-    lo = min(max(mx - (sq - bdy) / ca - 0.5 - SPAN_MARGIN, -1.0), 1e9)
-    hi = min(max(mx + (sq + bdy) / ca - 0.5 + SPAN_MARGIN, -1.0), 1e9)
+    lo = min(max(m - (sq - bdy) / a - 0.5 - SPAN_MARGIN, -1.0), 1e9)
+    hi = min(max(m + (sq + bdy) / a - 0.5 + SPAN_MARGIN, -1.0), 1e9)
     return max(x0, int(math.ceil(lo))), min(x1, int(math.floor(hi)))
 
 
 @njit(cache=True, inline="always")
-def _alpha(gdat, r, x, y):
-    """(alpha, exp(power), dx, dy, unclamped) of packed Gaussian r at pixel (x, y); alpha 0 if skipped.
+def _alpha(mx, my, ca, cb, cc, o, pcut, x, y):
+    """(alpha, exp(power), dx, dy, unclamped) of one Gaussian at pixel (x, y); alpha 0 if skipped.
 
-    The forward and the backward both call this so that they take the same skip decisions.
+    The forward and the backward both call this so that they take the same skip decisions. The
+    Gaussian's values come in as locals: read from the packed array inside the pixel loop, the
+    compiler would reload them after every store to the (possibly aliasing) outputs.
     """
-    dx = gdat[r, 0] - (F32(x) + HALF)
-    dy = gdat[r, 1] - (F32(y) + HALF)
-    power = NEG_HALF * (gdat[r, 2] * dx * dx + gdat[r, 4] * dy * dy) - gdat[r, 3] * dx * dy
-    if power > ZERO or power < gdat[r, 6]:
+    dx = mx - (F32(x) + HALF)
+    dy = my - (F32(y) + HALF)
+    power = NEG_HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+    if power > ZERO or power < pcut:
         return ZERO, ZERO, dx, dy, False
     g = F32(math.exp(power))
-    a = gdat[r, 5] * g
+    a = o * g
     free = True
     if a > ALPHA_MAX:
         a = ALPHA_MAX
@@ -230,13 +232,15 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
             x1 = min(gbox[r, 1], px1)
             y0 = max(gbox[r, 2], py0)
             y1 = min(gbox[r, 3], py1)
+            mx, my, ca, cb, cc = gdat[r, 0], gdat[r, 1], gdat[r, 2], gdat[r, 3], gdat[r, 4]
+            o, pcut, gid = gdat[r, 5], gdat[r, 6], order[r]
             for y in range(y0, y1 + 1):
-                xa, xb = _row_span(gdat, r, y, x0, x1)
+                xa, xb = _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1)
                 for x in range(xa, xb + 1):
                     if done[lay, y - py0, x - px0]:
                         continue
                     evals += 1
-                    a, _g, _dx, _dy, _free = _alpha(gdat, r, x, y)
+                    a, _g, _dx, _dy, _free = _alpha(mx, my, ca, cb, cc, o, pcut, x, y)
                     if a == ZERO:
                         continue
                     T = out_T[lay, y, x]
@@ -251,7 +255,7 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
                         out_feat[lay, y, x, ch] += w * gfeat[r, ch]
                     if w > best_w[lay, y - py0, x - px0]:
                         best_w[lay, y - py0, x - px0] = w
-                        ids[lay, y, x] = order[r]
+                        ids[lay, y, x] = gid
                     out_T[lay, y, x] = next_T
                     last[lay, y, x] = k
             if n_alive == 0:
@@ -274,26 +278,31 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
     T_cur = np.empty((n_layers, TILE, TILE), np.float32)
     behind = np.empty((n_layers, TILE, TILE, n_feat), np.float32)
     g_feat = np.empty(n_feat, np.float32)
+    layer_stop = np.empty(n_layers, np.int64)
     for t in tiles:
         px0 = (t % tiles_x) * TILE
         py0 = (t // tiles_x) * TILE
         px1 = min(px0 + TILE, width) - 1
         py1 = min(py0 + TILE, height) - 1
-        k_stop = -1  # nothing after the tile's last contributor needs visiting
+        # Nothing after a layer's last contributor in this tile needs visiting.
+        layer_stop[:] = -1
         for lay in range(n_layers):
             for y in range(py0, py1 + 1):
                 for x in range(px0, px1 + 1):
                     T_cur[lay, y - py0, x - px0] = out_T[lay, y, x]
-                    k_stop = max(k_stop, last[lay, y, x])
+                    layer_stop[lay] = max(layer_stop[lay], last[lay, y, x])
         behind[:] = ZERO
-        for k in range(k_stop, tile_offsets[t] - 1, -1):
+        for k in range(layer_stop.max(), tile_offsets[t] - 1, -1):
             r = isect[k]
             lay = glay[r]
+            if k > layer_stop[lay]:
+                continue
             x0 = max(gbox[r, 0], px0)
             x1 = min(gbox[r, 1], px1)
             y0 = max(gbox[r, 2], py0)
             y1 = min(gbox[r, 3], py1)
-            ca, cb, cc = gdat[r, 2], gdat[r, 3], gdat[r, 4]
+            mx, my, ca, cb, cc = gdat[r, 0], gdat[r, 1], gdat[r, 2], gdat[r, 3], gdat[r, 4]
+            o, pcut = gdat[r, 5], gdat[r, 6]
             g_mx = ZERO
             g_my = ZERO
             g_a = ZERO
@@ -302,11 +311,11 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
             g_o = ZERO
             g_feat[:] = ZERO
             for y in range(y0, y1 + 1):
-                xa, xb = _row_span(gdat, r, y, x0, x1)
+                xa, xb = _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1)
                 for x in range(xa, xb + 1):
                     if k > last[lay, y, x]:
                         continue
-                    a, gauss, dx, dy, free = _alpha(gdat, r, x, y)
+                    a, gauss, dx, dy, free = _alpha(mx, my, ca, cb, cc, o, pcut, x, y)
                     if a == ZERO:
                         continue
                     ly, lx = y - py0, x - px0
