@@ -23,6 +23,9 @@ COMMAND_MODULES: list[str] = [
     "backend.priors.commands",
     "backend.capture.commands",
     "backend.train.commands",
+    "backend.train.decompose_commands",
+    "backend.edit.commands",
+    "backend.eval.render_views",
 ]
 
 

@@ -1,7 +1,16 @@
 import numpy as np
 import torch
 
-from backend.train.losses import depth_l1, gray_reg, inverse_domain, l1, photometric, scale_reg, ssim, ssim_map
+from backend.train.losses import (
+    depth_l1,
+    gray_reg,
+    inverse_domain,
+    l1,
+    photometric,
+    scale_reg,
+    ssim,
+    ssim_map,
+)
 
 
 def _naive_ssim_at(a, b, y, x, c, size=11, sigma=1.5):

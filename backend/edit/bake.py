@@ -1,0 +1,391 @@
+"""The edit bake (paper section 3.4): a proxy painted into the albedo field G_A.
+
+1. The edit view renders G_A (colour, expected depth, max-contributor ids) and the proxy is
+   composited over it with the centre depth test (:func:`backend.edit.composite.composite_over_albedo`);
+   the pixels where it wins are the edit pixels.
+2. ``views`` virtual cameras on a cap around the edit view (:func:`backend.edit.views.hemisphere_views`)
+   render the same composite: the edited albedo seen from around the edit view.
+3. New flat albedo Gaussians are spawned on the proxy at ``spawn_fraction`` of the edit pixels of the
+   edit view (:func:`backend.edit.views.flattened_gaussians`).
+4. G_A alone is re-optimised with the albedo loss (L1 + D-SSIM, linear albedo) on the edited views;
+   G_S and G_R are never read. So that the albedo outside the edit stays as it was, only the new
+   Gaussians and the old ones that contribute to an edit pixel of some edited view may change (the
+   others get no gradient), and ``anchor_views`` training views rendered from the original G_A
+   before the bake keep supervising the editable ones where they spill outside the edit.
+5. The result goes to ``<ws>/edits/<name>/albedo.ply`` beside a copy of the proxy and
+   ``bake.json`` (settings and the measured change inside and outside the edit on held-out views);
+   ``<ws>/layers`` is never written, so edits can be undone (delete the folder) or stacked
+   (``base``: start from another edit's albedo).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from backend import events
+from backend.capture.cameras import Camera
+from backend.capture.imageio import linear_to_srgb
+from backend.capture.workspace import Capture, Workspace, load_capture, split_frames
+from backend.edit.composite import composite_over_albedo
+from backend.edit.mesh_raster import ProxyRender, rasterize_proxy
+from backend.edit.proxy import ProxyMesh, load_proxy, save_proxy
+from backend.edit.views import (
+    check_proxy_visible,
+    flattened_gaussians,
+    hemisphere_views,
+    proxy_target,
+    spawn_points_on_proxy,
+)
+from backend.errors import IGSError
+from backend.io_utils import write_json
+from backend.render import RenderOutput, render
+from backend.splats.gaussians import GaussianSet
+from backend.splats.ply import read_ply, write_ply
+from backend.splats.strategy import scene_extent
+from backend.train.loop import LearningRates, Stage, TrainConfig, train
+from backend.train.losses import photometric
+from backend.train.views import View, view_camera
+
+EDIT_JSON = "edit.json"
+BAKE_JSON = "bake.json"
+
+
+@dataclass
+class BakeConfig:
+    """Settings of :func:`bake_edit`."""
+
+    view: str | None = None
+    """Edit view name; None: the one recorded by the fit (``edit.json``), else the view seeing the proxy best."""
+    views: int = 8
+    """Virtual views on the cap around the edit view (0: single-view bake, the edit view only)."""
+    max_angle: float = 30.0
+    """Half-angle of the cap of virtual views, degrees."""
+    spawn_fraction: float = 0.2
+    """New albedo Gaussians at this fraction of the edit view's edit pixels."""
+    iterations: int = 300
+    """Re-optimisation steps of G_A (one view per step)."""
+    anchor_views: int = 8
+    """Training views rendered from the original G_A that keep supervising the albedo (0: none)."""
+    restrict: bool = True
+    """Only new Gaussians and those contributing to edit pixels are optimised (the rest is frozen)."""
+    base: str | None = None
+    """Start from ``<ws>/edits/<base>/albedo.ply`` (stacking edits) instead of ``<ws>/layers/albedo.ply``."""
+    downscale: float = 1.0
+    """Divide image sizes by this factor."""
+    backend: str = "auto"
+    """Renderer backend."""
+    seed: int = 0
+    """Random seed (virtual views, spawned pixels, view order)."""
+    lambda_dssim: float = 0.2
+    """D-SSIM weight of the albedo loss."""
+    color_lr: float = 0.02
+    """Adam rate of the albedo colour logits: a bake is short and colours must move far (3DGS: 2.5e-3)."""
+    outside_margin: int = 3
+    """Pixels around the edit mask excluded from the "outside" measurement (splat footprints at the border)."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Inputs
+
+
+def edit_dir(ws: Workspace, name: str) -> Path:
+    if not name or "/" in name or "\\" in name or name in (".", ".."):
+        raise IGSError(f"--name must be a plain folder name, got {name!r}")
+    return ws.edits / name
+
+
+def load_albedo(ws: Workspace, base: str | None) -> tuple[GaussianSet, Path]:
+    """The albedo layer to edit: ``<ws>/layers/albedo.ply`` or another edit's result."""
+    path = edit_dir(ws, base) / "albedo.ply" if base else ws.layers / "albedo.ply"
+    if not path.exists():
+        hint = (f"bake edit '{base}' first" if base else "run `igs decompose` first")
+        raise IGSError(f"{path}: no albedo layer to edit; {hint}")
+    g, _ = read_ply(path, kind="albedo")
+    return g, path
+
+
+def choose_edit_view(capture: Capture, proxy: ProxyMesh, downscale: float) -> Camera:
+    """The view in which the proxy covers the most pixels at a usable angle."""
+    best, best_n = None, 0
+    for f in capture.frames:
+        cam = view_camera(f.camera, downscale)
+        n = int(rasterize_proxy(proxy, cam).mask.sum())
+        if n > best_n:
+            best, best_n = cam, n
+    if best is None:
+        raise IGSError(f"proxy '{proxy.name}' is not seen by any view of {capture.workspace.root}; "
+                       "move it onto a surface of the scene")
+    return best
+
+
+def resolve_view(capture: Capture, proxy: ProxyMesh, proxy_path: Path | None, config: BakeConfig) -> Camera:
+    name = config.view
+    if name is None and proxy_path is not None:
+        meta = proxy_path.parent / EDIT_JSON
+        if meta.exists():
+            try:
+                name = json.loads(meta.read_text()).get("edit_view")
+            except (OSError, json.JSONDecodeError) as e:
+                raise IGSError(f"{meta}: unreadable ({e})") from e
+    if name is None:
+        return choose_edit_view(capture, proxy, config.downscale)
+    return view_camera(capture.frame(name).camera, config.downscale)
+
+
+# ----------------------------------------------------------------------------------------------
+# Rendering helpers
+
+
+def render_albedo(g: GaussianSet, camera: Camera, backend: str, return_ids: bool = False) -> RenderOutput:
+    with torch.no_grad():
+        return render(**g.render_args(), camera=camera, backend=backend, return_ids=return_ids)
+
+
+def edited_albedo(g: GaussianSet, proxy: ProxyMesh, camera: Camera, backend: str,
+                  proxy_render: ProxyRender | None = None) -> tuple[np.ndarray, np.ndarray, RenderOutput]:
+    """(edited albedo (H, W, 3) linear, edit mask (H, W) bool, the albedo render) for one view."""
+    out = render_albedo(g, camera, backend, return_ids=True)
+    pr = rasterize_proxy(proxy, camera) if proxy_render is None else proxy_render
+    edited, mask = composite_over_albedo(out.color, out.depth, out.alpha, pr, albedo_ids=out.ids,
+                                         centres=g.means.detach(), camera=camera)
+    return edited, mask, out
+
+
+def raw_params(flat: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """Albedo GaussianSet raw parameters of :func:`flattened_gaussians`' activated values."""
+    t = {k: torch.from_numpy(np.ascontiguousarray(v)).float() for k, v in flat.items()}
+    return {"means": t["means"], "quats": t["quats"], "log_scales": t["log_scales"],
+            "opacity_logits": torch.logit(t["opacities"].clamp(1e-4, 1 - 1e-4)),
+            "colors": torch.logit(t["colors"].clamp(1e-4, 1 - 1e-4))}
+
+
+def contributors(g: GaussianSet, views: list[View], backend: str) -> torch.Tensor:
+    """(N,) bool: Gaussians with a non-zero blending weight in some edit pixel of ``views``.
+
+    One backward pass per view of ``sum(alpha * mask)`` w.r.t. the opacities.
+    """
+    hit = torch.zeros(len(g), dtype=torch.bool)
+    for v in views:
+        mask = v.extras["mask"]
+        if not mask.any():
+            continue
+        op = g.opacities.detach().clone().requires_grad_(True)
+        args = g.render_args()
+        out = render(args["means"].detach(), args["quats"].detach(), args["scales"].detach(), op,
+                     args["colors"].detach(), v.camera, log_scales=True, backend=backend)
+        (out.alpha * mask).sum().backward()
+        hit |= op.grad.abs() > 0
+    return hit
+
+
+def paint_surface_gaussians(g: GaussianSet, camera: Camera, edited: np.ndarray, mask: np.ndarray,
+                            pr: ProxyRender, tolerance: float = 0.02) -> int:
+    """Give the old Gaussians lying on the proxy under the edit the edited colour at their pixel.
+
+    A centre counts when it projects into an edit pixel of ``camera`` and its camera z is within
+    ``tolerance`` (relative) of the proxy's depth there. Starting from the painted colour, the short
+    re-optimisation only has to refine. Returns how many were painted.
+    """
+    with torch.no_grad():
+        uv, z = camera.project(g.means.detach().double().numpy())
+        col = np.floor(uv[:, 0]).astype(np.int64)
+        row = np.floor(uv[:, 1]).astype(np.int64)
+        ok = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+        idx = np.flatnonzero(ok)
+        r, c = row[idx], col[idx]
+        on = mask[r, c] & (np.abs(z[idx] - pr.depth[r, c]) <= tolerance * z[idx])
+        idx, r, c = idx[on], r[on], c[on]
+        if len(idx):
+            rgb = torch.from_numpy(edited[r, c]).float().clamp(1e-4, 1 - 1e-4)
+            g.params["colors"][torch.from_numpy(idx)] = torch.logit(rgb)
+    return len(idx)
+
+
+# ----------------------------------------------------------------------------------------------
+# The re-optimisation stage
+
+
+class BakeStage(Stage):
+    """G_A against edited (and anchor) albedo images; rows outside ``editable`` get no gradient."""
+
+    def __init__(self, *args, editable: torch.Tensor | None, **kw):
+        super().__init__(*args, **kw)
+        self.editable = editable
+
+    def render(self, view: View) -> RenderOutput:
+        args = self.gaussians.render_args()
+        if self.editable is not None:
+            e = self.editable
+            for k in ("means", "quats", "scales", "opacities", "colors"):
+                v = args[k]
+                m = e.view(-1, *([1] * (v.ndim - 1)))
+                args[k] = torch.where(m, v, v.detach())
+        return render(**args, camera=view.camera, backend=self.config.backend)
+
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        loss = photometric(pred, view.image, self.config.lambda_dssim)
+        return loss, {"photo": float(loss.detach())}
+
+
+# ----------------------------------------------------------------------------------------------
+# Measuring the change
+
+
+def masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
+    """PSNR (dB, peak 1) of two (H, W, 3) images over the pixels of ``mask`` (H, W); None if empty."""
+    if not mask.any():
+        return None
+    mse = float(np.mean((a[mask] - b[mask]) ** 2))
+    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))
+
+
+def dilate(mask: np.ndarray, pixels: int) -> np.ndarray:
+    if pixels <= 0:
+        return mask
+    k = np.ones((2 * pixels + 1, 2 * pixels + 1), np.uint8)
+    return cv2.dilate(mask.astype(np.uint8), k) > 0
+
+
+def measure_change(original: GaussianSet, baked: GaussianSet, proxy: ProxyMesh, cameras: list[Camera],
+                   backend: str, margin: int) -> dict[str, Any]:
+    """PSNR (sRGB-encoded albedo) of the baked render against the original render, inside the edit
+    mask (how much changed) and outside the mask dilated by ``margin`` (what must stay)."""
+    per_view, inside, outside = {}, [], []
+    for cam in cameras:
+        before_lin, mask, _ = edited_albedo(original, proxy, cam, backend)
+        before = linear_to_srgb(np.clip(render_albedo(original, cam, backend).color.numpy(), 0, 1))
+        after = linear_to_srgb(np.clip(render_albedo(baked, cam, backend).color.numpy(), 0, 1))
+        target = linear_to_srgb(np.clip(before_lin, 0, 1))
+        out_mask = ~dilate(mask, margin)
+        entry = {"edit_pixels": int(mask.sum()),
+                 "outside_psnr_vs_original": masked_psnr(after, before, out_mask),
+                 "inside_psnr_vs_composite": masked_psnr(after, target, mask)}
+        per_view[cam.name] = entry
+        if entry["outside_psnr_vs_original"] is not None:
+            outside.append(np.mean((after[out_mask] - before[out_mask]) ** 2))
+        if entry["inside_psnr_vs_composite"] is not None:
+            inside.append(np.mean((after[mask] - target[mask]) ** 2))
+
+    def agg(mses):
+        if not mses:
+            return None
+        m = float(np.mean(mses))
+        return float("inf") if m == 0 else float(10 * np.log10(1 / m))
+
+    return {"outside_psnr_vs_original": agg(outside), "inside_psnr_vs_composite": agg(inside),
+            "views": per_view, "metric_space": "sRGB-encoded albedo [0, 1]",
+            "outside_margin_pixels": margin}
+
+
+# ----------------------------------------------------------------------------------------------
+# The bake
+
+
+def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
+              config: BakeConfig | None = None) -> dict[str, Any]:
+    """Bake ``proxy`` (a proxy.json path or a loaded :class:`ProxyMesh`) into the albedo field.
+
+    Writes ``<ws>/edits/<name>/{albedo.ply, proxy.json, bake.json}`` and returns the bake.json summary.
+    """
+    cfg = config or BakeConfig()
+    t_start = time.perf_counter()
+    if cfg.views < 0:
+        raise IGSError(f"--views must be >= 0, got {cfg.views}")
+    if cfg.iterations < 1:
+        raise IGSError(f"--iterations must be >= 1, got {cfg.iterations}")
+    if cfg.anchor_views < 0:
+        raise IGSError(f"--anchor-views must be >= 0, got {cfg.anchor_views}")
+    capture = load_capture(workspace)
+    ws = capture.workspace
+    out_dir = edit_dir(ws, name)
+    proxy_path = None
+    if not isinstance(proxy, ProxyMesh):
+        proxy_path = Path(proxy)
+        proxy = load_proxy(proxy_path)
+    original, source = load_albedo(ws, cfg.base)
+    backend = cfg.backend
+
+    # 1. The edit view.
+    cam = resolve_view(capture, proxy, proxy_path, cfg)
+    pr_edit = check_proxy_visible(cam, proxy)
+    edited, mask, _ = edited_albedo(original, proxy, cam, backend, pr_edit)
+    if not mask.any():
+        raise IGSError(f"proxy '{proxy.name}' is hidden behind the scene in view '{cam.name}' (no pixel passes the "
+                       "depth test); move it onto the visible surface")
+    events.log(f"bake {name}: edit view {cam.name}, {int(mask.sum())} edit pixels, {len(original)} albedo Gaussians")
+
+    # 2. Virtual views around it.
+    views = [View(-1, cam, torch.from_numpy(edited), extras={"mask": torch.from_numpy(mask)})]
+    if cfg.views > 0:
+        target, normal = proxy_target(cam, pr_edit, mask)
+        cams = hemisphere_views(cam, target, normal, cfg.views, cfg.max_angle, cfg.seed)
+        with events.stage("bake views", len(cams), unit="view") as bar:
+            for k, hc in enumerate(cams):
+                img, m, _ = edited_albedo(original, proxy, hc, backend)
+                views.append(View(-2 - k, hc, torch.from_numpy(img), extras={"mask": torch.from_numpy(m)}))
+                bar.update(1)
+
+    # 3. New Gaussians on the proxy.
+    pts = spawn_points_on_proxy(cam, pr_edit, cfg.spawn_fraction, cfg.seed, mask)
+    flat = flattened_gaussians(pts, cam, cfg.spawn_fraction)
+    g = original.clone()
+    n_old = len(g)
+    painted = paint_surface_gaussians(g, cam, edited, mask, pr_edit)
+    editable = None
+    if cfg.restrict:
+        editable = contributors(original, views, backend)
+    g.append_(raw_params(flat))
+    if editable is not None:
+        editable = torch.cat([editable, torch.ones(len(g) - n_old, dtype=torch.bool)])
+
+    # 4. Anchors: training views supervised with the original albedo render.
+    train_frames, test_frames = split_frames(capture.frames)
+    anchors = []
+    if cfg.anchor_views > 0 and train_frames:
+        pick = np.unique(np.linspace(0, len(train_frames) - 1, min(cfg.anchor_views, len(train_frames))).round())
+        for i in pick.astype(int):
+            ac = view_camera(train_frames[i].camera, cfg.downscale)
+            anchors.append(View(i, ac, render_albedo(original, ac, backend).color.detach().clamp(0, 1)))
+
+    tcfg = TrainConfig(iterations=cfg.iterations, seed=cfg.seed, checkpoint_every=max(cfg.iterations, 1),
+                       backend=backend, lambda_dssim=cfg.lambda_dssim, scale_schedule=False,
+                       lr=LearningRates(means=1.6e-5, means_final=1.6e-6, colors=cfg.color_lr))
+    extent = scene_extent([f.camera for f in capture.frames])
+    stage = BakeStage(f"bake_{name}", g, views + anchors, [], tcfg, extent, None, "linear", editable=editable)
+    ckpt = ws.checkpoints / "edits" / name
+    result = train(stage, ckpt, resume=False)
+    baked = result.gaussians
+    shutil.rmtree(ckpt, ignore_errors=True)  # a bake is short: no resume
+
+    # 5. Write and measure.
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ply = write_ply(out_dir / "albedo.ply", baked, space="linear")
+    saved_proxy = out_dir / "proxy.json"
+    if proxy_path is None or proxy_path.resolve() != saved_proxy.resolve():
+        save_proxy(saved_proxy, proxy)
+    held = [view_camera(f.camera, cfg.downscale) for f in test_frames] or [cam]
+    change = measure_change(original, baked, proxy, held, backend, cfg.outside_margin)
+    summary = {
+        "name": name, "edit_view": cam.name, "proxy": str(saved_proxy), "source_albedo": str(source),
+        "albedo": str(ply), "edit_pixels": int(mask.sum()), "virtual_views": len(views) - 1,
+        "anchor_views": len(anchors), "spawned": len(g) - n_old, "painted": painted, "gaussians_before": n_old,
+        "gaussians_after": len(baked), "editable": None if editable is None else int(editable.sum()),
+        "iterations": result.step, "train_seconds": round(result.train_seconds, 2),
+        "wall_seconds": round(time.perf_counter() - t_start, 2), "held_out": change,
+        "config": asdict(cfg),
+    }
+    write_json(out_dir / BAKE_JSON, summary)
+    events.output("layer", ply)
+    o = change["outside_psnr_vs_original"]
+    events.log(f"bake {name}: wrote {ply}; held-out albedo outside the edit vs before: "
+               f"{'n/a' if o is None else f'{o:.1f} dB'}")
+    return summary

@@ -1,0 +1,193 @@
+"""Decomposition benchmark: ``python -m backend.eval.bench_decompose [--ws PATH] [--out bench_decompose.json]``.
+
+Runs, in one process on one workspace (ratios hold on a shared machine, absolute times less so):
+
+1. vanilla 3DGS (``train-3dgs``: sRGB images, SH degree 3) with N iterations;
+2. the three-set decomposition with the iterations of ``--iterations N`` (albedo N, shading N / 2,
+   residual N / 4);
+3. the single-set baseline with the same losses, the same total iterations and the three fields'
+   Gaussian budget together.
+
+Every run starts fresh (no resume), with the same resolution, held-out views (every 8th), Gaussian
+budget per field and renderer backend. Training time is the optimisation loop's time; for the
+decomposition it also counts rendering the frozen layers into the per-view caches. Prints a table
+and the targets of the issue (albedo PSNR >= 30 dB and >= 1 dB above the single set; full image
+within 0.5 dB of 3DGS; shading >= 22 dB; decomposition time <= 2x 3DGS), and writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from backend import events
+from backend.errors import IGSError
+from backend.io_utils import write_json
+from backend.train.baseline import BaselineConfig, train_3dgs
+from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
+from backend.train.loop import TrainConfig
+from backend.train.single_set import decompose_single_set
+
+DEFAULT_WS = "demo"
+
+
+def configs(iterations: int, downscale: float, max_gaussians: int, backend: str,
+            residual_points: int) -> tuple[BaselineConfig, DecomposeConfig]:
+    base = TrainConfig(iterations=iterations, backend=backend, checkpoint_every=max(iterations, 1))
+    base.densify.max_gaussians = max_gaussians
+    vanilla = BaselineConfig(train=base, downscale=downscale)
+    dec = DecomposeConfig(downscale=downscale).set_all(backend=backend, checkpoint_every=max(iterations, 1))
+    dec.spawn.points = residual_points
+    for s, n in split_iterations(iterations).items():
+        t = dec.stage(s)
+        t.iterations = n
+        if s != "residual":
+            t.densify.max_gaussians = max_gaussians
+    return vanilla, dec
+
+
+def _num(x: Any) -> float | None:
+    return float(x) if isinstance(x, (int, float)) else None
+
+
+def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend: str,
+        residual_points: int) -> dict[str, Any]:
+    vanilla_cfg, dec_cfg = configs(iterations, downscale, max_gaussians, backend, residual_points)
+    t0 = time.perf_counter()
+    events.log(f"bench_decompose: vanilla 3DGS, {iterations} iterations")
+    vanilla = train_3dgs(ws, vanilla_cfg, resume=False)
+    events.log("bench_decompose: three-set decomposition "
+               + ", ".join(f"{s} {dec_cfg.stage(s).iterations}" for s in STAGES))
+    three = decompose(ws, dec_cfg, resume=False)
+    events.log("bench_decompose: single-set baseline")
+    single = decompose_single_set(ws, dec_cfg, resume=False)
+    total = time.perf_counter() - t0
+
+    v_time = float(vanilla["train_seconds"])
+
+    def method(s: dict[str, Any]) -> dict[str, Any]:
+        return {"layers": {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips", "psnr_inverse") if m in v}
+                           for k, v in s["layers"].items()},
+                "gaussians": s["gaussians"], "train_seconds": s["train_seconds"],
+                "cache_seconds": s["cache_seconds"], "decompose_seconds": s["decompose_seconds"],
+                "time_vs_3dgs": round(s["decompose_seconds"] / max(v_time, 1e-9), 3),
+                "stages": {k: {f: e.get(f) for f in ("iterations", "gaussians", "initial_gaussians", "train_seconds",
+                                                     "cache_seconds", "seconds_per_iteration", "held_out",
+                                                     "held_out_initial")}
+                           for k, e in s["stages"].items()}}
+
+    result = {
+        "protocol": {
+            "workspace": str(Path(ws).resolve()), "iterations_3dgs": iterations,
+            "iterations_three_set": {s: dec_cfg.stage(s).iterations for s in STAGES},
+            "iterations_single_set": sum(dec_cfg.stage(s).iterations for s in STAGES),
+            "downscale": downscale, "resolution": three["resolution"], "max_gaussians_per_field": max_gaussians,
+            "residual_points": residual_points, "backend": backend, "held_out_views": three["held_out_views"],
+            "priors": three["priors"], "alignment": three["alignment"], "metric_space": three["metric_space"],
+            "time": "optimisation loop seconds (+ frozen-layer caching for the decomposition), same process",
+        },
+        "vanilla_3dgs": {"full": {m: vanilla.get(m) for m in ("psnr", "ssim", "lpips")},
+                         "gaussians": vanilla["gaussians"], "train_seconds": v_time,
+                         "seconds_per_iteration": vanilla["seconds_per_iteration"]},
+        "three_set": method(three),
+        "single_set": method(single),
+        "bench_wall_seconds": round(total, 1),
+        "machine": {"platform": platform.platform(), "torch": torch.__version__, "threads": torch.get_num_threads()},
+    }
+    result["targets"] = targets(result)
+    return result
+
+
+def targets(r: dict[str, Any]) -> dict[str, Any]:
+    t, s, v = r["three_set"]["layers"], r["single_set"]["layers"], r["vanilla_3dgs"]["full"]
+    a = _num(t.get("albedo", {}).get("psnr"))
+    a1 = _num(s.get("albedo", {}).get("psnr"))
+    sh = _num(t.get("shading", {}).get("psnr"))
+    full, vfull = _num(t.get("full", {}).get("psnr")), _num(v.get("psnr"))
+    ratio = r["three_set"]["time_vs_3dgs"]
+
+    def check(ok: bool | None, value: Any, goal: str) -> dict[str, Any]:
+        return {"met": ok, "value": value, "goal": goal}
+
+    return {
+        "albedo_psnr": check(None if a is None else a >= 30.0, a, ">= 30 dB"),
+        "albedo_vs_single_set": check(None if a is None or a1 is None else a - a1 >= 1.0,
+                                      None if a is None or a1 is None else round(a - a1, 3), ">= +1 dB"),
+        "full_vs_3dgs": check(None if full is None or vfull is None else full >= vfull - 0.5,
+                              None if full is None or vfull is None else round(full - vfull, 3), ">= -0.5 dB"),
+        "shading_psnr": check(None if sh is None else sh >= 22.0, sh, ">= 22 dB"),
+        "time_vs_3dgs": check(ratio <= 2.0, ratio, "<= 2x"),
+    }
+
+
+def table(r: dict[str, Any]) -> str:
+    def f(x: Any, p: int = 2) -> str:
+        return f"{x:.{p}f}" if isinstance(x, (int, float)) else str(x)
+
+    lines = [f"{'method':<12} {'layer':<9} {'PSNR':>7} {'SSIM':>6} {'LPIPS':>6} {'Gaussians':>10} {'seconds':>8} "
+             f"{'x 3DGS':>6}"]
+    v = r["vanilla_3dgs"]
+    lines.append(f"{'3DGS':<12} {'full':<9} {f(v['full']['psnr']):>7} {f(v['full']['ssim'], 3):>6} "
+                 f"{f(v['full']['lpips'], 3):>6} {v['gaussians']:>10} {f(v['train_seconds'], 0):>8} {'1.00':>6}")
+    for name, key in (("three-set", "three_set"), ("single-set", "single_set")):
+        m = r[key]
+        first = True
+        for layer in ("albedo", "shading", "residual", "diffuse", "full"):
+            if layer not in m["layers"]:
+                continue
+            x = m["layers"][layer]
+            count = m["gaussians"].get(layer, "") if name == "three-set" else (m["gaussians"]["total"] if first else "")
+            secs = f(m["decompose_seconds"], 0) if first else ""
+            ratio = f(m["time_vs_3dgs"]) if first else ""
+            lines.append(f"{name if first else '':<12} {layer:<9} {f(x.get('psnr')):>7} {f(x.get('ssim'), 3):>6} "
+                         f"{f(x.get('lpips'), 3):>6} {count!s:>10} {secs:>8} {ratio:>6}")
+            first = False
+    for k, e in r["three_set"]["stages"].items():
+        lines.append(f"  stage {k:<9} {e['iterations']} it, {e['gaussians']} Gaussians, {f(e['train_seconds'], 0)} s "
+                     f"(+{f(e['cache_seconds'], 1)} s cache), {f(e['seconds_per_iteration'], 3)} s/it")
+    lines.append("targets: " + "; ".join(f"{k} {v['value']} ({v['goal']}): "
+                                         f"{'met' if v['met'] else 'NOT met' if v['met'] is False else 'n/a'}"
+                                         for k, v in r["targets"].items()))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m backend.eval.bench_decompose", description=__doc__.split("\n\n")[0])
+    p.add_argument("--ws", default=DEFAULT_WS,
+                   help="a workspace with ground-truth albedo (e.g. one made by `igs synth <ws> --preset demo`); "
+                        "its layers/, metrics.json and report*.png are overwritten")
+    p.add_argument("--out", default="bench_decompose.json", help="JSON output (default bench_decompose.json)")
+    p.add_argument("--iterations", type=int, default=2000,
+                   help="3DGS iterations; the decomposition runs albedo N, shading N/2, residual N/4 (default 2000)")
+    p.add_argument("--downscale", type=float, default=1.0, help="divide image sizes by this factor (default 1)")
+    p.add_argument("--max-gaussians", type=int, default=100_000,
+                   help="densification budget of 3DGS and of each of the albedo and shading fields (default 100000)")
+    p.add_argument("--residual-points", type=int, default=5_000, help="residual Gaussians spawned (default 5000)")
+    p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"))
+    args = p.parse_args(argv)
+    if args.iterations < 4:
+        print("bench_decompose: --iterations must be >= 4", file=sys.stderr)
+        return 2
+    if not Path(args.ws).is_dir():
+        print(f"bench_decompose: {args.ws}: no such workspace (make one with `igs synth {args.ws} --preset demo`)",
+              file=sys.stderr)
+        return 2
+    try:
+        result = run(args.ws, args.iterations, args.downscale, args.max_gaussians, args.backend, args.residual_points)
+    except IGSError as e:
+        print(f"bench_decompose: error: {e}", file=sys.stderr)
+        return 2
+    print(table(result))
+    write_json(args.out, result)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

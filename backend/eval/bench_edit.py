@@ -1,0 +1,236 @@
+"""Edit benchmark (issue 7 part 4, issue 10 part 4): ``python -m backend.eval.bench_edit <ws>``.
+
+Needs a synthetic workspace with ``gt_edit/<edit>/`` and a trained albedo layer ``<ws>/layers/albedo.ply``.
+For each edit: the proxy's geometry is fitted from ``edit.json``'s rectangle in its edit view
+(``fit_plane_from_rect`` / ``fit_cylinder_from_rect`` on the albedo field's max-contributors); the
+decal's placement on that fitted surface (centre, in-plane axes, size / angle and height range) is
+taken from the ground-truth surface, as the artist would drag the fitted proxy onto the decal in
+Blender. Then the edit is baked (``igs edit bake``: 8 virtual views, and the single-view bake) and
+the held-out views (index % 8 == 0) are compared with the Cycles ground truth of the edited scene:
+
+- ``albedo``: the baked albedo render vs ``gt_edit/<edit>/albedo`` (sRGB-encoded), inside ``mask``;
+- ``image``: ``A_baked * S_gt + R_gt`` (the ground-truth shading and residual: lighting is unchanged by
+  the edit) vs ``gt_edit/<edit>/images`` inside the mask; the baselines "tint" (the unedited image
+  times the proxy colour) and "overwrite" (the proxy colour as the final pixel, no shading) are
+  image-space edits of the ground-truth unedited image where the depth-tested proxy covers a pixel;
+  "oracle" is ``A_gt_edit * S_gt + R_gt`` (the ceiling set by the renderer's noise and the
+  decomposition's convention);
+- ``outside``: the baked albedo render vs the unedited albedo render outside the mask dilated by
+  ``--margin`` pixels (what must not change).
+
+PSNR aggregates the squared error over all pixels of all held-out views (peak 1, sRGB-encoded).
+For ``column_decal`` the row "plane_forced" bakes a plane fitted to the same rectangle with the
+decal laid flat on it (arc length x height), the comparison of issue 10.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.capture.imageio import linear_to_srgb, read_exr, read_image, read_linear, srgb_to_linear
+from backend.capture.workspace import load_capture, split_frames
+from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load_albedo, render_albedo
+from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
+from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
+from backend.errors import IGSError
+from backend.eval.metrics import merge_metrics
+
+EDITS = ("wall_decal", "rug_recolor", "column_decal")
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _look(edit: dict, folder: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    tex = read_linear(folder / edit["texture"])[..., :3].astype(np.float32) if edit.get("texture") else None
+    col = None if edit.get("color") is None else np.asarray(edit["color"], np.float32)
+    return tex, col
+
+
+def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plane: bool = False,
+                 fit_cfg: FitConfig = FitConfig()) -> tuple[ProxyMesh, dict]:
+    """The fitted surface with the decal placed as in the ground truth (module docstring)."""
+    out = render_albedo(albedo, cam, backend, return_ids=True)
+    surf = edit["surface"]
+    tex, col = _look(edit, folder)
+    ids, centres = out.ids, albedo.means.detach()
+    if surf["type"] == "plane" or force_plane:
+        fit = fit_plane_from_rect(cam, ids, centres, edit["rect"], config=fit_cfg)
+        m = fit.proxy.matrix_world
+        n, c0 = _unit(m[:3, 2]), m[:3, 3]
+        if surf["type"] == "plane":
+            gc, gu, gv, size = (np.asarray(surf[k], np.float64) for k in ("center", "u_axis", "v_axis", "size"))
+        else:  # the decal's middle on the cylinder, its tangent and axis, laid flat (arc length x height)
+            axis, ref = _unit(surf["axis"]), _unit(surf["ref_axis"])
+            t0, t1 = surf["theta_range"]
+            h0, h1 = surf["height_range"]
+            tm, hm = 0.5 * (t0 + t1), 0.5 * (h0 + h1)
+            side = np.cross(axis, ref)
+            radial = np.cos(tm) * ref + np.sin(tm) * side
+            gc = np.asarray(surf["base_center"], np.float64) + hm * axis + surf["radius"] * radial
+            gu, gv = np.cross(axis, radial), axis
+            size = np.array([surf["radius"] * (t1 - t0), h1 - h0])
+        center = gc - np.dot(gc - c0, n) * n
+        u = _unit(gu - np.dot(gu, n) * n)
+        v = _unit(gv - np.dot(gv, n) * n - np.dot(gv, u) * u)
+        proxy = plane_proxy(center, n, u, v, size, name=edit["name"], texture=tex, color=col)
+        info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers))}
+        if surf["type"] == "plane":
+            cosang = abs(float(np.dot(n, _unit(surf["normal"]))))
+            info["normal_error_deg"] = float(np.degrees(np.arccos(min(1.0, cosang))))
+            info["offset_error"] = float(abs(np.dot(gc - c0, n)))
+        return proxy, info
+    fit = fit_cylinder_from_rect(cam, ids, centres, edit["rect"], config=fit_cfg)
+    f = fit.fit
+    axis_gt = _unit(surf["axis"])
+    axis = f.axis if np.dot(f.axis, axis_gt) >= 0 else -f.axis
+    h0, h1 = surf["height_range"]
+    p_gt = np.asarray(surf["base_center"], np.float64) + h0 * axis_gt
+    base = f.point + np.dot(p_gt - f.point, axis) * axis
+    ref = _unit(np.asarray(surf["ref_axis"]) - np.dot(surf["ref_axis"], axis) * axis)
+    t0, t1 = np.degrees(surf["theta_range"])
+    proxy = cylinder_proxy(base, axis, f.radius, h1 - h0, (t0, t1), 128, x_dir=ref, name=edit["name"],
+                           texture=tex, color=col)
+    info = {"fit": "cylinder", "radius": float(f.radius), "radius_gt": surf["radius"],
+            "axis_error_deg": float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(f.axis, axis_gt))))))),
+            "inliers": int(np.sum(f.inliers))}
+    return proxy, info
+
+
+class Acc:
+    """Sum of squared errors and pixel counts per key -> PSNR."""
+
+    def __init__(self):
+        self.se: dict[str, float] = {}
+        self.n: dict[str, int] = {}
+
+    def add(self, key: str, a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> None:
+        if mask.any():
+            self.se[key] = self.se.get(key, 0.0) + float(np.sum((a[mask] - b[mask]) ** 2))
+            self.n[key] = self.n.get(key, 0) + int(mask.sum()) * a.shape[-1]
+
+    def psnr(self) -> dict[str, float]:
+        return {k: (float("inf") if self.se[k] == 0 else float(10 * np.log10(self.n[k] / self.se[k])))
+                for k in self.se}
+
+
+def _srgb(lin: np.ndarray) -> np.ndarray:
+    return linear_to_srgb(np.clip(lin, 0.0, 1.0))
+
+
+def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: str,
+             margin: int) -> dict[str, float]:
+    capture = load_capture(ws_root)
+    folder = ws_root / "gt_edit" / edit_name
+    _, test = split_frames(capture.frames)
+    acc = Acc()
+    for f in test:
+        cam = f.camera
+        stem = Path(f.name).stem
+        mask = read_image(folder / "mask" / f.name)[..., 0] > 0.5
+        if not mask.any():
+            continue
+        gt_img = read_image(folder / "images" / f.name)
+        gt_alb = read_image(folder / "albedo" / f.name)
+        shading = read_exr(ws_root / "gt" / "shading" / f"{stem}.exr")[..., :3]
+        residual = read_exr(ws_root / "gt" / "residual" / f"{stem}.exr")[..., :3]
+        orig_img = srgb_to_linear(read_image(f.image))
+        a0 = render_albedo(original, cam, backend).color.clamp(0, 1).numpy()
+        outside = ~dilate(mask, margin)
+        acc.add("oracle/image", _srgb(srgb_to_linear(gt_alb) * shading + residual), gt_img, mask)
+        # image-space baselines: the depth-tested proxy colour where it covers the pixel
+        comp, pm, _ = edited_albedo(original, proxy, cam, backend)
+        colour = np.where(pm[..., None], comp, 0.0)
+        tint = np.where(pm[..., None], orig_img * colour, orig_img)
+        over = np.where(pm[..., None], colour, orig_img)
+        acc.add("tint/image", _srgb(tint), gt_img, mask)
+        acc.add("overwrite/image", _srgb(over), gt_img, mask)
+        for key, g in variants.items():
+            a = render_albedo(g, cam, backend).color.clamp(0, 1).numpy()
+            acc.add(f"{key}/albedo", _srgb(a), gt_alb, mask)
+            acc.add(f"{key}/image", _srgb(a * shading + residual), gt_img, mask)
+            acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
+        acc.add("unedited/albedo", _srgb(a0), gt_alb, mask)
+    return acc.psnr()
+
+
+def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: FitConfig = FitConfig()
+        ) -> dict[str, Any]:
+    capture = load_capture(ws_root)
+    original, _ = load_albedo(capture.workspace, None)
+    results: dict[str, Any] = {}
+    for name in edits:
+        folder = ws_root / "gt_edit" / name
+        if not (folder / "edit.json").exists():
+            raise IGSError(f"{folder / 'edit.json'}: not found (a synthetic capture with gt_edit is needed)")
+        edit = json.loads((folder / "edit.json").read_text())
+        cam = capture.frame(edit["edit_view"]).camera
+        t0 = time.perf_counter()
+        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg)}
+        if edit["surface"]["type"] == "cylinder":
+            proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg)
+        variants, bakes = {}, {}
+        for pname, (proxy, _) in proxies.items():
+            runs = [("multi_view", cfg)] + ([("single_view", replace(cfg, views=0))] if pname == "fitted" else [])
+            for label, c in runs:
+                key = f"{pname}_{label}" if pname != "fitted" else label
+                s = bake_edit(ws_root, proxy, f"bench_{name}_{key}", replace(c, view=edit["edit_view"]))
+                variants[key], _ = load_albedo(capture.workspace, f"bench_{name}_{key}")
+                bakes[key] = {k: s[k] for k in ("edit_pixels", "spawned", "editable", "train_seconds", "wall_seconds")}
+        psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin)
+        results[name] = {"psnr": psnr, "fit": {k: v[1] for k, v in proxies.items()}, "bakes": bakes,
+                         "seconds": round(time.perf_counter() - t0, 1)}
+        print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
+    return results
+
+
+def table(results: dict[str, Any]) -> str:
+    rows = ["| edit | method | image PSNR in region | albedo PSNR in region | outside vs unedited |",
+            "|---|---|---|---|---|"]
+    for name, r in results.items():
+        p = r["psnr"]
+        methods = sorted({k.split("/")[0] for k in p})
+        for m in methods:
+            cells = ["-" if p.get(f"{m}/{k}") is None else f"{p[f'{m}/{k}']:.2f}" for k in ("image", "albedo", "outside")]
+            rows.append(f"| {name} | {m} | " + " | ".join(cells) + " |")
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_edit", description=__doc__.split("\n\n")[0])
+    ap.add_argument("workspace")
+    ap.add_argument("--edits", default=",".join(EDITS), help="comma list of gt_edit edits")
+    ap.add_argument("--iterations", type=int, default=BakeConfig.iterations)
+    ap.add_argument("--views", type=int, default=BakeConfig.views)
+    ap.add_argument("--anchor-views", type=int, default=BakeConfig.anchor_views)
+    ap.add_argument("--margin", type=int, default=2, help="pixels around the mask left out of 'outside' (default 2)")
+    ap.add_argument("--backend", default="auto")
+    ap.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
+                    help="fewest Gaussians the rectangle must select (lower it for tiny test captures)")
+    args = ap.parse_args(argv)
+    ws_root = Path(args.workspace)
+    cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
+                     backend=args.backend)
+    try:
+        results = run(ws_root, [e for e in args.edits.split(",") if e], cfg, args.margin,
+                      FitConfig(min_selected=args.min_selected))
+    except IGSError as e:
+        print(f"bench_edit: error: {e}", file=sys.stderr)
+        return 2
+    merge_metrics(ws_root / "metrics.json", "bench_edit", {"results": results, "config": vars(args)})
+    print(table(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,294 @@
+"""``igs render <ws>``: albedo A, shading S, residual R and the composite A*S + R for any cameras.
+
+Cameras come from one of:
+
+- ``--cameras cams.json``: a JSON list (or ``{"cameras": [...]}``) of objects
+  ``{"name": str, "width": int, "height": int, "fx": px, "fy": px, "cx": px, "cy": px, <pose>}`` where
+  ``fx``/``fy`` may be replaced by ``"fov_x_deg"`` (square pixels, fy = fx) and ``cx``/``cy`` default to
+  the image centre; ``<pose>`` is either ``"matrix_world"``: the 4x4 Blender camera object matrix
+  (row-major as Blender prints it; camera looks down its local -z, local y up) or ``"R"`` (3x3) and
+  ``"t"`` (3): world -> camera ``x_cam = R x + t`` with OpenCV axes (x right, y down, +z forward).
+  World = the workspace's SfM/COLMAP world (Blender's scene after import).
+- ``--turntable``: ``--frames`` cameras on a horizontal circle (world z up) of ``--radius`` around
+  ``--center`` (default: the centroid of the SfM points), ``--height`` above it, all looking at it.
+- ``--path transforms.json``: a nerfstudio-style camera path (``frames[].transform_matrix`` OpenGL
+  camera-to-world, intrinsics ``fl_x, fl_y, cx, cy, w, h`` at the top level or per frame).
+
+Writes ``OUT/<layer>/<name>.png`` (8-bit sRGB; layers ``A``, ``S``, ``R``, ``full``; shading and the
+composite are linear values clipped to [0, 1] before the sRGB curve) and with ``--mp4``
+``OUT/<layer>.mp4`` (OpenCV ``mp4v``). ``--edit N`` replaces the albedo by ``<ws>/edits/N/albedo.ply``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from backend import events
+from backend.capture.cameras import Camera, from_blender_matrix_world
+from backend.capture.imageio import linear_to_srgb, write_image
+from backend.capture.workspace import load_capture
+from backend.errors import IGSError
+from backend.render import render_layers
+from backend.splats.gaussians import GaussianSet
+from backend.splats.ply import read_ply
+from backend.train.intrinsic import layer_splats
+
+LAYERS = ("A", "S", "R", "full")
+NEEDS = {"A": ("albedo",), "S": ("shading",), "R": ("residual",), "full": ("albedo", "shading", "residual")}
+GL_TO_CV = np.diag([1.0, -1.0, -1.0])
+
+
+def _num(d: dict, key: str, where: str, default: float | None = None) -> float:
+    if key not in d:
+        if default is None:
+            raise IGSError(f"{where}: missing '{key}'")
+        return default
+    try:
+        v = float(d[key])
+    except (TypeError, ValueError):
+        raise IGSError(f"{where}: '{key}' must be a number, got {d[key]!r}") from None
+    if not np.isfinite(v):
+        raise IGSError(f"{where}: '{key}' is not finite")
+    return v
+
+
+def camera_from_dict(d: Any, where: str) -> Camera:
+    """One entry of cameras.json (module docstring) -> :class:`Camera`."""
+    if not isinstance(d, dict):
+        raise IGSError(f"{where}: a camera must be a JSON object")
+    w, h = int(_num(d, "width", where)), int(_num(d, "height", where))
+    if w < 1 or h < 1:
+        raise IGSError(f"{where}: width and height must be positive")
+    if "fx" in d:
+        fx = _num(d, "fx", where)
+        fy = _num(d, "fy", where, fx)
+    else:
+        fov = _num(d, "fov_x_deg", where)
+        if not 0 < fov < 180:
+            raise IGSError(f"{where}: 'fov_x_deg' must be in (0, 180)")
+        fx = fy = 0.5 * w / np.tan(np.radians(fov) / 2)
+    cx, cy = _num(d, "cx", where, w / 2), _num(d, "cy", where, h / 2)
+    try:
+        if "matrix_world" in d:
+            m = np.asarray(d["matrix_world"], dtype=np.float64).reshape(4, 4)
+            R, t = from_blender_matrix_world(m)
+        elif "R" in d and "t" in d:
+            R = np.asarray(d["R"], dtype=np.float64).reshape(3, 3)
+            t = np.asarray(d["t"], dtype=np.float64).reshape(3)
+        else:
+            raise IGSError(f"{where}: needs 'matrix_world' (Blender) or 'R' and 't' (OpenCV world->camera)")
+    except (TypeError, ValueError):
+        raise IGSError(f"{where}: 'matrix_world' must be 4x4 numbers, 'R' 3x3 and 't' 3") from None
+    if not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise IGSError(f"{where}: the pose has NaN or infinite values")
+    # Nearest rotation (a Blender matrix may carry a scale); a mirror or a singular matrix is an error.
+    u, sv, vt = np.linalg.svd(R)
+    if sv.min() < 1e-9 or np.linalg.det(u @ vt) < 0:
+        raise IGSError(f"{where}: the camera rotation is singular or mirrored")
+    R = u @ vt
+    return Camera(str(d.get("name", where)), w, h, fx, fy, cx, cy, R, t)
+
+
+def read_cameras(path: str | Path) -> list[Camera]:
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise IGSError(f"{path}: cameras file not found") from None
+    except (OSError, json.JSONDecodeError) as e:
+        raise IGSError(f"{path}: not a readable JSON file ({e})") from e
+    if isinstance(data, dict):
+        data = data.get("cameras")
+    if not isinstance(data, list) or not data:
+        raise IGSError(f"{path}: expected a non-empty list of cameras (or {{\"cameras\": [...]}})")
+    cams = [camera_from_dict(d, f"{path} camera {i}") for i, d in enumerate(data)]
+    names = [c.name for c in cams]
+    if len(set(names)) != len(names):
+        cams = [Camera(f"{i:04d}_{c.name}", c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.R, c.t)
+                for i, c in enumerate(cams)]
+    return cams
+
+
+def read_path(path: str | Path) -> list[Camera]:
+    """A nerfstudio-style transforms.json camera path."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise IGSError(f"{path}: camera path file not found") from None
+    except (OSError, json.JSONDecodeError) as e:
+        raise IGSError(f"{path}: not a readable JSON file ({e})") from e
+    frames = data.get("frames") if isinstance(data, dict) else None
+    if not isinstance(frames, list) or not frames:
+        raise IGSError(f"{path}: expected an object with a non-empty 'frames' list")
+    cams = []
+    for i, f in enumerate(frames):
+        where = f"{path} frame {i}"
+        merged = {**{k: v for k, v in data.items() if k != "frames"}, **f}
+        try:
+            c2w = np.asarray(merged["transform_matrix"], dtype=np.float64).reshape(4, 4)
+        except KeyError:
+            raise IGSError(f"{where}: missing 'transform_matrix'") from None
+        except (TypeError, ValueError):
+            raise IGSError(f"{where}: 'transform_matrix' must be 4x4 numbers") from None
+        R = (c2w[:3, :3] @ GL_TO_CV).T
+        w, h = _num(merged, "w", where), _num(merged, "h", where)
+        d = {"name": f"{i:04d}", "width": w, "height": h, "fx": _num(merged, "fl_x", where),
+             "fy": _num(merged, "fl_y", where, _num(merged, "fl_x", where)), "cx": _num(merged, "cx", where, w / 2),
+             "cy": _num(merged, "cy", where, h / 2), "R": R, "t": -R @ c2w[:3, 3]}
+        cams.append(camera_from_dict(d, where))
+    return cams
+
+
+def turntable(center, radius: float, height: float, frames: int, template: Camera, fov_x_deg: float | None) -> list[Camera]:
+    """``frames`` cameras on a horizontal circle (world z up) around ``center`` looking at it."""
+    if not (np.isfinite(radius) and radius > 0):
+        raise IGSError(f"--radius must be > 0, got {radius}")
+    if frames < 1:
+        raise IGSError(f"--frames must be >= 1, got {frames}")
+    c = np.asarray(center, dtype=np.float64)
+    cams = []
+    for k in range(frames):
+        a = 2 * np.pi * k / frames
+        eye = c + np.array([radius * np.cos(a), radius * np.sin(a), height])
+        fov = fov_x_deg if fov_x_deg is not None else float(np.degrees(2 * np.arctan(template.width / (2 * template.fx))))
+        cams.append(Camera.look_at(f"{k:04d}", eye, c, [0.0, 0.0, 1.0], template.width, template.height, fov))
+    return cams
+
+
+def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, GaussianSet]:
+    layers = {}
+    for kind in ("albedo", "shading", "residual"):
+        if kind not in needed:
+            continue
+        path = ws_root / "layers" / f"{kind}.ply"
+        if kind == "albedo" and edit:
+            path = ws_root / "edits" / edit / "albedo.ply"
+            if not path.exists():
+                raise IGSError(f"--edit {edit}: {path} not found; bake the edit first (igs edit bake)")
+        if not path.exists():
+            raise IGSError(f"{path}: layer not found; run `igs decompose` first (or ask only for other --layers)")
+        layers[kind], _ = read_ply(path, kind=kind)
+    return layers
+
+
+def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: list[str], out: Path,
+                 backend: str = "auto", mp4: bool = False, fps: float = 24.0) -> dict[str, Any]:
+    """Render ``wanted`` layers for every camera into ``out``; returns what was written."""
+    kinds = [k for k in ("albedo", "shading", "residual") if k in layers]
+    splats = [layers[k] for k in kinds]
+    written: dict[str, list[str]] = {w: [] for w in wanted}
+    writers: dict[str, cv2.VideoWriter] = {}
+    sizes: dict[str, tuple[int, int]] = {}
+    for w in wanted:
+        (out / w).mkdir(parents=True, exist_ok=True)
+    try:
+        with events.stage("render", len(cameras), unit="view") as bar:
+            for cam in cameras:
+                with torch.no_grad():
+                    outs = render_layers([layer_splats(g) for g in splats], cam, backend=backend)
+                img = {k: o.color.clamp_min(0).numpy() for k, o in zip(kinds, outs)}
+                for w in wanted:
+                    if w == "full":
+                        lin = img["albedo"] * img["shading"] + img["residual"]
+                    else:
+                        lin = img[NEEDS[w][0]]
+                    srgb = linear_to_srgb(np.clip(lin, 0.0, 1.0))
+                    p = out / w / f"{Path(cam.name).stem}.png"
+                    write_image(p, srgb)
+                    written[w].append(str(p))
+                    if mp4:
+                        if w not in writers:
+                            writers[w] = cv2.VideoWriter(str(out / f"{w}.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                                                         fps, (cam.width, cam.height))
+                            sizes[w] = (cam.height, cam.width)
+                            if not writers[w].isOpened():
+                                raise IGSError(f"{out / f'{w}.mp4'}: OpenCV cannot write an mp4v video here")
+                        frame = (srgb[..., ::-1] * 255 + 0.5).astype(np.uint8)
+                        if frame.shape[:2] != sizes[w]:  # a video has one size: the first frame's
+                            frame = cv2.resize(frame, sizes[w][::-1])
+                        writers[w].write(np.ascontiguousarray(frame))
+                bar.update(1)
+    finally:
+        for v in writers.values():
+            v.release()
+    videos = {w: str(out / f"{w}.mp4") for w in writers}
+    for w, files in written.items():
+        if files:
+            events.output(f"render_{w}", out / w)
+    for v in videos.values():
+        events.output("video", v)
+    return {"images": written, "videos": videos}
+
+
+def run_render(args: argparse.Namespace) -> None:
+    wanted = [w.strip() for w in args.layers.split(",") if w.strip()]
+    bad = [w for w in wanted if w not in LAYERS]
+    if bad or not wanted:
+        raise IGSError(f"--layers must be a comma list of {', '.join(LAYERS)}, got {args.layers!r}")
+    sources = sum(x is not None and x is not False for x in (args.cameras, args.path, args.turntable or None))
+    if sources != 1:
+        raise IGSError("give exactly one of --cameras cams.json, --turntable or --path transforms.json")
+    capture = load_capture(args.workspace)
+    ws = capture.workspace
+    if args.cameras:
+        cams = read_cameras(args.cameras)
+    elif args.path:
+        cams = read_path(args.path)
+    else:
+        template = capture.frames[0].camera
+        if args.size:
+            template = template.scaled(args.size[0] / template.width)
+            template = Camera(template.name, int(args.size[0]), int(args.size[1]), template.fx, template.fx,
+                              args.size[0] / 2, args.size[1] / 2, template.R, template.t)
+        if args.center:
+            try:
+                center = np.array([float(v) for v in args.center.split(",")], dtype=np.float64).reshape(3)
+            except ValueError:
+                raise IGSError(f"--center must be x,y,z, got {args.center!r}") from None
+        elif len(capture.points):
+            center = capture.points.mean(axis=0)
+        else:
+            raise IGSError(f"{ws.root}: no SfM points to centre the turntable on; give --center x,y,z")
+        cams = turntable(center, args.radius, args.height, args.frames, template, args.fov)
+    needed = set().union(*(NEEDS[w] for w in wanted))
+    layers = load_layers(ws.root, args.edit, needed)
+    out = Path(args.out) if args.out else ws.renders / (args.edit or "layers")
+    result = render_views(cams, layers, wanted, out, args.backend, args.mp4, args.fps)
+    events.log(f"render: {len(cams)} views x {', '.join(wanted)} -> {out}")
+    print(json.dumps({"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]}, indent=2))
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "render", help="render A, S, R and A*S+R for given cameras, a turntable or a camera path",
+        description="Render the layers of a workspace (optionally with an edited albedo) as sRGB PNG sequences "
+        "and MP4 videos. cameras.json: a list of {name, width, height, fx, fy (or fov_x_deg), cx, cy, "
+        "matrix_world (Blender camera, 4x4) or R, t (OpenCV world->camera)}.")
+    p.add_argument("workspace", help="workspace folder")
+    p.add_argument("--edit", default=None, help="use <ws>/edits/EDIT/albedo.ply as the albedo")
+    p.add_argument("--cameras", default=None, help="cameras.json (format above)")
+    p.add_argument("--path", default=None, help="camera path as a nerfstudio-style transforms.json")
+    p.add_argument("--turntable", action="store_true", help="orbit around --center")
+    p.add_argument("--center", default=None, help="turntable centre x,y,z (default: centroid of the SfM points)")
+    p.add_argument("--radius", type=float, default=3.0, help="turntable radius (default 3)")
+    p.add_argument("--height", type=float, default=1.0, help="turntable camera height above the centre (default 1)")
+    p.add_argument("--frames", type=int, default=60, help="turntable frames (default 60)")
+    p.add_argument("--size", type=int, nargs=2, default=None, metavar=("W", "H"),
+                   help="turntable image size (default: the capture's)")
+    p.add_argument("--fov", type=float, default=None, help="turntable horizontal field of view in degrees "
+                   "(default: the capture's)")
+    p.add_argument("--layers", default="A,S,R,full", help="comma list of A, S, R, full (default all)")
+    p.add_argument("--out", default=None, help="output folder (default <ws>/renders/<edit or 'layers'>)")
+    p.add_argument("--mp4", action="store_true", help="also write OUT/<layer>.mp4")
+    p.add_argument("--fps", type=float, default=24.0, help="video frame rate (default 24)")
+    p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
+                   help="renderer backend (default auto)")
+    p.set_defaults(func=run_render)

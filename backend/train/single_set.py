@@ -1,0 +1,225 @@
+"""The single-set baseline: one set of Gaussians carrying albedo, shading and residual colours.
+
+The design the paper argues against (section 3.1, as in prior intrinsic Gaussian/NeRF methods): the
+three layers share one geometry, so a shadow edge and a texture edge must be drawn by the same
+primitives. Everything else is kept equal to the three-set decomposition so the ablation compares
+only that choice: the same priors and colour space, the same losses (albedo photometric + depth +
+scale; inverse-domain photometric on I = A * S (+ R) with the gray regulariser), the same iteration
+budget (N_A + N_S + N_R iterations, in three phases that add the losses in the same order), the same
+densification and floater removal, and a Gaussian budget equal to the three fields' together.
+
+Phases (``stage.iteration`` from the loop): [0, N_A) albedo loss only; [N_A, N_A + N_S) + the
+diffuse model A * S; [N_A + N_S, end) + the full model A * S + R. The albedo loss stays on
+throughout: without it the shared geometry would drift away from the albedo.
+
+All three colours are rendered in one pass as a 9-channel feature (the residual's SH evaluated per
+Gaussian first). Outputs: ``<ws>/layers/single_set/{albedo,shading,residual}.ply`` (same geometry),
+the metrics key ``decompose_single_set`` and ``<ws>/report_single_set.png``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from backend import events
+from backend.errors import IGSError
+from backend.render import RenderOutput, render
+from backend.render.sh import sh_to_color
+from backend.splats.gaussians import GEOMETRY, GaussianSet, rgb_to_color_params
+from backend.splats.ply import write_ply
+from backend.splats.strategy import DensifyStrategy
+from backend.train.intrinsic import (
+    STAGES,
+    DecomposeConfig,
+    DecomposeState,
+    depth_term,
+    finish,
+    initial_albedo,
+    initial_shading,
+    inverse_photometric,
+    jsonable,
+    prepare_setup,
+    record_layers,
+    stage_entry,
+)
+from backend.train.loop import Stage, TrainConfig, train
+from backend.train.losses import gray_reg, photometric, scale_reg
+from backend.train.views import View
+
+NAME = "single_set"
+METRICS_KEY = "decompose_single_set"
+
+
+class LayeredGaussians(GaussianSet):
+    """One geometry with three colours: ``albedo_logits`` (N, 3) -> sigmoid, ``shading_colors``
+    (N, 3) raw (times ``shading_gain``), and the residual's SH (``sh0``/``shN``, this set's own kind
+    'residual'). Densification and pruning edit every row parameter alike, the extra colours too."""
+
+    EXTRA = ("albedo_logits", "shading_colors")
+
+    def __init__(self, tensors: Mapping[str, torch.Tensor], sh_degree: int = 3, active_sh_degree: int | None = None,
+                 shading_gain: float = 1.0):
+        super().__init__("residual", tensors, sh_degree, active_sh_degree)
+        n = len(self)
+        for name in self.EXTRA:
+            if name not in tensors or tuple(tensors[name].shape) != (n, 3):
+                raise ValueError(f"LayeredGaussians: {name} must have shape ({n}, 3)")
+            self.params[name] = nn.Parameter(tensors[name].detach().to(torch.float32).clone().contiguous())
+        self.shading_gain = float(shading_gain)
+
+    @classmethod
+    def from_layers(cls, albedo: GaussianSet, shading_rgb: torch.Tensor, sh_degree: int,
+                    shading_gain: float) -> LayeredGaussians:
+        """Geometry and albedo of ``albedo`` (an albedo-kind set), gray shading ``shading_rgb`` (N, 3),
+        residual starting at 0.01 (SH DC) so the clamp at 0 still passes gradients."""
+        t = {k: albedo.params[k].detach() for k in GEOMETRY}
+        t["albedo_logits"] = albedo.params["colors"].detach()
+        t["shading_colors"] = shading_rgb / shading_gain
+        t.update(rgb_to_color_params("residual", torch.full((len(albedo), 3), 0.01), sh_degree))
+        return cls(t, sh_degree, active_sh_degree=0, shading_gain=shading_gain)
+
+    @property
+    def albedo(self) -> torch.Tensor:
+        """(N, 3) in [0, 1]."""
+        return torch.sigmoid(self.params["albedo_logits"])
+
+    @property
+    def shading(self) -> torch.Tensor:
+        """(N, 3) raw shading."""
+        return self.params["shading_colors"] * self.shading_gain
+
+    def features(self, cam_center: torch.Tensor) -> torch.Tensor:
+        """(N, 9): albedo | shading | residual RGB seen from ``cam_center`` (3,)."""
+        residual = sh_to_color(self.active_sh_degree, self.colors, self.means, cam_center)
+        return torch.cat([self.albedo, self.shading, residual], dim=1)
+
+    def layer(self, kind: str) -> GaussianSet:
+        """A detached set of one layer kind with this geometry (for PLY files and evaluation)."""
+        t = {k: self.params[k].detach().clone() for k in GEOMETRY}
+        if kind == "albedo":
+            t["colors"] = self.params["albedo_logits"].detach().clone()
+            return GaussianSet("albedo", t)
+        if kind == "shading":
+            t["colors"] = self.shading.detach().clone()
+            return GaussianSet("shading", t)
+        t["sh0"], t["shN"] = self.params["sh0"].detach().clone(), self.params["shN"].detach().clone()
+        return GaussianSet("residual", t, self.sh_degree, self.sh_degree)
+
+
+class SingleSetStage(Stage):
+    """The three losses on one :class:`LayeredGaussians`, added phase by phase (module docstring)."""
+
+    def __init__(self, *args, phases: tuple[int, int], lambda_gray: float, shading_gain: float, **kw):
+        super().__init__(*args, **kw)
+        self.phases = phases
+        self.lambda_gray = lambda_gray
+        self.shading_gain = shading_gain
+
+    def restore_gaussians(self, ckpt: dict[str, Any]) -> GaussianSet:
+        return LayeredGaussians(ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"], self.shading_gain)
+
+    def phase(self) -> int:
+        return 0 if self.iteration < self.phases[0] else 1 if self.iteration < self.phases[1] else 2
+
+    def render(self, view: View) -> RenderOutput:
+        g = self.gaussians
+        center = torch.as_tensor(view.camera.center, dtype=torch.float32)
+        return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, g.features(center),
+                      view.camera, log_scales=True, backend=self.config.backend)
+
+    def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
+        c = out.color
+        return c[..., 0:3] * c[..., 3:6] + c[..., 6:9]
+
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        cfg, g, phase = self.config, self.gaussians, self.phase()
+        c = out.color
+        terms = {"albedo": photometric(c[..., 0:3], view.extras["albedo"], cfg.lambda_dssim)}
+        if phase >= 1:
+            model = c[..., 0:3] * c[..., 3:6] + (c[..., 6:9] if phase == 2 else 0.0)
+            terms["photo"] = inverse_photometric(model, view.image, cfg.lambda_dssim)
+            if self.lambda_gray > 0:
+                terms["gray"] = self.lambda_gray * gray_reg(g.shading)
+        if (d := depth_term(cfg, view, out)) is not None:
+            terms["depth"] = d
+        if cfg.lambda_scale > 0:
+            terms["scale"] = cfg.lambda_scale * scale_reg(g.scales)
+        return sum(terms.values()), {k: float(v.detach()) for k, v in terms.items()}
+
+
+def single_set_config(cfg: DecomposeConfig) -> TrainConfig:
+    """The albedo stage's settings over the whole budget, with the three fields' Gaussian budget."""
+    total = sum(cfg.stage(s).iterations for s in STAGES)
+    budget = sum(cfg.stage(s).densify.max_gaussians for s in STAGES)
+    a = cfg.albedo
+    return replace(a, iterations=total, densify=replace(a.densify, max_gaussians=budget))
+
+
+def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None = None, *,
+                         resume: bool = True) -> dict[str, Any]:
+    """Train the single-set baseline on a workspace; returns the summary written to metrics.json."""
+    cfg = config or DecomposeConfig()
+    t_start = time.perf_counter()
+    probe = prepare_setup(workspace, cfg)
+    ws = probe.capture.workspace
+    setup = replace(probe, layers_dir=ws.layers / NAME)
+    tcfg = single_set_config(cfg)
+    if cfg.albedo.lr.colors <= 0:
+        raise IGSError("the colour learning rate must be > 0")
+    # Adam moves every colour by about the same step: scaling the shading parameter gives it the
+    # three-set shading stage's colour rate while the albedo keeps the albedo stage's
+    gain = cfg.shading.lr.colors / cfg.albedo.lr.colors
+    state = DecomposeState(setup.ckpt_root / "decompose")
+    extra = jsonable({"phases": [cfg.albedo.iterations, cfg.shading.iterations, cfg.residual.iterations],
+                       "lambda_gray": cfg.lambda_gray, "shading_init": cfg.shading_init, "downscale": cfg.downscale,
+                       "hold_every": cfg.hold_every, "sh_degree": cfg.residual_sh_degree, "gain": gain,
+                       "init": asdict(cfg.init)})
+    stale = bool(state.get(NAME)) and state.get(NAME).get("extra") != extra
+    state.set(NAME, {"done": False, "extra": extra})
+
+    t0 = time.perf_counter()
+    with_depth = tcfg.lambda_depth > 0
+    train_views = setup.views(setup.train_frames, "image", cfg.downscale, with_depth)
+    for v, a in zip(train_views, setup.views(setup.train_frames, "albedo", cfg.downscale, False)):
+        v.extras["albedo"] = a.image
+    test_views = setup.views(setup.test_frames, "image", cfg.downscale, False)
+    albedo0, how = initial_albedo(setup.capture, [_as_albedo_view(v) for v in train_views], cfg)
+    shading0, _ = initial_shading(setup.capture, train_views, cfg, albedo_of=lambda v: v.extras["albedo"])
+    if len(shading0) != len(albedo0):  # both come from the same points; guard the row pairing
+        raise IGSError("single set: albedo and shading initialisations differ in size")
+    init = LayeredGaussians.from_layers(albedo0, shading0.colors.detach(), cfg.residual_sh_degree, gain)
+    phases = (cfg.albedo.iterations, cfg.albedo.iterations + cfg.shading.iterations)
+    stage = SingleSetStage(NAME, init, train_views, test_views, tcfg, setup.extent,
+                           DensifyStrategy(tcfg.resolved_densify(), setup.extent), color_space="linear",
+                           phases=phases, lambda_gray=cfg.lambda_gray, shading_gain=gain)
+    events.log(f"{NAME}: {len(train_views)} training / {len(test_views)} held-out views, {len(init)} initial "
+               f"Gaussians ({how}); phases albedo {phases[0]}, + diffuse {cfg.shading.iterations}, "
+               f"+ residual {cfg.residual.iterations} iterations")
+    setup_seconds = time.perf_counter() - t0
+    result = train(stage, setup.ckpt_root / f"decompose_{NAME}", resume=resume and not stale)
+    g: LayeredGaussians = result.gaussians
+    layers = {k: g.layer(k) for k in STAGES}
+    for k, layer in layers.items():
+        ply = write_ply(setup.layers_dir / f"{k}.ply", layer, space="linear")
+        events.output("layer", ply)
+    entry = stage_entry(result, tcfg, setup_seconds, 0.0, how, len(init), {"phases": list(phases)})
+    state.set(NAME, {"done": True, "extra": extra, "summary": entry})
+    # one set: the three layer files hold the same Gaussians
+    summary = finish(setup, cfg, layers, {NAME: entry}, mode="single-set",
+                     report_path=ws.root / "report_single_set.png", metrics_key=METRICS_KEY,
+                     wall=time.perf_counter() - t_start, counts={"single_set": len(g)})
+    record_layers(setup, layers, "single-set")
+    return summary
+
+
+def _as_albedo_view(v: View) -> View:
+    """The view with its albedo map as the image (to colour the initial Gaussians)."""
+    return View(v.index, v.camera, v.extras["albedo"], v.depth)
+

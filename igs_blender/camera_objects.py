@@ -1,0 +1,130 @@
+"""SfM cameras as Blender camera objects, and Blender cameras as backend camera files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from . import scene_objects
+from .cameras import (
+    SfmView,
+    blender_lens_from_intrinsics,
+    blender_matrix_world,
+    from_blender_matrix_world,
+    intrinsics_from_blender,
+    read_colmap_text,
+)
+from .errors import UserError
+
+COLLECTION = "IGS Cameras"
+
+
+def camera_object_name(frame: str) -> str:
+    return f"IGS {Path(frame).stem}"
+
+
+def render_size(scene: bpy.types.Scene) -> tuple[int, int]:
+    """Output size in pixels (resolution times percentage, as Blender renders)."""
+    r = scene.render
+    return max(1, int(r.resolution_x * r.resolution_percentage / 100)), \
+        max(1, int(r.resolution_y * r.resolution_percentage / 100))
+
+
+def sfm_cameras(scene: bpy.types.Scene | None = None) -> list[bpy.types.Object]:
+    """Camera objects made by :func:`import_cameras`, sorted by frame name."""
+    cams = [o for o in bpy.data.objects if o.type == "CAMERA" and "igs_frame" in o]
+    return sorted(cams, key=lambda o: o["igs_frame"])
+
+
+def import_cameras(scene: bpy.types.Scene, workspace: Path, *, backgrounds: bool = True,
+                   ) -> list[bpy.types.Object]:
+    """Create one Blender camera per registered view of ``<ws>/sparse/0`` (replacing earlier ones)."""
+    views = read_colmap_text(workspace / "sparse" / "0")
+    coll = scene_objects.collection(COLLECTION)
+    for old in sfm_cameras():
+        scene_objects.remove_object(old)
+    centres = np.array([v.center for v in views])
+    extent = float(np.median(np.linalg.norm(centres - centres.mean(0), axis=1))) if len(views) > 1 else 1.0
+    extent = extent if np.isfinite(extent) and extent > 1e-9 else 1.0  # SfM units are arbitrary: scale to them
+    objs = []
+    for v in views:
+        name = camera_object_name(v.name)
+        lens = blender_lens_from_intrinsics(v.width, v.height, v.fx, v.fy, v.cx, v.cy)
+        data = bpy.data.cameras.new(name)
+        data.type = "PERSP"
+        data.sensor_fit = "HORIZONTAL"
+        data.sensor_width = lens.sensor_width
+        data.lens = lens.lens
+        data.shift_x, data.shift_y = lens.shift_x, lens.shift_y
+        data.display_size = 0.1 * extent
+        data.clip_start, data.clip_end = 1e-3 * extent, 1e3 * extent
+        obj = bpy.data.objects.new(name, data)
+        coll.objects.link(obj)
+        scene_objects.parent_to_root(obj, Matrix(blender_matrix_world(v.R, v.t).tolist()))
+        obj["igs_frame"] = v.name
+        obj["igs_width"], obj["igs_height"] = v.width, v.height
+        obj["igs_pixel_aspect"] = (lens.pixel_aspect_x, lens.pixel_aspect_y)
+        image_path = workspace / "images" / v.name
+        if backgrounds and image_path.is_file():
+            data.show_background_images = True
+            bg = data.background_images.new()
+            bg.image = bpy.data.images.load(str(image_path), check_existing=True)
+            bg.display_depth = "BACK"
+            bg.alpha = 1.0
+        objs.append(obj)
+    if objs:
+        use_frame_camera(scene, objs[0])
+    bpy.context.view_layer.update()
+    return objs
+
+
+def use_frame_camera(scene: bpy.types.Scene, obj: bpy.types.Object) -> None:
+    """Make an SfM camera the scene camera with its own image size and pixel aspect."""
+    scene.camera = obj
+    if "igs_width" in obj:
+        r = scene.render
+        r.resolution_x, r.resolution_y = int(obj["igs_width"]), int(obj["igs_height"])
+        r.resolution_percentage = 100
+        ax, ay = obj.get("igs_pixel_aspect", (1.0, 1.0))
+        r.pixel_aspect_x, r.pixel_aspect_y = float(ax), float(ay)
+
+
+def sfm_view_from_object(scene: bpy.types.Scene, obj: bpy.types.Object, name: str | None = None,
+                         matrix_world: Matrix | None = None, size: tuple[int, int] | None = None) -> SfmView:
+    """The pinhole camera (SfM coordinates) that a Blender camera renders at the scene's resolution.
+
+    ``matrix_world`` overrides the object's matrix (turntables); ``size`` overrides the output size.
+    """
+    if obj is None or obj.type != "CAMERA":
+        raise UserError("no camera: set the scene's active camera (Ctrl+Numpad 0 on a camera)")
+    cam = obj.data
+    if cam.type != "PERSP":
+        raise UserError(f"camera '{obj.name}' is {cam.type.lower()}; only perspective cameras can be rendered")
+    w, h = size or render_size(scene)
+    r = scene.render
+    fx, fy, cx, cy = intrinsics_from_blender(w, h, cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit,
+                                             cam.shift_x, cam.shift_y, r.pixel_aspect_x, r.pixel_aspect_y)
+    m = scene_objects.to_capture_space(matrix_world if matrix_world is not None else obj.matrix_world)
+    R, t = from_blender_matrix_world(m)
+    return SfmView(name or obj.get("igs_frame", obj.name), w, h, fx, fy, cx, cy, R, t)
+
+
+def render_region_rect(scene: bpy.types.Scene, obj: bpy.types.Object) -> tuple[int, int, int, int]:
+    """The render region (Ctrl+B in camera view) as a pixel rectangle x0 y0 x1 y1 of the SfM frame."""
+    r = scene.render
+    if not r.use_border:
+        raise UserError("draw the edit rectangle first: look through an SfM camera (Numpad 0) and press Ctrl+B")
+    if "igs_width" not in obj:
+        raise UserError(f"camera '{obj.name}' is not an SfM camera of the capture; pick one in the Edit panel")
+    w, h = int(obj["igs_width"]), int(obj["igs_height"])
+    x0, x1 = r.border_min_x * w, r.border_max_x * w
+    y0, y1 = (1.0 - r.border_max_y) * h, (1.0 - r.border_min_y) * h  # Blender's y goes up, pixels' down
+    rect = (int(np.floor(x0)), int(np.floor(y0)), int(np.ceil(x1)), int(np.ceil(y1)))
+    if rect[2] - rect[0] < 2 or rect[3] - rect[1] < 2:
+        raise UserError("the render region is too small; drag a larger rectangle with Ctrl+B")
+    if rect == (0, 0, w, h):
+        raise UserError("the render region covers the whole frame; drag a rectangle around the surface with Ctrl+B")
+    return rect

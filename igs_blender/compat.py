@@ -1,0 +1,124 @@
+"""Everything that differs between Blender versions (4.2 LTS .. 5.x), in one place.
+
+Tested on bpy 5.0.1. Other modules call these helpers instead of testing ``bpy.app.version``.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+# Blender 4.2-4.4 call EEVEE "BLENDER_EEVEE_NEXT"; 4.5/5.x call it "BLENDER_EEVEE" again.
+_EEVEE_IDS = ("BLENDER_EEVEE_NEXT", "BLENDER_EEVEE")
+
+
+def eevee_engine() -> str:
+    items = bpy.types.RenderSettings.bl_rna.properties["engine"].enum_items.keys()
+    for ident in _EEVEE_IDS:
+        if ident in items:
+            return ident
+    return "BLENDER_EEVEE"
+
+
+def use_nodes(material: bpy.types.Material) -> None:
+    """Give a material a node tree (5.0+ materials always have one; the flag goes away in 6.0)."""
+    if material.node_tree is None or bpy.app.version < (5, 0, 0):
+        material.use_nodes = True
+
+
+def set_dithered_transparency(material: bpy.types.Material) -> None:
+    """Let a material's alpha (splat opacity) show in EEVEE without sorting problems."""
+    if hasattr(material, "surface_render_method"):  # 4.2+
+        material.surface_render_method = "DITHERED"
+    else:  # older API, kept for completeness of the fallback
+        material.blend_method = "HASHED"
+
+
+def pointcloud_object(name: str, positions: np.ndarray, collection: bpy.types.Collection) -> bpy.types.Object:
+    """A new PointCloud object with ``positions`` (N, 3), linked to ``collection``.
+
+    Blender's Python API cannot resize a PointCloud (up to 5.0 at least), so the points are made as
+    mesh vertices and converted with Object > Convert > Point Cloud, the way a user would.
+    """
+    n = int(positions.shape[0])
+    mesh = bpy.data.meshes.new(name)
+    mesh.vertices.add(n)
+    mesh.vertices.foreach_set("co", np.ascontiguousarray(positions, dtype=np.float32).ravel())
+    obj = bpy.data.objects.new(name, mesh)
+    collection.objects.link(obj)
+    view_layer = bpy.context.view_layer
+    view_layer.update()  # sync the view layer with the new collection content before the operator
+    if obj.name not in view_layer.objects:
+        raise RuntimeError(f"collection '{collection.name}' is not in the active view layer")
+    with bpy.context.temp_override(active_object=obj, object=obj, selected_objects=[obj],
+                                   selected_editable_objects=[obj]):
+        result = bpy.ops.object.convert(target="POINTCLOUD", keep_original=False)
+    if "FINISHED" not in result or obj.type != "POINTCLOUD":
+        raise RuntimeError(f"could not convert '{name}' to a point cloud")
+    if mesh.users == 0:
+        bpy.data.meshes.remove(mesh)
+    obj.data.name = name
+    sel = obj.data.attributes.get(".select_vert")  # edit-mode selection carried over from the mesh
+    if sel is not None:
+        obj.data.attributes.remove(sel)
+    return obj
+
+
+def quaternion_attribute_type() -> str:
+    """Attribute type for rotations: QUATERNION (4.2+), else a 4-float colour as a container."""
+    items = bpy.types.Attribute.bl_rna.properties["data_type"].enum_items.keys()
+    return "QUATERNION" if "QUATERNION" in items else "FLOAT_COLOR"
+
+
+def native_splat_display() -> str | None:
+    """How this Blender draws Gaussian splats from point-cloud attributes, or None when it cannot.
+
+    Native splat rendering of point clouds is announced for Blender 5.3 and does not exist in the
+    releases this add-on is tested on (up to 5.0.1), so the layers are drawn as spheres with their
+    colour and opacity. The Gaussian parameters are stored on the points as named attributes
+    (``scale``, ``rotation``, ``opacity``, ``f_dc``, ``f_rest_NN``) so that a Blender with native
+    splats can use them; this function is the one place to switch that on once its API is known.
+    """
+    if bpy.app.version < (5, 3, 0):
+        return None
+    # A release with native splats exposes a point-cloud draw/render setting for them; look for it
+    # by name instead of assuming an API that is not published yet.
+    for ident in bpy.types.PointCloud.bl_rna.properties.keys():
+        if "splat" in ident.lower() or "gaussian" in ident.lower():
+            return ident
+    return None
+
+
+def extension_user_dir(package: str, sub: str) -> str:
+    """A user-writable folder for this extension (kept across upgrades); 4.2+ has an API for it."""
+    return bpy.utils.extension_path_user(package, path=sub, create=True)
+
+
+def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
+    """Show ``image`` in an Image Editor: an open one, else a new window; False without a UI."""
+    if bpy.app.background or context.window_manager is None:
+        return False
+
+    def assign(space) -> None:
+        space.image = image
+        if image.source == "SEQUENCE":  # play the whole sequence with the timeline
+            space.image_user.frame_start = 1
+            space.image_user.frame_duration = int(image.get("igs_frames", 1))
+            space.image_user.use_auto_refresh = True
+
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "IMAGE_EDITOR":
+                assign(area.spaces.active)
+                area.tag_redraw()
+                return True
+    try:
+        with context.temp_override(window=context.window):
+            bpy.ops.wm.window_new()
+        window = context.window_manager.windows[-1]
+        area = window.screen.areas[0]
+        area.type = "IMAGE_EDITOR"
+        assign(area.spaces.active)
+        return True
+    except (RuntimeError, IndexError, AttributeError):
+        return False

@@ -1,0 +1,96 @@
+"""Where the add-on's objects live in the Blender scene.
+
+Everything a capture brings in (cameras, layer point clouds, edit proxies) is parented to one empty,
+"IGS Capture", whose transform maps the capture's SfM world into Blender's world. It starts as the
+identity; the user may rotate/scale it to stand the scene upright. Whatever goes back to the
+backend (a proxy's matrix, a render camera) is expressed in SfM coordinates with
+:func:`to_capture_space`.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+ROOT_NAME = "IGS Capture"
+COLLECTION_NAME = "Intrinsic Splats"
+
+
+def collection(name: str, parent: bpy.types.Collection | None = None) -> bpy.types.Collection:
+    """The collection ``name`` (created inside ``parent``, or the add-on's main collection, when missing)."""
+    coll = bpy.data.collections.get(name)
+    if coll is None:
+        coll = bpy.data.collections.new(name)
+    if parent is None and name != COLLECTION_NAME:
+        parent = main_collection()
+    if parent is None:
+        scene_coll = bpy.context.scene.collection
+        if coll.name not in scene_coll.children:
+            scene_coll.children.link(coll)
+    elif coll.name not in parent.children:
+        parent.children.link(coll)
+    return coll
+
+
+def main_collection() -> bpy.types.Collection:
+    return collection(COLLECTION_NAME)
+
+
+def capture_root(create: bool = True) -> bpy.types.Object | None:
+    """The "IGS Capture" empty (created at the identity when missing and ``create``)."""
+    root = bpy.data.objects.get(ROOT_NAME)
+    if root is None and create:
+        root = bpy.data.objects.new(ROOT_NAME, None)
+        root.empty_display_type = "PLAIN_AXES"
+        root.empty_display_size = 0.25
+        main_collection().objects.link(root)
+    return root
+
+
+def parent_to_root(obj: bpy.types.Object, matrix_capture: Matrix | None = None) -> None:
+    """Parent ``obj`` to the capture root and place it at ``matrix_capture`` (SfM coordinates)."""
+    root = capture_root()
+    obj.parent = root
+    obj.matrix_parent_inverse = Matrix.Identity(4)
+    if matrix_capture is not None:
+        obj.matrix_basis = matrix_capture
+
+
+def capture_matrix() -> Matrix:
+    """World matrix of the capture root (SfM -> Blender world); identity when there is none."""
+    root = capture_root(create=False)
+    return root.matrix_world.copy() if root is not None else Matrix.Identity(4)
+
+
+def to_capture_space(matrix_world: Matrix) -> np.ndarray:
+    """A Blender world matrix expressed in the capture's SfM coordinates, as a (4, 4) float64 array."""
+    m = capture_matrix().inverted_safe() @ matrix_world
+    return np.array(m, dtype=np.float64)
+
+
+def link_object(obj: bpy.types.Object, coll: bpy.types.Collection) -> None:
+    if obj.name not in coll.objects:
+        coll.objects.link(obj)
+
+
+def remove_object(obj: bpy.types.Object | None) -> None:
+    """Delete an object, and its data when nothing else uses it."""
+    if obj is None:
+        return
+    data = obj.data
+    bpy.data.objects.remove(obj, do_unlink=True)
+    if data is not None and data.users == 0:
+        for coll in (bpy.data.meshes, bpy.data.pointclouds, bpy.data.cameras):
+            if coll.get(data.name) == data:
+                coll.remove(data)
+                break
+
+
+def tag_redraw(context=None) -> None:
+    """Redraw every 3D view and Image Editor (the panels show job progress)."""
+    wm = (context or bpy.context).window_manager
+    for window in getattr(wm, "windows", []):
+        for area in window.screen.areas:
+            if area.type in {"VIEW_3D", "IMAGE_EDITOR", "PREFERENCES"}:
+                area.tag_redraw()

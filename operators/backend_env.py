@@ -1,0 +1,54 @@
+"""Preferences operators: create the backend environment, check an interpreter."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+
+from ..igs_blender import ADDON_ID, backend_env, compat, preferences
+from ..igs_blender.client import BackendJob
+from .job import BackendOperator
+
+
+class IGS_OT_create_backend_env(BackendOperator, bpy.types.Operator):
+    """Create a Python environment with the backend's pinned requirements (downloads ~1-2 GB: torch, bpy, pycolmap, OpenCV) and use it"""
+
+    bl_idname = "igs.create_backend_env"
+    bl_label = "Create Backend Environment"
+
+    def make_job(self, context) -> BackendJob:
+        prefs = preferences.get(context)
+        env_dir = Path(bpy.path.abspath(prefs.env_dir)) if prefs.env_dir else \
+            backend_env.default_env_dir(compat.extension_user_dir(ADDON_ID, ""))
+        base = bpy.path.abspath(prefs.base_python) if prefs.base_python else ""
+        self._env_dir = env_dir
+        return backend_env.setup_job(base, env_dir, include_bpy=prefs.include_bpy, root=prefs.backend_root)
+
+    def finish(self, context, job: BackendJob) -> str:
+        prefs = preferences.get(context)
+        python = next((p for k, p in job.state.outputs if k == "interpreter"),
+                      str(backend_env.venv_python(self._env_dir)))
+        prefs.backend_python = python
+        return f"Backend environment ready: {python} (run 'Check Backend' to list its commands)"
+
+
+class IGS_OT_check_backend(BackendOperator, bpy.types.Operator):
+    """Check that the backend interpreter has every pinned package and list the backend's commands"""
+
+    bl_idname = "igs.check_backend"
+    bl_label = "Check Backend"
+
+    def make_job(self, context) -> BackendJob:
+        prefs = preferences.get(context)
+        return backend_env.check_job(preferences.interpreter(context), prefs.backend_root, prefs.include_bpy)
+
+    def finish(self, context, job: BackendJob) -> str:
+        prefs = preferences.get(context)
+        ok, lines = backend_env.env_report_lines(job)
+        prefs.check_ok = ok
+        prefs.check_report = "\n".join(lines)
+        return ("Backend ready: " if ok else "Backend incomplete: ") + "; ".join(lines[1:])
+
+
+CLASSES = (IGS_OT_create_backend_env, IGS_OT_check_backend)

@@ -1,0 +1,76 @@
+"""Decompose operators: the three-field decomposition and the vanilla 3DGS baseline."""
+
+from __future__ import annotations
+
+import bpy
+
+from ..igs_blender import backend_env, layers, preferences
+from ..igs_blender.client import BackendJob
+from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
+from .job import BackendOperator
+
+
+def decompose_args(props) -> tuple[list, int]:
+    """Command line and number of stages for the Decompose panel's settings."""
+    ws = existing_workspace(props.workspace)
+    args: list = ["decompose", ws]
+    stages = 3
+    if props.decompose_stage != "ALL":
+        args += ["--stage", props.decompose_stage]
+        stages = 1
+    if props.iterations:
+        args += ["--iterations", props.iterations]
+    if props.restart:
+        args.append("--restart")
+    return args, stages
+
+
+def _load_results(context, kinds_wanted: tuple[str, ...]) -> str:
+    props = context.scene.igs
+    ws = existing_workspace(props.workspace)
+    objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
+                                        composite=props.build_composite)
+    props.metrics_info = metrics_summary(ws)
+    props.capture_info = capture_summary(ws)
+    shown = [k for k in objs if k in kinds_wanted or k == "composite"]
+    return ", ".join(f"{k} {len(objs[k].data.points)}" for k in shown)
+
+
+class IGS_OT_decompose(BackendOperator, bpy.types.Operator):
+    """Decompose the capture into albedo, shading and residual Gaussians (resumes from the last checkpoint), then load the layers"""
+
+    bl_idname = "igs.decompose"
+    bl_label = "Decompose"
+
+    def make_job(self, context) -> BackendJob:
+        args, stages = decompose_args(context.scene.igs)
+        prefs = preferences.get(context)
+        return backend_env.backend_job(preferences.interpreter(context), args, "Decompose",
+                                       root=prefs.backend_root, expected_stages=stages)
+
+    def finish(self, context, job: BackendJob) -> str:
+        return "Decomposed; layers: " + _load_results(context, ("albedo", "shading", "residual"))
+
+
+class IGS_OT_train_3dgs(BackendOperator, bpy.types.Operator):
+    """Train the vanilla 3DGS baseline (one radiance field) on the same capture, then load it"""
+
+    bl_idname = "igs.train_3dgs"
+    bl_label = "Train 3DGS Baseline"
+
+    def make_job(self, context) -> BackendJob:
+        props = context.scene.igs
+        args: list = ["train-3dgs", existing_workspace(props.workspace)]
+        if props.iterations:
+            args += ["--iterations", props.iterations]
+        if props.restart:
+            args.append("--restart")
+        prefs = preferences.get(context)
+        return backend_env.backend_job(preferences.interpreter(context), args, "Train 3DGS", root=prefs.backend_root,
+                                       expected_stages=1)
+
+    def finish(self, context, job: BackendJob) -> str:
+        return "3DGS baseline trained; layers: " + _load_results(context, ("radiance",))
+
+
+CLASSES = (IGS_OT_decompose, IGS_OT_train_3dgs)

@@ -1,0 +1,256 @@
+"""Edit operators: fit a proxy in an SfM view, texture it, bake it into the albedo, manage edits.
+
+The proxy is an ordinary textured mesh: a fitted plane or cylinder, or any mesh with UVs the artist
+picks. The artist moves it with Blender's gizmos; Bake writes its current transform, geometry and
+image (or colour) to ``<ws>/edits/<name>/proxy.json`` and runs ``edit bake``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, StringProperty
+
+from ..igs_blender import backend_env, edits, layers, preferences, proxies
+from ..igs_blender.camera_objects import render_region_rect
+from ..igs_blender.client import BackendJob
+from ..igs_blender.errors import UserError
+from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
+from .job import BackendOperator
+
+
+def target_proxy(context) -> tuple[str, bpy.types.Object]:
+    """(edit name, proxy object) of the edit selected in the list."""
+    item = edits.active(context.scene.igs)
+    if item is None:
+        raise UserError("no edit yet: fit a plane (or use a selected mesh as proxy) first")
+    if item.proxy is None or item.proxy.name not in context.scene.objects:
+        raise UserError(f"the proxy of edit '{item.name}' was deleted; fit it again or remove the edit")
+    return item.name, item.proxy
+
+
+def select_only(context, obj: bpy.types.Object) -> None:
+    for other in context.view_layer.objects.selected:
+        other.select_set(False)
+    obj.hide_viewport = False
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+    space = context.space_data
+    if space is not None and space.type == "VIEW_3D":  # the move/rotate/scale gizmos on the proxy
+        space.show_gizmo_object_translate = True
+        space.show_gizmo_object_rotate = True
+        space.show_gizmo_object_scale = True
+
+
+def apply_fill(props, obj: bpy.types.Object) -> None:
+    """Give a freshly fitted proxy the panel's colour unless its file brought a texture."""
+    if proxies.proxy_image(obj) is None:
+        proxies.set_proxy_color(obj, props.edit_color)
+
+
+class IGS_OT_fit_proxy(BackendOperator, bpy.types.Operator):
+    """Fit a proxy to the surface inside the render region (Ctrl+B) of the active SfM camera's view"""
+
+    bl_idname = "igs.fit_proxy"
+    bl_label = "Fit Proxy"
+
+    primitive: EnumProperty(name="Primitive", items=[("plane", "Plane", "RANSAC plane"),
+                                                     ("cylinder", "Cylinder", "RANSAC cylinder patch")],
+                            default="plane")
+
+    def make_job(self, context) -> BackendJob:
+        scene = context.scene
+        props = scene.igs
+        ws = existing_workspace(props.workspace)
+        name = check_edit_name(props.edit_name)
+        cam = scene.camera
+        if cam is None or "igs_frame" not in cam:
+            raise UserError("make an SfM camera of the capture the scene camera (Edit panel > View) and look through it")
+        rect = render_region_rect(scene, cam)
+        self._out = ws / "edits" / name / "proxy.json"
+        self._name = name
+        args = ["edit", f"fit-{self.primitive}", ws, "--view", cam["igs_frame"], "--rect", *rect,
+                "--name", name, "--out", self._out]
+        prefs = preferences.get(context)
+        return backend_env.backend_job(preferences.interpreter(context), args, f"Fit {self.primitive}",
+                                       root=prefs.backend_root)
+
+    def finish(self, context, job: BackendJob) -> str:
+        props = context.scene.igs
+        obj = proxies.create_proxy_object(self._out, self._name)
+        apply_fill(props, obj)
+        item = edits.ensure(props, self._name)
+        item.proxy = obj
+        item.baked = False
+        item.visible = True
+        select_only(context, obj)
+        return f"Fitted a {self.primitive} proxy for edit '{self._name}': move it with the gizmos, then Bake"
+
+
+class IGS_OT_use_selection_as_proxy(bpy.types.Operator):
+    """Use the active mesh (it needs UVs) as the proxy of the edit named in the panel"""
+
+    bl_idname = "igs.use_selection_as_proxy"
+    bl_label = "Use Selection as Proxy"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        props = context.scene.igs
+        obj = context.active_object
+        try:
+            if obj is None:
+                raise UserError("select a mesh with UVs first")
+            name = check_edit_name(props.edit_name)
+            proxies.adopt_mesh_as_proxy(obj, name)
+        except UserError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        item = edits.ensure(props, name)
+        item.proxy = obj
+        item.baked = False
+        item.visible = True
+        self.report({"INFO"}, f"'{obj.name}' is the proxy of edit '{name}'")
+        return {"FINISHED"}
+
+
+class IGS_OT_set_proxy_image(bpy.types.Operator):
+    """Texture the selected edit's proxy with an image (shown in Material Preview)"""
+
+    bl_idname = "igs.set_proxy_image"
+    bl_label = "Image…"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(subtype="FILE_PATH")
+    filter_image: BoolProperty(default=True, options={"HIDDEN"})
+    filter_folder: BoolProperty(default=True, options={"HIDDEN"})
+    extension: EnumProperty(name="Extension", items=[("REPEAT", "Repeat", ""), ("EXTEND", "Extend", "")],
+                            default="REPEAT")
+
+    def invoke(self, context, event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        try:
+            _, obj = target_proxy(context)
+            path = Path(bpy.path.abspath(self.filepath))
+            if not path.is_file():
+                raise UserError(f"image {path} not found")
+            try:
+                image = bpy.data.images.load(str(path), check_existing=True)
+            except RuntimeError as e:
+                raise UserError(f"cannot read image {path}: {e}") from e
+            proxies.set_proxy_image(obj, image, self.extension)
+        except UserError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        context.scene.igs.texture_mode = "IMAGE"
+        return {"FINISHED"}
+
+
+class IGS_OT_set_proxy_color(bpy.types.Operator):
+    """Fill the selected edit's proxy with the panel's flat colour (linear RGB)"""
+
+    bl_idname = "igs.set_proxy_color"
+    bl_label = "Use Colour"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        try:
+            _, obj = target_proxy(context)
+        except UserError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        proxies.set_proxy_color(obj, context.scene.igs.edit_color)
+        context.scene.igs.texture_mode = "COLOR"
+        return {"FINISHED"}
+
+
+class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
+    """Bake the selected edit: send its proxy as it is now (transform, geometry, texture or colour) to the backend, which repaints the albedo Gaussians"""
+
+    bl_idname = "igs.bake_edit"
+    bl_label = "Bake"
+
+    def make_job(self, context) -> BackendJob:
+        props = context.scene.igs
+        ws = existing_workspace(props.workspace)
+        name, obj = target_proxy(context)
+        edit_dir = ws / "edits" / name
+        json_path = edit_dir / "proxy.json"
+        texture = proxies.texture_file_for_bake(obj, edit_dir)
+        data = proxies.proxy_dict(obj, name, proxies.texture_ref(texture, json_path) if texture else None)
+        proxies.write_proxy_json(json_path, data)
+        self._name = name
+        args = ["edit", "bake", ws, "--proxy", json_path, "--name", name]
+        if props.bake_iterations:
+            args += ["--iterations", props.bake_iterations]
+        prefs = preferences.get(context)
+        return backend_env.backend_job(preferences.interpreter(context), args, f"Bake '{name}'",
+                                       root=prefs.backend_root)
+
+    def finish(self, context, job: BackendJob) -> str:
+        props = context.scene.igs
+        ws = existing_workspace(props.workspace)
+        ply = ws / "edits" / self._name / "albedo.ply"
+        obj = layers.load_layer(ply, name=layers.object_name("albedo", self._name), max_points=props.max_points,
+                                radius_scale=props.radius_scale)
+        _, item = edits.find(props, self._name)
+        item.albedo = obj
+        item.baked = True
+        edits.show_only(props, self._name)
+        props.capture_info = capture_summary(ws)
+        return f"Baked edit '{self._name}': {len(obj.data.points)} albedo Gaussians shown"
+
+
+class IGS_OT_select_edit(bpy.types.Operator):
+    """Select the edit's proxy and turn on the move/rotate/scale gizmos"""
+
+    bl_idname = "igs.select_edit"
+    bl_label = "Select Proxy"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: StringProperty()
+
+    def execute(self, context):
+        props = context.scene.igs
+        i, item = edits.find(props, self.name)
+        if item is None or item.proxy is None:
+            self.report({"ERROR"}, f"edit '{self.name}' has no proxy")
+            return {"CANCELLED"}
+        props.edits_index = i
+        item.visible = True
+        select_only(context, item.proxy)
+        return {"FINISHED"}
+
+
+class IGS_OT_remove_edit(bpy.types.Operator):
+    """Remove the edit from the scene (and its folder in the workspace when asked)"""
+
+    bl_idname = "igs.remove_edit"
+    bl_label = "Remove Edit"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: StringProperty()
+    delete_files: BoolProperty(name="Delete Its Files", default=False,
+                               description="Also delete <workspace>/edits/<name> (proxy, texture, edited albedo)")
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def execute(self, context):
+        props = context.scene.igs
+        ws = None
+        if self.delete_files:
+            try:
+                ws = existing_workspace(props.workspace)
+            except UserError as e:
+                self.report({"ERROR"}, str(e))
+                return {"CANCELLED"}
+        edits.remove(props, self.name, ws, self.delete_files)
+        return {"FINISHED"}
+
+
+CLASSES = (IGS_OT_fit_proxy, IGS_OT_use_selection_as_proxy, IGS_OT_set_proxy_image, IGS_OT_set_proxy_color,
+           IGS_OT_bake_edit, IGS_OT_select_edit, IGS_OT_remove_edit)

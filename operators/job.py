@@ -1,0 +1,150 @@
+"""The pattern every long operator follows: start a backend job, follow it, load what it made.
+
+Invoked from the UI, the operator is modal: a timer polls the job's events (never blocking), the
+panel shows a progress bar and status, Cancel stops the subprocess. Called from a script or in
+background mode (``bpy.ops.igs.decompose()``), it runs the same job to the end before returning.
+Either way a failure is one ERROR report (which Python callers receive as a RuntimeError).
+"""
+
+from __future__ import annotations
+
+import time
+
+import bpy
+
+from ..igs_blender import jobs, scene_objects
+from ..igs_blender.client import BackendError, BackendJob
+from ..igs_blender.errors import UserError
+
+
+def show_job(props, job: BackendJob) -> None:
+    """Copy a job's state into ``Scene.igs`` for the panels."""
+    st = job.state
+    props.job_label = st.label
+    props.job_running = job.running
+    props.job_progress = st.fraction
+    props.job_status = st.status_text() if job.running else job.report()
+    props.job_stages = "\n".join(f"{s.name}: {s.state}" + (f" {s.step}/{s.total}" if s.total else "")
+                                 for s in st.stages.values())
+
+
+class BackendOperator:
+    """Mixin for ``bpy.types.Operator`` subclasses that run one backend job.
+
+    Subclasses implement ``make_job(context) -> BackendJob`` (raise UserError for bad settings) and
+    ``finish(context, job) -> str`` (load the results; returns the message to report).
+    """
+
+    bl_options = {"REGISTER"}
+    poll_seconds = 0.2
+
+    @classmethod
+    def poll(cls, context):
+        if jobs.running():
+            cls.poll_message_set("a backend job is running; wait for it or cancel it")
+            return False
+        return context.scene is not None
+
+    def make_job(self, context) -> BackendJob:
+        raise NotImplementedError
+
+    def finish(self, context, job: BackendJob) -> str:
+        return job.report()
+
+    def _start(self, context) -> bool:
+        props = context.scene.igs
+        try:
+            job = self.make_job(context)
+            jobs.set_current(job)
+            job.start()
+        except (UserError, BackendError, OSError) as e:
+            props.last_report = str(e)
+            self.report({"ERROR"}, str(e))
+            return False
+        self._job = job
+        show_job(props, job)
+        return True
+
+    def execute(self, context):
+        if not self._start(context):
+            return {"CANCELLED"}
+        while True:
+            status = self._tick(context)
+            if status != {"RUNNING_MODAL"}:
+                return status
+            time.sleep(0.05)
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        if not self._start(context):
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(self.poll_seconds, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        status = {"CANCELLED"}
+        try:
+            status = self._tick(context)
+        finally:
+            if status != {"RUNNING_MODAL"}:
+                context.window_manager.event_timer_remove(self._timer)
+                self._timer = None
+                scene_objects.tag_redraw(context)
+        return status if status != {"RUNNING_MODAL"} else {"PASS_THROUGH"}
+
+    def cancel(self, context):
+        # Blender drops the modal operator (a new file, quitting): stop the job, keep its checkpoint.
+        jobs.request_cancel()
+        if getattr(self, "_timer", None) is not None:
+            context.window_manager.event_timer_remove(self._timer)
+            self._timer = None
+
+    def _tick(self, context) -> set[str]:
+        job = self._job
+        job.poll()
+        props = context.scene.igs
+        show_job(props, job)
+        scene_objects.tag_redraw(context)
+        if not job.finished:
+            return {"RUNNING_MODAL"}
+        outcome = job.outcome
+        if outcome == "ok":
+            try:
+                msg = self.finish(context, job)
+            except (UserError, OSError, RuntimeError) as e:  # RuntimeError: bpy could not load a result
+                props.last_report = f"{job.state.label} finished, but loading its results failed: {e}"
+                self.report({"ERROR"}, props.last_report)
+                return {"CANCELLED"}
+            props.last_report = msg
+            props.job_status = msg
+            self.report({"INFO"}, msg)
+            return {"FINISHED"}
+        props.last_report = job.report()
+        self.report({"WARNING"} if outcome == "cancelled" else {"ERROR"}, props.last_report)
+        return {"CANCELLED"}
+
+
+class IGS_OT_cancel_job(bpy.types.Operator):
+    """Stop the running backend job (training keeps its last checkpoint; run it again to resume)"""
+
+    bl_idname = "igs.cancel_job"
+    bl_label = "Cancel"
+
+    @classmethod
+    def poll(cls, context):
+        return jobs.running()
+
+    def execute(self, context):
+        if jobs.request_cancel():
+            context.scene.igs.job_status = "Cancelling…"
+            self.report({"INFO"}, "Cancelling the backend job…")
+            return {"FINISHED"}
+        return {"CANCELLED"}
+
+
+CLASSES = (IGS_OT_cancel_job,)

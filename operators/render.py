@@ -1,0 +1,158 @@
+"""Render operators: the active camera's view, a turntable, or the scene's animated camera.
+
+Blender computes the cameras (so a turntable circles the 3D cursor in Blender's world, and a camera
+path follows any animation) and writes them as ``{"cameras": [{"name", "width", "height", "fx",
+"fy", "cx", "cy", "R", "t"}, ...]}`` (OpenCV convention in SfM coordinates: ``x_cam = R x + t``);
+``render --cameras`` writes ``OUT/<layer>/<name>.png`` per camera and ``OUT/<layer>.mp4``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import bpy
+import numpy as np
+from bpy.props import EnumProperty
+from mathutils import Matrix, Vector
+
+from ..igs_blender import backend_env, compat, edits, images, preferences
+from ..igs_blender.camera_objects import sfm_view_from_object
+from ..igs_blender.cameras import turntable_matrices
+from ..igs_blender.client import BackendJob
+from ..igs_blender.errors import UserError
+from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
+from .job import BackendOperator
+
+
+def edit_args(props) -> list:
+    """``--edit NAME`` when the Render panel uses the selected, baked edit."""
+    if not props.render_edit:
+        return []
+    item = edits.active(props)
+    if item is None or not item.baked:
+        return []
+    return ["--edit", item.name]
+
+
+def write_cameras(path: Path, views: list) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"cameras": [v.to_json() for v in views]}, indent=1) + "\n", encoding="utf-8")
+    return path
+
+
+def layer_frames(out: Path, layer: str) -> list[Path]:
+    """The frames ``render`` wrote for ``layer``, in camera order (names end with the frame number)."""
+    folder = out / layer
+    return sorted(p for p in folder.glob("*") if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
+
+
+def selection_center(context) -> Vector:
+    objs = [o for o in context.selected_objects if o.type not in {"CAMERA", "LIGHT"}]
+    if not objs:
+        raise UserError("nothing selected: select the objects to turn around, or use the 3D cursor")
+    corners = [o.matrix_world @ Vector(c) for o in objs for c in o.bound_box]
+    lo = Vector([min(c[i] for c in corners) for i in range(3)])
+    hi = Vector([max(c[i] for c in corners) for i in range(3)])
+    return (lo + hi) / 2
+
+
+def _render_job(context, cameras: Path, out: Path, label: str, mp4: bool = False) -> BackendJob:
+    props = context.scene.igs
+    ws = existing_workspace(props.workspace)
+    prefs = preferences.get(context)
+    args = ["render", ws, *edit_args(props), "--cameras", cameras, "--out", out, "--layers", props.render_layer]
+    if mp4:
+        args.append("--mp4")
+    return backend_env.backend_job(preferences.interpreter(context), args, label, root=prefs.backend_root,
+                                   expected_stages=1)
+
+
+class IGS_OT_render_view(BackendOperator, bpy.types.Operator):
+    """Render the active camera's view of the (edited) splats and show it in the Image Editor"""
+
+    bl_idname = "igs.render_view"
+    bl_label = "Render View"
+
+    def make_job(self, context) -> BackendJob:
+        scene = context.scene
+        ws = existing_workspace(scene.igs.workspace)
+        view = sfm_view_from_object(scene, scene.camera, name="view")
+        self._out = ws / "renders" / time.strftime("view-%Y%m%d-%H%M%S")
+        cam_file = write_cameras(self._out / "cameras.json", [view])
+        return _render_job(context, cam_file, self._out, "Render view")
+
+    def finish(self, context, job: BackendJob) -> str:
+        files = layer_frames(self._out, context.scene.igs.render_layer)
+        if not files:
+            raise UserError(f"the render wrote no image into {self._out / context.scene.igs.render_layer}")
+        image = images.load_image(files[0], "IGS Render")
+        compat.show_image(context, image)
+        return f"Rendered {files[0]}"
+
+
+class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
+    """Render a turntable around the 3D cursor or the selection, or along the scene's animated camera, as an image sequence (and MP4), then load it"""
+
+    bl_idname = "igs.render_sequence"
+    bl_label = "Render Sequence"
+
+    mode: EnumProperty(name="Mode", items=[("TURNTABLE", "Turntable", "Circle around the target"),
+                                           ("CAMERA", "Camera Path", "The scene camera, frame by frame")],
+                       default="TURNTABLE")
+
+    def views(self, context) -> list:
+        scene = context.scene
+        props = scene.igs
+        cam = scene.camera
+        if self.mode == "TURNTABLE":
+            target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else selection_center(context)
+            mats = turntable_matrices(np.array(target), props.turntable_radius, props.turntable_height,
+                                      props.turntable_frames)
+            return [sfm_view_from_object(scene, cam, name=f"turntable_{i:04d}", matrix_world=Matrix(m.tolist()))
+                    for i, m in enumerate(mats)]
+        if cam is None:
+            raise UserError("the scene has no camera to follow")
+        out = []
+        current = scene.frame_current
+        try:
+            for i, f in enumerate(range(scene.frame_start, scene.frame_end + 1, scene.frame_step)):
+                scene.frame_set(f)
+                out.append(sfm_view_from_object(scene, scene.camera, name=f"frame_{i:04d}",
+                                                matrix_world=scene.camera.matrix_world.copy()))
+        finally:
+            scene.frame_set(current)
+        return out
+
+    def make_job(self, context) -> BackendJob:
+        props = context.scene.igs
+        ws = existing_workspace(props.workspace)
+        views = self.views(context)
+        self._count = len(views)
+        self._out = ws / "renders" / time.strftime(f"{self.mode.lower()}-%Y%m%d-%H%M%S")
+        cams = write_cameras(self._out / "cameras.json", views)
+        return _render_job(context, cams, self._out, "Turntable" if self.mode == "TURNTABLE" else "Camera path",
+                           mp4=props.write_mp4)
+
+    def finish(self, context, job: BackendJob) -> str:
+        layer = context.scene.igs.render_layer
+        frames = layer_frames(self._out, layer)
+        if len(frames) != self._count:
+            raise UserError(f"expected {self._count} frames in {self._out}, the render wrote {len(frames)}")
+        image = images.load_image(frames[0], "IGS Sequence", sequence_length=len(frames))
+        compat.show_image(context, image)
+        msg = f"Rendered {len(frames)} frames into {self._out}"
+        movies = [p for p in output_files(job.state.outputs, self._out, VIDEO_SUFFIXES) if p.stem == layer]
+        if context.scene.igs.write_mp4:
+            if not movies:
+                raise UserError(f"MP4 asked for, but the render wrote none into {self._out}")
+            try:
+                images.load_image(movies[0], "IGS Sequence MP4", movie=True)
+            except RuntimeError as e:  # a Blender built without FFmpeg cannot open it; the file is there
+                msg += f" (could not open {movies[0].name} in Blender: {e})"
+            msg += f" and {movies[0].name}"
+        return msg
+
+
+CLASSES = (IGS_OT_render_view, IGS_OT_render_sequence)

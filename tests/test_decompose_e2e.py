@@ -1,0 +1,138 @@
+"""`igs decompose` end to end on the synthetic `test` capture: every stage, a SIGKILL in the shading
+stage and a resume, the outputs (layers, metrics.json, report.png, capture.json), the single-set
+baseline and the input errors. Few iterations: the checks are that each stage learns, not final quality."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+import torch
+
+from backend.cli import main
+from backend.splats.ply import read_ply
+from backend.train.intrinsic import inverse_photometric
+from backend.train.loop import load_checkpoint
+
+ROOT = Path(__file__).resolve().parents[1]
+ARGS = ["--albedo-iterations", "50", "--shading-iterations", "24", "--residual-iterations", "16",
+        "--checkpoint-every", "8", "--max-gaussians", "3000", "--residual-points", "300", "--backend", "cpu"]
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    synth = pytest.importorskip("backend.capture.synth")
+    ws = tmp_path_factory.mktemp("decompose") / "test_ws"
+    synth.synthesize(ws, preset="test", seed=0)
+    return ws
+
+
+def _step(ws: Path, stage: str):
+    ckpt = load_checkpoint(ws / "checkpoints" / f"decompose_{stage}")
+    return None if ckpt is None else ckpt["step"]
+
+
+def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path):
+    ws = tmp_path / "ws"
+    shutil.copytree(capture, ws)
+    # 1) a real process, SIGKILLed once the shading stage has written a checkpoint
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "decompose", str(ws), *ARGS], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    deadline = time.time() + 240
+    while _step(ws, "shading") is None and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    proc.kill()
+    proc.wait()
+    killed_at = _step(ws, "shading")
+    assert killed_at in (8, 16)
+    albedo_bytes = (ws / "layers" / "albedo.ply").read_bytes()  # the finished stage's layer is on disk
+    assert not (ws / "layers" / "shading.ply").exists()
+
+    # 2) the same command again: albedo is not redone, shading resumes, residual runs, outputs appear
+    assert main(["decompose", str(ws), *ARGS]) == 0
+    assert (ws / "layers" / "albedo.ply").read_bytes() == albedo_bytes
+    m = json.loads((ws / "metrics.json").read_text())["decompose"]
+    st = m["stages"]
+    assert st["albedo"]["resumed_from"] == 0 and st["shading"]["resumed_from"] == killed_at
+    assert [st[s]["iterations"] for s in ("albedo", "shading", "residual")] == [50, 24, 16]
+
+    # each stage learned: held-out albedo vs its first iteration, held-out A*S vs the initial shading
+    assert st["albedo"]["held_out"]["psnr"] > st["albedo"]["held_out_initial"]["psnr"] + 3.0
+    assert st["shading"]["held_out"]["psnr"] > st["shading"]["held_out_initial"]["psnr"] + 1.0
+    # ground-truth mode: layers compared directly, priors recorded
+    assert m["priors"]["albedo"] == "gt" and m["priors"]["depth"] == "gt"
+    assert m["alignment"]["albedo"].startswith("none")
+    for layer in ("albedo", "shading", "residual", "diffuse", "full"):
+        assert set(m["layers"][layer]) >= {"psnr", "ssim", "lpips"}
+        assert 5.0 < m["layers"][layer]["psnr"] < 60.0
+    assert m["layers"]["albedo"]["psnr"] > 15.0 and m["layers"]["full"]["psnr"] > 15.0
+    assert m["decompose_seconds"] > 0 and all(st[s]["train_seconds"] > 0 for s in st)
+    assert st["shading"]["cache_seconds"] > 0 and st["residual"]["cache_seconds"] > 0
+
+    # the layers: standard PLYs of the right kinds, counted in metrics.json and capture.json
+    layers = {k: read_ply(ws / "layers" / f"{k}.ply")[0] for k in ("albedo", "shading", "residual")}
+    assert {k: g.kind for k, g in layers.items()} == {k: k for k in layers}
+    assert layers["residual"].sh_degree == 3
+    assert {k: len(g) for k, g in layers.items()} == {k: m["gaussians"][k] for k in layers}
+    cap = json.loads((ws / "capture.json").read_text())
+    assert cap["layers"]["three-set"]["layers"]["shading"]["encoding"] == "rgb"
+
+    # the residual lowers the full-image loss on the training views (I vs A*S and vs A*S + R)
+    from backend.capture.workspace import load_capture, split_frames
+    from backend.eval.layer_metrics import ground_truth, render_frame
+
+    train_frames, _ = split_frames(load_capture(ws).frames)
+    diffuse, full = 0.0, 0.0
+    for f in train_frames:
+        r = render_frame(layers, f, 1.0, "cpu")
+        img = ground_truth(f, f.camera.width, f.camera.height)["image"]
+        diffuse += float(inverse_photometric(r["diffuse"], img, 0.2))
+        full += float(inverse_photometric(r["full"], img, 0.2))
+    assert full < diffuse
+
+    # report.png: held-out rows, columns input | A | S | R | A*S+R | GT A | GT S
+    sheet = cv2.imread(str(ws / "report.png"))
+    assert sheet is not None and sheet.shape[1] > 7 * 64 and m["report"] == str(ws / "report.png")
+
+    # 3) a third run finds everything finished on the same inputs and retrains nothing
+    t0 = time.perf_counter()
+    assert main(["decompose", str(ws), *ARGS]) == 0
+    assert (ws / "layers" / "albedo.ply").read_bytes() == albedo_bytes
+    again = json.loads((ws / "metrics.json").read_text())["decompose"]
+    assert again["layers"]["full"]["psnr"] == pytest.approx(m["layers"]["full"]["psnr"], abs=1e-4)
+    assert time.perf_counter() - t0 < 30
+
+
+def test_single_set_baseline_writes_its_own_layers(capture, tmp_path):
+    ws = tmp_path / "ws"
+    shutil.copytree(capture, ws)
+    short = ["--albedo-iterations", "20", "--shading-iterations", "10", "--residual-iterations", "6",
+             "--max-gaussians", "2000", "--backend", "cpu"]
+    assert main(["decompose", str(ws), "--single-set", *short]) == 0
+    m = json.loads((ws / "metrics.json").read_text())["decompose_single_set"]
+    assert m["mode"] == "single-set" and m["stages"]["single_set"]["iterations"] == 36
+    e = m["stages"]["single_set"]
+    assert e["held_out"]["psnr"] > e["held_out_initial"]["psnr"]
+    sets = [read_ply(ws / "layers" / "single_set" / f"{k}.ply")[0] for k in ("albedo", "shading", "residual")]
+    assert len({len(g) for g in sets}) == 1 == len({g.means.detach().sum().item() for g in sets})
+    assert torch.equal(sets[0].means, sets[2].means) and m["gaussians"]["total"] == len(sets[0])
+    assert (ws / "report_single_set.png").exists() and not (ws / "layers" / "albedo.ply").exists()
+
+
+def test_decompose_input_errors_name_the_problem(capture, tmp_path, capsys):
+    ws = tmp_path / "ws"
+    shutil.copytree(capture, ws)
+    assert main(["decompose", str(ws), "--iterations", "0"]) == 2
+    assert "--iterations must be >= 1" in capsys.readouterr().err
+    assert main(["decompose", str(ws), "--stage", "shading", *ARGS]) == 2
+    assert "albedo.ply" in capsys.readouterr().err
+    shutil.rmtree(ws / "gt" / "albedo")
+    assert main(["decompose", str(ws), *ARGS]) == 2
+    err = capsys.readouterr().err
+    assert "albedo maps missing" in err

@@ -1,0 +1,118 @@
+"""Pieces of the intrinsic decomposition on tiny hand-made data (no Blender, a few seconds):
+frozen-layer caching, residual spawning, the single set's extra colours through densification and
+checkpoints, the per-channel alignment, and the contact sheet."""
+
+import numpy as np
+import torch
+
+from backend.capture.cameras import Camera
+from backend.eval import report
+from backend.eval.layer_metrics import channel_scale
+from backend.splats.init import from_points
+from backend.splats.strategy import DensifyConfig, DensifyStrategy
+from backend.train import intrinsic
+from backend.train.intrinsic import DecomposeConfig, ShadingStage, spawn_residual
+from backend.train.loop import TrainConfig, make_optimizer, train
+from backend.train.single_set import LayeredGaussians, SingleSetStage
+from backend.train.views import View
+
+
+def wall_scene(n=400, seed=0):
+    """Gaussians on the plane z = 0 (x, y in [-1, 1]) and cameras looking at it from z = -2.5."""
+    rng = np.random.default_rng(seed)
+    pts = np.c_[rng.uniform(-1, 1, (n, 2)), np.zeros(n)]
+    cols = rng.uniform(0.2, 0.8, (n, 3)).astype(np.float32)
+    cams = [Camera.look_at(f"frame_{i:04d}.png", [0.3 * i - 0.45, 0.1 * i, -2.5], [0, 0, 0], [0, -1, 0], 32, 24, 60)
+            for i in range(4)]
+    return pts, cols, cams
+
+
+def test_frozen_albedo_is_rendered_once_per_view_not_per_iteration(monkeypatch, tmp_path):
+    pts, cols, cams = wall_scene()
+    albedo = from_points(pts, cols, "albedo")
+    views = [View(i, c, torch.full((c.height, c.width, 3), 0.3)) for i, c in enumerate(cams)]
+    calls = []
+    real = intrinsic.render_layers
+    monkeypatch.setattr(intrinsic, "render_layers", lambda *a, **k: calls.append(1) or real(*a, **k))
+    cfg = TrainConfig(iterations=12, checkpoint_every=100, backend="cpu")
+    shading = from_points(pts, np.ones_like(cols), "shading")
+    stage = ShadingStage("shading", shading, views[:3], views[3:], cfg, 2.0, albedo=albedo, lambda_gray=0.1,
+                         color_space="linear")
+    result = train(stage, tmp_path / "ckpt")
+    assert len(calls) == 4  # 3 training + 1 held-out view, once each, for 12 iterations and 2 evaluations
+    for v in views:  # the cache holds the frozen albedo render, and the prediction is A * S
+        assert v.extras["A"].shape == (v.camera.height, v.camera.width, 3)
+    out = stage.render(views[0])
+    assert torch.allclose(stage.predict(views[0], out), views[0].extras["A"] * out.color)
+    assert result.step == 12
+
+
+def test_residual_spawns_at_high_error_pixels_at_the_prior_depth():
+    pts, cols, cams = wall_scene()
+    cam = cams[0]
+    h, w = cam.height, cam.width
+    img = torch.full((h, w, 3), 0.5)
+    img[4:10, 20:28] = 0.9  # a highlight the diffuse model misses
+    depth = torch.full((h, w), 2.5)
+    view = View(0, cam, img, depth)
+    view.extras["AS"] = torch.full((h, w, 3), 0.5)
+    cfg = DecomposeConfig()
+    cfg.spawn.points, cfg.spawn.top_fraction = 30, 0.1
+    g = spawn_residual([view], cfg)
+    assert len(g) == 30 and g.kind == "residual" and g.sh_degree == 3
+    uv, z = cam.project(g.means.detach().numpy().astype(np.float64))
+    assert np.allclose(z, 2.5, atol=1e-4)
+    assert np.all((uv[:, 0] >= 20) & (uv[:, 0] < 28) & (uv[:, 1] >= 4) & (uv[:, 1] < 10))
+    # colour starts at the missing radiance (I - A*S = 0.4), as the SH DC term
+    assert torch.allclose(g.base_rgb(), torch.full((30, 3), 0.4), atol=1e-5)
+
+
+def test_single_set_colours_follow_densification_and_checkpoints(tmp_path):
+    pts, cols, cams = wall_scene(200)
+    albedo = from_points(pts, cols, "albedo")
+    g = LayeredGaussians.from_layers(albedo, torch.full((200, 3), 1.5), 3, shading_gain=4.0)
+    assert torch.allclose(g.shading, torch.full((200, 3), 1.5))
+    assert torch.allclose(g.albedo, torch.from_numpy(cols), atol=1e-4)
+    opt = make_optimizer(g, TrainConfig(), 2.0)
+    assert {grp["name"] for grp in opt.param_groups} >= {"albedo_logits", "shading_colors", "sh0", "shN"}
+    strat = DensifyStrategy(DensifyConfig(grad_threshold=0.0, start=0, every=1), 2.0)
+    strat.stats.reset(len(g))
+    strat.stats.grad2d += 1.0
+    strat.stats.count += 1
+    strat.densify(g, opt)
+    n = len(g)
+    assert n > 200 and all(p.shape[0] == n for p in g.params.values())
+    feats = g.features(torch.tensor([0.0, 0.0, -2.5]))
+    assert feats.shape == (n, 9)
+    views = [View(i, c, torch.full((c.height, c.width, 3), 0.3)) for i, c in enumerate(cams)]
+    for v in views:
+        v.extras["albedo"] = torch.full((v.camera.height, v.camera.width, 3), 0.5)
+    cfg = TrainConfig(iterations=6, checkpoint_every=3, backend="cpu")
+    stage = SingleSetStage("single_set", g, views, [], cfg, 2.0, phases=(2, 4), lambda_gray=0.1,
+                           shading_gain=4.0, color_space="linear")
+    train(stage, tmp_path / "ckpt", stop_after=3)
+    again = SingleSetStage("single_set", LayeredGaussians.from_layers(albedo, torch.ones(200, 3), 3, 4.0), views,
+                           [], cfg, 2.0, phases=(2, 4), lambda_gray=0.1, shading_gain=4.0, color_space="linear")
+    res = train(again, tmp_path / "ckpt")
+    assert res.resumed_from == 3 and isinstance(res.gaussians, LayeredGaussians)
+    assert res.gaussians.shading_gain == 4.0 and len(res.gaussians) == n
+    layer = res.gaussians.layer("shading")
+    assert layer.kind == "shading" and torch.allclose(layer.colors, res.gaussians.shading.detach())
+
+
+def test_channel_scale_recovers_a_per_channel_gain():
+    rng = torch.Generator().manual_seed(0)
+    a = [torch.rand(8, 8, 3, generator=rng) for _ in range(3)]
+    k = torch.tensor([0.5, 1.0, 2.0])
+    assert torch.allclose(channel_scale(a, [x * k for x in a]), k, atol=1e-5)
+
+
+def test_contact_sheet_lays_out_labelled_cells(tmp_path):
+    img = np.full((24, 32, 3), 0.5, dtype=np.float32)
+    rows = [("frame_0000.png", [("input", img), ("albedo A", None), ("A*S+R", img)]),
+            ("frame_0008.png", [("input", img), ("albedo A", img), ("A*S+R", img)])]
+    sheet = report.contact_sheet(rows, title="t", min_cell_width=64)
+    assert sheet.shape[1] == 3 * (64 + 4) + 4 and sheet.shape[0] > 2 * 48
+    path = report.write_report(tmp_path / "r.png", rows)
+    assert path.exists() and path.stat().st_size > 0
+
