@@ -20,7 +20,7 @@ DEFAULT_WORKSPACE = Path("workspaces") / "demo"
 DEMO_EDIT = "wall_decal"
 # Per-stage iteration budget (albedo N, shading N/2, residual N/4) per preset: sized so the whole
 # demo runs in minutes on a 2-core CPU.
-ITERATIONS = {"test": 300, "demo": 3000, "paper": 7000}
+ITERATIONS = {"test": 300, "demo": 2000, "paper": 7000}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
