@@ -131,7 +131,7 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
     albedo, source = load_albedo(ws, args.base)
     cam = view_camera(capture.frame(args.view).camera, 1.0)
     out = render_albedo(albedo, cam, args.backend, return_ids=True)
-    cfg = FitConfig(seed=args.seed)
+    cfg = FitConfig(seed=args.seed, threshold=args.threshold, min_selected=args.min_selected)
     color = parse_color(args.color) if args.color else (0.5, 0.5, 0.5)
     fit_fn = fit_plane_from_rect if kind == "plane" else fit_cylinder_from_rect
     fit = fit_fn(cam, out.ids, albedo.means.detach(), args.rect, config=cfg, name=args.name, color=color)
@@ -214,6 +214,10 @@ def _add_fit(sub, kind: str) -> None:
     p.add_argument("--name", default=kind, help=f"edit name (folder under <ws>/edits, default {kind})")
     p.add_argument("--out", default=None, help="proxy.json path (default <ws>/edits/NAME/proxy.json)")
     p.add_argument("--color", default=None, help="flat linear colour r,g,b instead of the projected albedo texture")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="RANSAC inlier distance in world units (default: 2%% of the selection's robust size)")
+    p.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
+                   help=f"fewest distinct Gaussians the rectangle must select (default {FitConfig.min_selected})")
     p.set_defaults(func=lambda a: run_fit(a, kind))
 
 
