@@ -265,24 +265,56 @@ def proxy_dict(obj: bpy.types.Object, edit: str, texture_ref: str | None, color=
 
 def texture_file_for_bake(obj: bpy.types.Object, edit_dir: Path) -> Path | None:
     """The image file the bake should read: the proxy image's file, or a PNG saved into ``edit_dir``
-    when the image only lives in Blender (painted, generated, packed or modified); None for a colour."""
+    when the image only lives in Blender (painted, generated, packed or modified); None for a colour.
+
+    A painted image whose file lies in ``edit_dir`` (Paint's ``paint.png``) is saved in place; other
+    modified images go to ``edit_dir/texture.png`` as a copy, so the artist's own files are never
+    overwritten and Blender still counts the image as unsaved."""
     image = proxy_image(obj)
     if image is None:
         return None
     src = Path(bpy.path.abspath(image.filepath)) if image.filepath else None
-    on_disk = (image.source == "FILE" and src is not None and src.is_file()
-               and image.packed_file is None and not image.is_dirty)
-    if on_disk:
+    file_backed = image.source == "FILE" and src is not None and image.packed_file is None
+    if file_backed and src.is_file() and not image.is_dirty:
+        return src
+    if image.size[0] == 0 or image.size[1] == 0:
+        raise UserError(f"image '{image.name}' of '{obj.name}' has no pixels")
+    if file_backed and image.is_dirty and src.suffix.lower() == ".png" and src.parent.resolve() == edit_dir.resolve():
+        image.save()  # Paint's own file: the painting is kept on disk as well
         return src
     edit_dir.mkdir(parents=True, exist_ok=True)
     out = edit_dir / "texture.png"
-    if image.size[0] == 0 or image.size[1] == 0:
-        raise UserError(f"image '{image.name}' of '{obj.name}' has no pixels")
-    image.save(filepath=str(out))  # keeps the image's own pixels and colour space (sRGB bytes for 8-bit)
-    if image.source == "GENERATED":
+    save_srgb_png(image, out)
+    if image.source == "GENERATED":  # from now on the image is that file (the painting survives reopening)
         image.filepath = str(out)
         image.source = "FILE"
+        if image.is_float:
+            image.colorspace_settings.name = "sRGB"  # re-reads the file as sRGB: the same linear pixels
     return out
+
+
+def save_srgb_png(image: bpy.types.Image, path: Path) -> None:
+    """Write ``image``'s pixels to ``path`` as the sRGB PNG the backend reads, leaving the image as it is
+    (still unsaved for Blender, same file and format: saving it directly would mark it clean and would use
+    its own format and colour space, e.g. OpenEXR or linear bytes for a packed float image)."""
+    w, h = image.size
+    c = image.channels  # 4 for almost every image; float images read from some files have 1 or 3
+    raw = np.empty(w * h * c, dtype=np.float32)
+    image.pixels.foreach_get(raw)
+    raw = raw.reshape(-1, c)
+    pixels = np.ones((w * h, 4), dtype=np.float32)
+    pixels[:, :3] = raw[:, :3] if c >= 3 else raw[:, :1]
+    if c in (2, 4):
+        pixels[:, 3] = raw[:, -1]
+    tmp = bpy.data.images.new(".IGS bake texture", w, h, alpha=True, float_buffer=image.is_float)
+    try:
+        if image.is_float:
+            tmp.colorspace_settings.name = "sRGB"  # float pixels are scene-linear: encode them (16-bit)
+        tmp.pixels.foreach_set(pixels.ravel())  # byte pixels are already the image's sRGB bytes
+        tmp.file_format = "PNG"
+        tmp.save(filepath=str(path))
+    finally:
+        bpy.data.images.remove(tmp)
 
 
 def write_proxy_json(path: str | os.PathLike, data: dict[str, Any]) -> Path:

@@ -1,12 +1,20 @@
 """Edit operators: fit a proxy in an SfM view, texture it, bake it into the albedo, manage edits.
 
 The proxy is an ordinary textured mesh: a fitted plane or cylinder, or any mesh with UVs the artist
-picks. The artist moves it with Blender's gizmos; Bake writes its current transform, geometry and
+picks. The artist moves it with Blender's gizmos; Paint projects the current albedo onto it (``edit
+project``) and opens Texture Paint on that image; Bake writes its current transform, geometry and
 image (or colour) to ``<ws>/edits/<name>/proxy.json`` and runs ``edit bake``.
+
+Paint's files in ``<ws>/edits/<name>/``: ``paint_proxy.json`` (the proxy as it was when Paint was
+pressed), ``projected.json`` + ``projected.png`` (the backend's projection, kept as it came) and
+``paint.png``, a copy of ``projected.png`` that is the file of the Blender image "IGS Paint <name>".
+The blend file keeps that image by its path (it is not packed); Bake saves the painted pixels back
+into ``paint.png`` and sends that file, so the painting survives reopening the blend file.
 """
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import bpy
@@ -194,14 +202,127 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
         ply = ws / "edits" / self._name / "albedo.ply"
+        painting, mode = leave_mode(context)  # loading a layer converts a mesh, which needs Object mode
         obj = layers.load_layer(ply, name=layers.object_name("albedo", self._name), max_points=props.max_points,
                                 radius_scale=props.radius_scale)
+        restore_mode(context, painting, mode)  # e.g. back to Texture Paint on the proxy
         _, item = edits.find(props, self._name)
         item.albedo = obj
         item.baked = True
         edits.show_only(props, self._name)
         props.capture_info = capture_summary(ws)
         return f"Baked edit '{self._name}': {len(obj.data.points)} albedo Gaussians shown"
+
+
+def paint_image_name(edit: str) -> str:
+    return f"IGS Paint {edit}"
+
+
+def new_paint_image(edit: str, path: Path) -> bpy.types.Image:
+    """A fresh image "IGS Paint <edit>" read from ``path`` (an earlier one of that edit is replaced)."""
+    name = paint_image_name(edit)
+    old = bpy.data.images.get(name)
+    if old is not None:
+        bpy.data.images.remove(old)  # it read the same file, which now holds a new projection
+    try:
+        image = bpy.data.images.load(str(path), check_existing=False)
+    except RuntimeError as e:
+        raise UserError(f"cannot read the projected texture {path}: {e}") from e
+    image.name = name
+    return image
+
+
+def view3d_override(context) -> dict | None:
+    """Context members of a 3D viewport of the current window, or None (``blender -b`` has no window)."""
+    window = context.window
+    if window is None or window.screen is None:
+        return None
+    for area in window.screen.areas:
+        if area.type == "VIEW_3D":
+            region = next((r for r in area.regions if r.type == "WINDOW"), None)
+            if region is not None:
+                return {"window": window, "area": area, "region": region}
+    return None
+
+
+def _mode_set(context, obj: bpy.types.Object, mode: str) -> None:
+    override = view3d_override(context) or {}
+    with context.temp_override(**override, active_object=obj, object=obj):
+        bpy.ops.object.mode_set(mode=mode)
+
+
+def leave_mode(context) -> tuple[bpy.types.Object | None, str]:
+    """Put the active object in Object mode; returns (object, its mode) for :func:`restore_mode`."""
+    obj = context.view_layer.objects.active
+    if obj is None or obj.mode == "OBJECT":
+        return None, "OBJECT"
+    mode = obj.mode
+    _mode_set(context, obj, "OBJECT")
+    return obj, mode
+
+
+def restore_mode(context, obj: bpy.types.Object | None, mode: str) -> None:
+    if obj is None or mode == "OBJECT" or obj.name not in context.view_layer.objects:
+        return
+    context.view_layer.objects.active = obj
+    _mode_set(context, obj, mode)
+
+
+def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) -> bool:
+    """Make ``image`` the Texture Paint canvas, select ``obj`` and switch to Texture Paint when a
+    3D viewport exists. Returns whether the mode was switched."""
+    paint = context.scene.tool_settings.image_paint
+    paint.mode = "IMAGE"  # strokes go to the canvas whatever the material's active node is
+    paint.canvas = image
+    leave_mode(context)  # another object may be in Edit Mode or a paint mode
+    select_only(context, obj)
+    if view3d_override(context) is None:
+        return False
+    _mode_set(context, obj, "TEXTURE_PAINT")
+    return True
+
+
+class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
+    """Texture Paint the selected edit's proxy over the current albedo: the backend projects the albedo onto the proxy's UVs and that image becomes the paint canvas (Bake sends what you paint)"""
+
+    bl_idname = "igs.paint_proxy"
+    bl_label = "Paint"
+
+    def make_job(self, context) -> BackendJob:
+        props = context.scene.igs
+        ws = existing_workspace(props.workspace)
+        name, obj = target_proxy(context)
+        edit_dir = ws / "edits" / name
+        # The proxy's geometry and pose as they are now. A proxy file needs a fill; the projection
+        # replaces it, so a neutral grey stands in for whatever the material shows.
+        state = edit_dir / "paint_proxy.json"
+        proxies.write_proxy_json(state, proxies.proxy_dict(obj, name, None, color=(0.5, 0.5, 0.5)))
+        self._name = name
+        self._out = edit_dir / "projected.json"
+        args = ["edit", "project", ws, "--proxy", state, "--out", self._out]
+        prefs = preferences.get(context)
+        return backend_env.backend_job(preferences.interpreter(context), args, f"Project albedo onto '{name}'",
+                                       root=prefs.backend_root)
+
+    def finish(self, context, job: BackendJob) -> str:
+        props = context.scene.igs
+        _, item = edits.find(props, self._name)
+        if item is None or item.proxy is None:
+            raise UserError(f"the proxy of edit '{self._name}' was removed while the albedo was projected")
+        obj = item.proxy
+        projected = proxies.texture_path(proxies.read_proxy_json(self._out), self._out)
+        if projected is None or not projected.is_file():
+            raise UserError(f"{self._out}: the backend wrote no projected texture")
+        paint = self._out.parent / "paint.png"
+        shutil.copyfile(projected, paint)
+        image = new_paint_image(self._name, paint)
+        proxies.set_proxy_image(obj, image, "EXTEND")  # the projection covers UV [0, 1]^2 exactly
+        props.texture_mode = "IMAGE"
+        item.visible = True
+        where = "Texture Paint mode" if enter_texture_paint(context, obj, image) else \
+            "the Texture Paint canvas (no 3D viewport: mode not switched)"
+        return (f"'{image.name}' ({image.size[0]}x{image.size[1]}, the albedo projected onto the proxy) is "
+                f"{where}; paint, then Bake")
 
 
 class IGS_OT_select_edit(bpy.types.Operator):
@@ -253,4 +374,4 @@ class IGS_OT_remove_edit(bpy.types.Operator):
 
 
 CLASSES = (IGS_OT_fit_proxy, IGS_OT_use_selection_as_proxy, IGS_OT_set_proxy_image, IGS_OT_set_proxy_color,
-           IGS_OT_bake_edit, IGS_OT_select_edit, IGS_OT_remove_edit)
+           IGS_OT_paint_proxy, IGS_OT_bake_edit, IGS_OT_select_edit, IGS_OT_remove_edit)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..igs_blender import compat
+from ..igs_blender import compat, edits
 from ..igs_blender.layers import LAYER_KINDS, object_name
 
 CATEGORY = "Intrinsic Splats"
@@ -161,8 +161,12 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
             row.operator("igs.set_proxy_color")
         layout.template_list("IGS_UL_edits", "", props, "edits", props, "edits_index", rows=3)
         layout.prop(props, "bake_iterations")
-        row = layout.row()
+        row = layout.row(align=True)
         row.scale_y = 1.3
+        item = edits.active(props)
+        paint = row.row(align=True)
+        paint.enabled = item is not None and item.proxy is not None
+        paint.operator("igs.paint_proxy", icon="BRUSH_DATA")
         row.operator("igs.bake_edit", icon="RENDER_STILL")
 
 

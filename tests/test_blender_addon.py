@@ -396,6 +396,110 @@ def test_any_mesh_with_uvs_is_a_proxy_and_unwrapped_meshes_are_refused(scene, tm
         bpy.ops.igs.use_selection_as_proxy()
 
 
+def test_paint_explains_a_missing_edit_and_a_proxy_without_uvs(scene, tmp_path):
+    import cv2
+
+    ws = tmp_path / "ws"
+    make_tiny_workspace(ws)
+    scene.igs.workspace = str(ws)
+    with pytest.raises(RuntimeError, match="no edit yet"):
+        bpy.ops.igs.paint_proxy()
+    bpy.ops.mesh.primitive_grid_add(calc_uvs=True)
+    grid = bpy.context.active_object
+    scene.igs.edit_name = "rug"
+    assert bpy.ops.igs.use_selection_as_proxy() == {"FINISHED"}
+    grid.data.uv_layers.remove(grid.data.uv_layers[0])  # the artist deletes the UVs afterwards
+    with pytest.raises(RuntimeError, match=f"'{grid.name}' has no UVs; unwrap it first"):
+        bpy.ops.igs.paint_proxy()
+    assert not (ws / "edits" / "rug").exists() and not sub("jobs").running()
+
+    # The canvas is set whatever happens; Texture Paint mode needs a 3D viewport in the window.
+    bpy.ops.mesh.primitive_grid_add(calc_uvs=True)
+    obj = bpy.context.active_object
+    image = bpy.data.images.new("canvas", 8, 8)
+    edit_ops = sys.modules[f"{MOD}.operators.edit"]
+    view3d = next(a for a in bpy.context.window.screen.areas if a.type == "VIEW_3D")
+    view3d.type = "IMAGE_EDITOR"
+    try:
+        assert edit_ops.enter_texture_paint(bpy.context, obj, image) is False
+    finally:
+        view3d.type = "VIEW_3D"
+    paint = scene.tool_settings.image_paint
+    assert paint.mode == "IMAGE" and paint.canvas == image and obj.mode == "OBJECT"
+    assert bpy.context.active_object == obj and obj.select_get() and not grid.select_get()
+    assert edit_ops.enter_texture_paint(bpy.context, obj, image) is True and obj.mode == "TEXTURE_PAINT"
+    # Paint again while painting: the earlier canvas image of the edit is replaced by a fresh one.
+    png = tmp_path / "projected.png"
+    for value in (50, 200):
+        cv2.imwrite(str(png), np.full((3, 5, 3), value, np.uint8))
+        fresh = edit_ops.new_paint_image("rug", png)
+        sub("proxies").set_proxy_image(obj, fresh)
+        assert edit_ops.enter_texture_paint(bpy.context, obj, fresh) and paint.canvas == fresh
+    assert [i.name for i in bpy.data.images if i.name.startswith("IGS Paint")] == ["IGS Paint rug"]
+    assert fresh.pixels[0] == pytest.approx(200 / 255) and tuple(fresh.size) == (5, 3)
+    bpy.ops.mesh.primitive_cube_add()  # another object, in Edit Mode, when Paint is pressed again
+    bpy.ops.object.mode_set(mode="EDIT")
+    assert edit_ops.enter_texture_paint(bpy.context, obj, image) is True and obj.mode == "TEXTURE_PAINT"
+
+
+def test_bake_sends_painted_pixels_of_packed_and_file_images(scene, tmp_path):
+    import cv2
+
+    from backend.capture.imageio import read_image, read_linear
+
+    proxies = sub("proxies")
+    bpy.ops.mesh.primitive_grid_add(calc_uvs=True)
+    grid = bpy.context.active_object
+    proxies.adopt_mesh_as_proxy(grid, "rug")
+    edit_dir = tmp_path / "edits" / "rug"
+    rng = np.random.default_rng(1)
+    # A float image packed into the blend file (Blender packs those as OpenEXR), then painted.
+    packed = bpy.data.images.new("packed", 6, 4, float_buffer=True)
+    pixels = rng.uniform(0, 1, (4, 6, 4)).astype(np.float32)
+    pixels[..., 3] = 1
+    packed.pixels.foreach_set(pixels.ravel())
+    packed.pack()
+    pixels[1:3, 2:4, :3] = (1.0, 0.0, 0.0)
+    packed.pixels.foreach_set(pixels.ravel())
+    proxies.set_proxy_image(grid, packed)
+    saved = proxies.texture_file_for_bake(grid, edit_dir)
+    assert saved == edit_dir / "texture.png" and saved.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    np.testing.assert_allclose(read_linear(saved)[::-1], pixels[..., :3], atol=1e-3)
+    assert packed.is_dirty and packed.file_format == "OPEN_EXR"  # Blender still offers to save the painting
+
+    # A new 32-bit float image painted in Blender: the texture file, and from then on the image's own file.
+    generated = bpy.data.images.new("generated", 6, 4, float_buffer=True)
+    generated.pixels.foreach_set(pixels.ravel())
+    proxies.set_proxy_image(grid, generated)
+    assert proxies.texture_file_for_bake(grid, edit_dir) == edit_dir / "texture.png"
+    np.testing.assert_allclose(read_linear(edit_dir / "texture.png")[::-1], pixels[..., :3], atol=1e-3)
+    back = np.empty(pixels.size, np.float32)
+    generated.pixels.foreach_get(back)
+    assert generated.source == "FILE" and generated.filepath == str(edit_dir / "texture.png")
+    np.testing.assert_allclose(back.reshape(pixels.shape), pixels, atol=1e-3)
+
+    # An image read from the artist's file and painted: copied, the artist's file is left alone.
+    own = tmp_path / "own.png"
+    cv2.imwrite(str(own), np.full((4, 6, 3), 128, np.uint8))
+    image = bpy.data.images.load(str(own))
+    proxies.set_proxy_image(grid, image)
+    assert proxies.texture_file_for_bake(grid, edit_dir) == own  # unmodified: its own file
+    assert tuple(image.size) == (6, 4)  # (reads the pixels)
+    image.pixels.foreach_set(pixels.ravel())
+    assert proxies.texture_file_for_bake(grid, edit_dir) == edit_dir / "texture.png"
+    assert (cv2.imread(str(own)) == 128).all()
+    # an 8-bit image's pixels are its sRGB bytes: written unchanged
+    np.testing.assert_allclose(read_image(edit_dir / "texture.png")[::-1], pixels[..., :3], atol=1 / 255 + 1e-6)
+    # Paint's image lives in the edit folder: saved in place.
+    cv2.imwrite(str(edit_dir / "paint.png"), np.full((4, 6, 3), 128, np.uint8))
+    image = bpy.data.images.load(str(edit_dir / "paint.png"))
+    proxies.set_proxy_image(grid, image)
+    assert tuple(image.size) == (6, 4)
+    image.pixels.foreach_set(pixels.ravel())
+    assert proxies.texture_file_for_bake(grid, edit_dir) == edit_dir / "paint.png" and not image.is_dirty
+    np.testing.assert_allclose(read_image(edit_dir / "paint.png")[::-1], pixels[..., :3], atol=1 / 255 + 1e-6)
+
+
 # -- panels ---------------------------------------------------------------------------------------
 
 
@@ -860,6 +964,101 @@ def test_flow_4_fit_a_plane_move_it_with_gizmos_and_bake(addon, flow):
     assert far.size and np.mean([tuple(p) in kept for p in np.round(far, 5)]) > 0.8
     assert scene.igs.edits["wall"].baked and bpy.data.objects["IGS albedo [wall]"].visible_get()
     flow["edit"] = "wall"
+
+
+def test_flow_4b_fit_a_cylinder_paint_over_the_projected_albedo_and_bake(addon, flow):
+    """Issue 10's curved-surface edit: Fit Cylinder on the column, Paint (the backend projects the albedo
+    onto the proxy; that image becomes the Texture Paint canvas), paint a red square, Bake."""
+    need_command("edit")
+    if "ws" not in flow or not (flow["ws"] / "layers" / "albedo.ply").is_file():
+        pytest.skip("needs the decomposed workspace of step 3")
+    import cv2
+
+    from backend.capture.imageio import read_linear, srgb_to_linear
+    from backend.capture.workspace import load_capture
+    from backend.edit.bake import dilate, load_albedo, render_albedo
+    from backend.edit.mesh_raster import rasterize_proxy
+    from backend.edit.proxy import load_proxy
+    from backend.edit.texture import texture_from_view
+    from backend.splats.ply import read_ply
+    from backend.train.views import view_camera
+
+    scene = _flow_scene(flow)
+    ws = flow["ws"]
+    edit = json.loads((flow["synth"] / "gt_edit" / "column_decal" / "edit.json").read_text())
+    cam = bpy.data.objects[sub("camera_objects").camera_object_name(edit["edit_view"])]
+    bpy.ops.igs.use_frame_camera(camera=cam.name)
+    w, h = cam["igs_width"], cam["igs_height"]
+    x0, y0, x1, y1 = edit["rect"]  # the label; the fit wants more of the column around it
+    x0, y0, x1, y1 = max(x0 - 7, 0), max(y0 - 3, 0), min(x1 + 7, w), min(y1 + 24, h)
+    r = scene.render
+    r.use_border = True
+    r.border_min_x, r.border_max_x = x0 / w, x1 / w
+    r.border_min_y, r.border_max_y = 1 - y1 / h, 1 - y0 / h
+    scene.igs.edit_name = "label"
+    assert bpy.ops.igs.fit_proxy(primitive="cylinder") == {"FINISHED"}, scene.igs.last_report
+    proxy = bpy.data.objects["IGS proxy [label]"]
+    fitted = json.loads((ws / "edits" / "label" / "edit.json").read_text())["cylinder"]
+    assert fitted["radius"] == pytest.approx(edit["surface"]["radius"], rel=0.15)
+
+    # Paint: the backend projects the current albedo onto the proxy; a new image starts from it.
+    assert bpy.ops.igs.paint_proxy() == {"FINISHED"}, scene.igs.last_report
+    image = bpy.data.images["IGS Paint label"]
+    projected = ws / "edits" / "label" / "projected.png"
+    assert json.loads((ws / "edits" / "label" / "projected.json").read_text())["texture"] == "projected.png"
+    want = srgb_to_linear(cv2.imread(str(projected), cv2.IMREAD_UNCHANGED)[..., ::-1] / 65535.0)
+    tw, th = image.size
+    assert (th, tw) == want.shape[:2]
+    px = np.empty(tw * th * 4, np.float32)
+    image.pixels.foreach_get(px)
+    px = px.reshape(th, tw, 4)
+    np.testing.assert_allclose(px[::-1, :, :3], want, atol=2e-3)  # Blender's rows run bottom-up
+    assert want.std(axis=(0, 1)).max() > 0.01, "the projected albedo is uniform"
+    proxies = sub("proxies")
+    assert proxies.proxy_image(proxy) == image and scene.igs.texture_mode == "IMAGE"
+    paint = scene.tool_settings.image_paint
+    assert paint.mode == "IMAGE" and paint.canvas == image
+    assert bpy.context.active_object == proxy and proxy.select_get() and proxy.mode == "TEXTURE_PAINT"
+
+    # Paint a red square (a brush stroke's effect on the pixels) where the edit view sees the column.
+    capture = load_capture(ws)
+    view = view_camera(capture.frame(edit["edit_view"]).camera, 1.0)
+    _, seen = texture_from_view(load_proxy(ws / "edits" / "label" / "projected.json"), view,
+                                np.zeros((view.height, view.width, 3), np.float32), tw, th)
+    rows, cols = np.nonzero(seen)
+    cr, cc = int(np.median(rows)), int(np.median(cols))
+    hr, hc = max(2, (rows.max() - rows.min()) // 6), max(2, (cols.max() - cols.min()) // 6)
+    square = np.zeros((th, tw), bool)  # top-down rows, as the PNG
+    square[cr - hr:cr + hr + 1, cc - hc:cc + hc + 1] = True
+    assert seen[square].mean() > 0.9
+    painted = px.copy()
+    painted[square[::-1]] = (1.0, 0.0, 0.0, 1.0)
+    image.pixels.foreach_set(painted.ravel())
+    assert image.is_dirty
+
+    before = render_albedo(load_albedo(capture.workspace, None)[0], view, "cpu").color.clamp(0, 1).numpy()
+    scene.igs.bake_iterations = 10
+    assert bpy.ops.igs.bake_edit() == {"FINISHED"}, scene.igs.last_report
+    sent = json.loads((ws / "edits" / "label" / "proxy.json").read_text())
+    assert sent["texture"] == "paint.png" and not image.is_dirty  # the painting is saved in the edit folder
+    assert bpy.context.active_object == proxy and proxy.mode == "TEXTURE_PAINT"  # painting can go on
+    got = read_linear(ws / "edits" / "label" / "paint.png")
+    np.testing.assert_allclose(got[square], np.tile([1.0, 0.0, 0.0], (square.sum(), 1)), atol=1e-3)
+    np.testing.assert_allclose(got[~square], want[~square], atol=2e-3)
+    np.testing.assert_allclose(sent["matrix_world"], np.array(proxy.matrix_world), atol=1e-6)
+
+    # The baked albedo turned red where the square is seen, and stayed close to the original elsewhere.
+    baked = read_ply(ws / "edits" / "label" / "albedo.ply", kind="albedo")[0]
+    after = render_albedo(baked, view, "cpu").color.clamp(0, 1).numpy()
+    pr = rasterize_proxy(load_proxy(ws / "edits" / "label" / "proxy.json"), view)
+    red = pr.mask & (pr.color[..., 0] > 0.9) & (pr.color[..., 1:].max(-1) < 0.05)
+    assert red.sum() >= 4
+    redness = lambda img: img[..., 0] - img[..., 1:].mean(-1)  # noqa: E731
+    assert redness(after)[red].mean() > redness(before)[red].mean() + 0.15
+    far = ~dilate(pr.mask, 3)
+    assert np.abs(after - before)[far].mean() < 0.05
+    assert scene.igs.edits["label"].baked and bpy.data.objects["IGS albedo [label]"].visible_get()
+    bpy.ops.object.mode_set(mode="OBJECT")  # the artist leaves Texture Paint
 
 
 def test_flow_5_render_the_view_and_a_turntable_of_the_edited_scene(addon, flow):

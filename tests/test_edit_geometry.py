@@ -303,6 +303,51 @@ def test_centre_test_is_unbiased_where_the_expected_depth_is_not():
     assert biased[expect].mean() < 0.5  # what the expected-depth test alone would lose
 
 
+def test_adaptive_tolerance_follows_a_fuzzy_surface_but_not_an_occluder():
+    """Centres scattered around the wall (sd 1.5 % of depth, as a short decomposition leaves them): the
+    fixed 2 % tolerance loses a tenth of the decal, the adaptive one keeps it; 12 % nearer still occludes."""
+    cam = Camera.look_at("v", [0.6, -2.5, 0.1], [0, 0, 0], [0, 0, 1], 64, 48, 60)
+    decal = plane_proxy([0, 0, 0], [0, -1, 0], [1, 0, 0], [0, 0, 1], [1.2, 1.0], color=[0, 1, 0])
+    render = rasterize_proxy(decal, cam)
+    rows, cols = np.nonzero(render.mask)
+    z = render.depth[rows, cols].astype(np.float64)
+    hits = cam.center + ((np.stack([(cols + 0.5 - cam.cx) / cam.fx, (rows + 0.5 - cam.cy) / cam.fy,
+                                    np.ones(len(rows))], 1) @ cam.R) * z[:, None])
+    to_cam = (cam.center - hits) / np.linalg.norm(cam.center - hits, axis=1, keepdims=True)
+    offset = np.random.default_rng(0).normal(0.0, 0.015, len(rows)) * z
+    occluded = hits[:, 0] > 0.35
+    offset[occluded] = 0.12 * z[occluded]
+    centres = hits + offset[:, None] * to_cam
+    ids = np.full(render.mask.shape, -1)
+    ids[rows, cols] = np.arange(len(rows))
+    depth, alpha = np.where(render.mask, render.depth, 0.0), np.ones(render.mask.shape)
+    kw = {"albedo_ids": ids, "centres": centres, "camera": cam}
+    _, fixed = composite_over_albedo(np.zeros((48, 64, 3)), depth, alpha, render, CompositeConfig(adaptive=False), **kw)
+    _, adaptive = composite_over_albedo(np.zeros((48, 64, 3)), depth, alpha, render, **kw)
+    free = np.zeros(render.mask.shape, bool)
+    free[rows[~occluded], cols[~occluded]] = True
+    hidden = render.mask & ~free
+    assert fixed[free].mean() < 0.95 and adaptive[free].mean() > 0.99
+    assert not adaptive[hidden].any() and not fixed[hidden].any()
+
+
+def test_supersampling_filters_a_texture_finer_than_the_pixels():
+    cam = Camera.look_at("v", [0, -2.0, 0], [0, 0, 0], [0, 0, 1], 48, 40, 50)
+    checker = ((np.indices((256, 256)).sum(axis=0) % 2)[..., None] * np.ones(3)).astype(np.float32)
+    decal = plane_proxy([0, 0, 0], [0, -1, 0], [1, 0, 0], [0, 0, 1], [1.0, 1.0], texture=checker)
+    centre = rasterize_proxy(decal, cam)
+    fine = rasterize_proxy(decal, cam, RasterConfig(supersample=4))
+    for k in ("mask", "depth", "face", "uv", "normal"):
+        np.testing.assert_array_equal(getattr(fine, k), getattr(centre, k))
+    inner = centre.mask & ~cv2.dilate((~centre.mask).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert inner.sum() > 200
+    assert np.abs(centre.color[inner] - 0.5).mean() > 0.1  # point samples alias (bilinear on 1-texel cells)
+    assert np.abs(fine.color[inner] - 0.5).max() < 0.1  # 16 samples per pixel average the ~6x6 checker cells
+    np.testing.assert_allclose(fine.alpha[inner], 1.0)
+    edge = centre.mask & ~inner
+    assert fine.alpha[edge].min() < 1.0  # partly covered border pixels get fractional alpha
+
+
 def test_composite_with_the_gaussian_renderer_at_slanted_views():
     render_mod = pytest.importorskip("backend.render")
     wall = plane_proxy([0, 0, 0], [0, -1, 0], [1, 0, 0], [0, 0, 1], [3.0, 2.0], texture=smooth_texture(16, 16))

@@ -69,6 +69,12 @@ class Camera:
         sx, sy = w / self.width, h / self.height
         return replace(self, width=w, height=h, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy)
 
+    def cropped(self, x0: int, y0: int, x1: int, y1: int) -> Camera:
+        """The camera of the pixel window ``[y0:y1, x0:x1]`` of this one's image (same rays per pixel)."""
+        if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
+            raise ValueError(f"crop [{x0}:{x1}, {y0}:{y1}] is not inside the {self.width}x{self.height} image")
+        return replace(self, width=int(x1 - x0), height=int(y1 - y0), cx=self.cx - x0, cy=self.cy - y0)
+
     @staticmethod
     def look_at(name: str, eye, target, up, width: int, height: int, fov_x_deg: float) -> Camera:
         """A camera at ``eye`` looking at ``target`` with world ``up`` roughly up in the image."""

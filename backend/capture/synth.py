@@ -79,12 +79,18 @@ class SynthPreset:
     """Maximum light bounces."""
     points_per_view: int
     """Position-pass samples per view for ``sparse/0/points3D``."""
+    loop_views: int = 0
+    """Views a full loop of the camera path would have; 0: the views make one full loop. More than
+    ``views``: the frames are the first ``views`` of that loop, a sweep over part of the room."""
 
 
 PRESETS: dict[str, SynthPreset] = {
     "test": SynthPreset(views=16, width=64, height=48, samples=16, bounces=3, points_per_view=60),
     "demo": SynthPreset(views=96, width=256, height=192, samples=16, bounces=3, points_per_view=80),
     "paper": SynthPreset(views=288, width=512, height=384, samples=64, bounces=4, points_per_view=150),
+    # A hand-held sweep over the textured third of the room (seed 0), for the SfM test: SIFT needs
+    # more pixels than 'test' has, and the full loop's views of bare walls are a different test.
+    "sfm": SynthPreset(views=32, width=192, height=144, samples=16, bounces=3, points_per_view=40, loop_views=96),
 }
 
 
@@ -110,6 +116,8 @@ class SynthSettings:
     """Position-pass samples per view for the sparse point cloud."""
     fov_x_deg: float = 72.0
     """Horizontal field of view, degrees."""
+    loop_views: int = 0
+    """Views of a full loop of the camera path (0: ``views``); see :class:`SynthPreset`."""
 
     @staticmethod
     def from_preset(preset: str, seed: int = 0, views: int | None = None, samples: int | None = None) -> SynthSettings:
@@ -123,7 +131,19 @@ class SynthSettings:
             raise IGSError(f"--seed: must be >= 0, got {seed}")
         p = PRESETS[preset]
         return SynthSettings(preset, int(seed), views or p.views, p.width, p.height, samples or p.samples,
-                             p.bounces, p.points_per_view)
+                             p.bounces, p.points_per_view, loop_views=p.loop_views)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The settings as saved; ``loop_views`` only when set, so full-loop captures keep their old files."""
+        d = asdict(self)
+        if not self.loop_views:
+            del d["loop_views"]
+        return d
+
+    def cameras(self) -> list[Camera]:
+        """The capture's cameras: the first ``views`` of a loop of ``loop_views`` (or ``views``) positions."""
+        loop = max(self.loop_views, self.views)
+        return synth_scene.camera_path(loop, self.width, self.height, self.seed, self.fov_x_deg)[:self.views]
 
 
 def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: int | None = None,
@@ -148,8 +168,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     t = time.perf_counter()
     with _blender_output_captured():
         scene = synth_scene.build_scene(settings.seed)
-    cameras = synth_scene.camera_path(settings.views, settings.width, settings.height, settings.seed,
-                                      settings.fov_x_deg)
+    cameras = settings.cameras()
     renderer = Renderer(scene, settings, threads)
     timings["build_scene"] = time.perf_counter() - t
     _write_edit_definitions(ws, scene)
@@ -226,7 +245,7 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
             old = json.loads(settings_path.read_text())
         except json.JSONDecodeError as e:
             raise IGSError(f"{settings_path}: not valid JSON ({e}); use --force to start over") from e
-        new = asdict(settings)
+        new = settings.as_dict()
         if old != new:
             if not force:
                 diff = ", ".join(f"{k}={old.get(k)!r} (now {new[k]!r})" for k in new if old.get(k) != new[k])
@@ -239,7 +258,7 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
             shutil.rmtree(ws.root / sub, ignore_errors=True)
         for f in (ws.transforms_json, ws.capture_json):
             f.unlink(missing_ok=True)
-    write_json(settings_path, asdict(settings))
+    write_json(settings_path, settings.as_dict())
 
 
 def _view_files(ws: Workspace, scene: synth_scene.SynthScene, name: str) -> list[Path]:
@@ -273,7 +292,7 @@ def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Ca
 
     ws.write_capture_json({
         "source": {"kind": "synthetic", "preset": settings.preset, "seed": settings.seed,
-                   "blender": bpy.app.version_string, "settings": asdict(settings)},
+                   "blender": bpy.app.version_string, "settings": settings.as_dict()},
         "frames": [c.name for c in cameras],
         "size": [settings.width, settings.height],
         "priors": {"albedo": "gt", "depth": "gt"},

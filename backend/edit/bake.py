@@ -1,17 +1,22 @@
 """The edit bake (paper section 3.4): a proxy painted into the albedo field G_A.
 
 1. The edit view renders G_A (colour, expected depth, max-contributor ids) and the proxy is
-   composited over it with the centre depth test (:func:`backend.edit.composite.composite_over_albedo`);
-   the pixels where it wins are the edit pixels.
+   composited over it with the centre depth test (:func:`backend.edit.composite.composite_over_albedo`),
+   its colour anti-aliased over ``supersample`` x ``supersample`` samples per pixel; the pixels where
+   it wins are the edit pixels.
 2. ``views`` virtual cameras on a cap around the edit view (:func:`backend.edit.views.hemisphere_views`)
    render the same composite: the edited albedo seen from around the edit view.
-3. New flat albedo Gaussians are spawned on the proxy at ``spawn_fraction`` of the edit pixels of the
-   edit view (:func:`backend.edit.views.flattened_gaussians`).
+3. The old Gaussians lying on the proxy under the edit are removed (``surface="replace"``; their
+   centres scatter around the surface, so they cannot show one texture consistently from several
+   views) and new flat albedo Gaussians are spawned on the proxy at ``spawn_fraction`` of the edit
+   pixels of the edit view (:func:`backend.edit.views.flattened_gaussians`).
 4. G_A alone is re-optimised with the albedo loss (L1 + D-SSIM, linear albedo) on the edited views;
    G_S and G_R are never read. So that the albedo outside the edit stays as it was, only the new
-   Gaussians and the old ones that contribute to an edit pixel of some edited view may change (the
-   others get no gradient), and ``anchor_views`` training views rendered from the original G_A
-   before the bake keep supervising the editable ones where they spill outside the edit.
+   Gaussians and the old ones that contribute to an edit pixel of some edited view are trained (and
+   densified where the texture needs detail); the others are frozen; ``anchor_views`` training views
+   with the same composite (the original albedo around the edit) keep supervising the trained ones
+   where they spill outside the edit. Every view is cut to the window around the edit and only the
+   Gaussians seen in some window are rendered, so a bake costs little more than the edit's size.
 5. The result goes to ``<ws>/edits/<name>/albedo.ply`` beside a copy of the proxy and
    ``bake.json`` (settings and the measured change inside and outside the edit on held-out views);
    ``<ws>/layers`` is never written, so edits can be undone (delete the folder) or stacked
@@ -36,7 +41,7 @@ from backend.capture.cameras import Camera
 from backend.capture.imageio import linear_to_srgb
 from backend.capture.workspace import Capture, Workspace, load_capture, split_frames
 from backend.edit.composite import composite_over_albedo
-from backend.edit.mesh_raster import ProxyRender, rasterize_proxy
+from backend.edit.mesh_raster import ProxyRender, RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, load_proxy, save_proxy
 from backend.edit.views import (
     check_proxy_visible,
@@ -50,7 +55,7 @@ from backend.io_utils import write_json
 from backend.render import RenderOutput, render
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
-from backend.splats.strategy import scene_extent
+from backend.splats.strategy import DensifyConfig, DensifyStrategy, scene_extent
 from backend.train.loop import LearningRates, Stage, TrainConfig, train
 from backend.train.losses import photometric
 from backend.train.views import View, view_camera
@@ -71,7 +76,7 @@ class BakeConfig:
     """Half-angle of the cap of virtual views, degrees."""
     spawn_fraction: float = 0.2
     """New albedo Gaussians at this fraction of the edit view's edit pixels."""
-    iterations: int = 300
+    iterations: int = 1000
     """Re-optimisation steps of G_A (one view per step)."""
     anchor_views: int = 8
     """Training views rendered from the original G_A that keep supervising the albedo (0: none)."""
@@ -91,6 +96,20 @@ class BakeConfig:
     """Adam rate of the albedo colour logits: a bake is short and colours must move far (3DGS: 2.5e-3)."""
     outside_margin: int = 3
     """Pixels around the edit mask excluded from the "outside" measurement (splat footprints at the border)."""
+    supersample: int = 3
+    """Proxy colour averaged over s x s samples per pixel (anti-aliased targets; 1: pixel centres)."""
+    surface: str = "replace"
+    """Old Gaussians on the proxy under the edit (centre in an edit pixel of the edit view, depth within
+    ``surface_tolerance`` of the proxy): "replace" removes them, so that the new Gaussians lying exactly
+    on the proxy carry the edit; "paint" keeps them with the edited colour at their pixel."""
+    surface_tolerance: float = 0.08
+    """Relative depth tolerance of "on the proxy" (the composite's largest adaptive tolerance)."""
+    densify: bool = True
+    """Clone/split the trained Gaussians where the edit's detail needs them (as the albedo stage does)."""
+    densify_per_pixel: float = 2.0
+    """Densification adds at most this many Gaussians per edit pixel of the edit view."""
+    crop_margin: int = 16
+    """The re-optimisation renders only the window around the edit (its bounding box + this many pixels)."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -151,10 +170,11 @@ def render_albedo(g: GaussianSet, camera: Camera, backend: str, return_ids: bool
 
 
 def edited_albedo(g: GaussianSet, proxy: ProxyMesh, camera: Camera, backend: str,
-                  proxy_render: ProxyRender | None = None) -> tuple[np.ndarray, np.ndarray, RenderOutput]:
+                  proxy_render: ProxyRender | None = None, supersample: int = 1
+                  ) -> tuple[np.ndarray, np.ndarray, RenderOutput]:
     """(edited albedo (H, W, 3) linear, edit mask (H, W) bool, the albedo render) for one view."""
     out = render_albedo(g, camera, backend, return_ids=True)
-    pr = rasterize_proxy(proxy, camera) if proxy_render is None else proxy_render
+    pr = rasterize_proxy(proxy, camera, RasterConfig(supersample=supersample)) if proxy_render is None else proxy_render
     edited, mask = composite_over_albedo(out.color, out.depth, out.alpha, pr, albedo_ids=out.ids,
                                          centres=g.means.detach(), camera=camera)
     return edited, mask, out
@@ -168,23 +188,68 @@ def raw_params(flat: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
             "colors": torch.logit(t["colors"].clamp(1e-4, 1 - 1e-4))}
 
 
-def contributors(g: GaussianSet, views: list[View], backend: str) -> torch.Tensor:
-    """(N,) bool: Gaussians with a non-zero blending weight in some edit pixel of ``views``.
+def contributors(g: GaussianSet, targets: list[tuple[Camera, torch.Tensor | None]], backend: str) -> torch.Tensor:
+    """(N,) bool: Gaussians with a non-zero blending weight in some pixel of ``targets``' masks.
 
-    One backward pass per view of ``sum(alpha * mask)`` w.r.t. the opacities.
+    ``targets``: (camera, (H, W) bool mask or None for every pixel). One backward pass per view of
+    ``sum(alpha * mask)`` w.r.t. the opacities.
     """
     hit = torch.zeros(len(g), dtype=torch.bool)
-    for v in views:
-        mask = v.extras["mask"]
-        if not mask.any():
+    args = g.render_args()
+    for camera, mask in targets:
+        if mask is not None and not mask.any():
             continue
         op = g.opacities.detach().clone().requires_grad_(True)
-        args = g.render_args()
         out = render(args["means"].detach(), args["quats"].detach(), args["scales"].detach(), op,
-                     args["colors"].detach(), v.camera, log_scales=True, backend=backend)
-        (out.alpha * mask).sum().backward()
+                     args["colors"].detach(), camera, log_scales=True, backend=backend)
+        (out.alpha if mask is None else out.alpha * mask).sum().backward()
         hit |= op.grad.abs() > 0
     return hit
+
+
+def crop_box(mask: np.ndarray, margin: int) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) bounding box of ``mask`` (H, W) grown by ``margin`` pixels, inside the image."""
+    rows, cols = np.nonzero(mask)
+    if len(rows) == 0:
+        return None
+    H, W = mask.shape
+    return (max(0, int(cols.min()) - margin), max(0, int(rows.min()) - margin),
+            min(W, int(cols.max()) + 1 + margin), min(H, int(rows.max()) + 1 + margin))
+
+
+def cropped_view(index: int, camera: Camera, image: np.ndarray, mask: np.ndarray, box) -> View:
+    """A view of the window ``box`` of ``camera``: the image (H, W, 3) and mask (H, W) cut to it."""
+    x0, y0, x1, y1 = box
+    return View(index, camera.cropped(x0, y0, x1, y1), torch.from_numpy(np.ascontiguousarray(image[y0:y1, x0:x1])),
+                extras={"mask": torch.from_numpy(np.ascontiguousarray(mask[y0:y1, x0:x1]))})
+
+
+def projected_box(points: np.ndarray, camera: Camera, margin: int) -> tuple[int, int, int, int] | None:
+    """Window around the projections of ``points`` (M, 3) in front of ``camera``, grown by ``margin``."""
+    uv, z = camera.project(points.astype(np.float64))
+    ok = (z > 1e-3) & np.isfinite(uv).all(axis=1)
+    uv = uv[ok]
+    ok = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    if not ok.any():
+        return None
+    m = np.zeros((camera.height, camera.width), bool)
+    m[uv[ok, 1].astype(np.int64), uv[ok, 0].astype(np.int64)] = True
+    return crop_box(m, margin)
+
+
+def surface_gaussians(g: GaussianSet, camera: Camera, mask: np.ndarray, pr: ProxyRender,
+                      tolerance: float) -> np.ndarray:
+    """(M,) indices of the Gaussians whose centres project into an edit pixel of ``camera`` within
+    ``tolerance`` (relative) of the proxy's depth there: the surface the proxy repaints."""
+    with torch.no_grad():
+        uv, z = camera.project(g.means.detach().double().numpy())
+    col = np.floor(uv[:, 0]).astype(np.int64)
+    row = np.floor(uv[:, 1]).astype(np.int64)
+    ok = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    idx = np.flatnonzero(ok)
+    r, c = row[idx], col[idx]
+    on = mask[r, c] & (np.abs(z[idx] - pr.depth[r, c]) <= tolerance * z[idx])
+    return idx[on]
 
 
 def paint_surface_gaussians(g: GaussianSet, camera: Camera, edited: np.ndarray, mask: np.ndarray,
@@ -214,22 +279,43 @@ def paint_surface_gaussians(g: GaussianSet, camera: Camera, edited: np.ndarray, 
 # The re-optimisation stage
 
 
-class BakeStage(Stage):
-    """G_A against edited (and anchor) albedo images; rows outside ``editable`` get no gradient."""
+def bake_densify(cfg: BakeConfig, trained: int, edit_pixels: int) -> DensifyConfig:
+    """Densification of the ``trained`` Gaussians over the first 70 % of the bake, every 50 iterations,
+    up to ``densify_per_pixel`` new ones per edit pixel, with no opacity reset and no size pruning
+    (the old Gaussians around the edit may legitimately be large)."""
+    n = cfg.iterations
+    return DensifyConfig(start=min(50, n), stop=max(1, int(0.7 * n)), every=50, reset_every=0,
+                         prune_world_scale=float("inf"), prune_screen_frac=float("inf"),
+                         max_gaussians=trained + int(cfg.densify_per_pixel * edit_pixels))
 
-    def __init__(self, *args, editable: torch.Tensor | None, **kw):
+
+@dataclass
+class _TrainedPart(RenderOutput):
+    """A render of frozen + trained Gaussians whose per-Gaussian outputs are the trained rows'."""
+
+    start: int = 0
+
+    @property
+    def means2d_grad(self) -> torch.Tensor | None:
+        g = RenderOutput.means2d_grad.fget(self)
+        return None if g is None else g[self.start:]
+
+
+class BakeStage(Stage):
+    """The trainable Gaussians (``self.gaussians``: the editable old ones + the spawned ones, densified
+    like any albedo stage) rendered together with ``frozen`` ones against edited and anchor views."""
+
+    def __init__(self, *args, frozen: GaussianSet, **kw):
         super().__init__(*args, **kw)
-        self.editable = editable
+        self.frozen = {k: v.detach() for k, v in frozen.render_args().items() if isinstance(v, torch.Tensor)}
+        self.n_frozen = len(frozen)
 
     def render(self, view: View) -> RenderOutput:
         args = self.gaussians.render_args()
-        if self.editable is not None:
-            e = self.editable
-            for k in ("means", "quats", "scales", "opacities", "colors"):
-                v = args[k]
-                m = e.view(-1, *([1] * (v.ndim - 1)))
-                args[k] = torch.where(m, v, v.detach())
-        return render(**args, camera=view.camera, backend=self.config.backend)
+        joint = {k: torch.cat([self.frozen[k], v]) if isinstance(v, torch.Tensor) else v for k, v in args.items()}
+        out = render(**joint, camera=view.camera, backend=self.config.backend)
+        return _TrainedPart(out.color, out.depth, out.alpha, None, out.means2d, out.radii[self.n_frozen:],
+                            out._means2d_node, start=self.n_frozen)
 
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         loss = photometric(pred, view.image, self.config.lambda_dssim)
@@ -256,12 +342,12 @@ def dilate(mask: np.ndarray, pixels: int) -> np.ndarray:
 
 
 def measure_change(original: GaussianSet, baked: GaussianSet, proxy: ProxyMesh, cameras: list[Camera],
-                   backend: str, margin: int) -> dict[str, Any]:
+                   backend: str, margin: int, supersample: int = 1) -> dict[str, Any]:
     """PSNR (sRGB-encoded albedo) of the baked render against the original render, inside the edit
     mask (how much changed) and outside the mask dilated by ``margin`` (what must stay)."""
     per_view, inside, outside = {}, [], []
     for cam in cameras:
-        before_lin, mask, _ = edited_albedo(original, proxy, cam, backend)
+        before_lin, mask, _ = edited_albedo(original, proxy, cam, backend, supersample=supersample)
         before = linear_to_srgb(np.clip(render_albedo(original, cam, backend).color.numpy(), 0, 1))
         after = linear_to_srgb(np.clip(render_albedo(baked, cam, backend).color.numpy(), 0, 1))
         target = linear_to_srgb(np.clip(before_lin, 0, 1))
@@ -298,6 +384,10 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     """
     cfg = config or BakeConfig()
     t_start = time.perf_counter()
+    if cfg.surface not in ("replace", "paint"):
+        raise IGSError(f"--surface must be 'replace' or 'paint', got {cfg.surface!r}")
+    if cfg.supersample < 1:
+        raise IGSError(f"--supersample must be >= 1, got {cfg.supersample}")
     if cfg.views < 0:
         raise IGSError(f"--views must be >= 0, got {cfg.views}")
     if cfg.iterations < 1:
@@ -317,53 +407,81 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     # 1. The edit view.
     cam = resolve_view(capture, proxy, proxy_path, cfg)
     pr_edit = check_proxy_visible(cam, proxy)
-    edited, mask, _ = edited_albedo(original, proxy, cam, backend, pr_edit)
+    edited, mask, _ = edited_albedo(original, proxy, cam, backend, supersample=cfg.supersample)
     if not mask.any():
         raise IGSError(f"proxy '{proxy.name}' is hidden behind the scene in view '{cam.name}' (no pixel passes the "
                        "depth test); move it onto the visible surface")
     events.log(f"bake {name}: edit view {cam.name}, {int(mask.sum())} edit pixels, {len(original)} albedo Gaussians")
 
-    # 2. Virtual views around it.
-    views = [View(-1, cam, torch.from_numpy(edited), extras={"mask": torch.from_numpy(mask)})]
+    # 2. Virtual views around it; every view is cut to the window around its edit pixels.
+    full = [(cam, edited, mask)]
     if cfg.views > 0:
         target, normal = proxy_target(cam, pr_edit, mask)
         cams = hemisphere_views(cam, target, normal, cfg.views, cfg.max_angle, cfg.seed)
         with events.stage("bake views", len(cams), unit="view") as bar:
-            for k, hc in enumerate(cams):
-                img, m, _ = edited_albedo(original, proxy, hc, backend)
-                views.append(View(-2 - k, hc, torch.from_numpy(img), extras={"mask": torch.from_numpy(m)}))
+            for hc in cams:
+                img, m, _ = edited_albedo(original, proxy, hc, backend, supersample=cfg.supersample)
+                full.append((hc, img, m))
                 bar.update(1)
+    views = []
+    for k, (c, img, m) in enumerate(full):
+        box = crop_box(m, cfg.crop_margin)
+        if box is not None:
+            views.append(cropped_view(-1 - k, c, img, m, box))
 
     # 3. New Gaussians on the proxy.
-    pts = spawn_points_on_proxy(cam, pr_edit, cfg.spawn_fraction, cfg.seed, mask)
+    pts = spawn_points_on_proxy(cam, pr_edit, cfg.spawn_fraction, cfg.seed, mask & pr_edit.mask)
     flat = flattened_gaussians(pts, cam, cfg.spawn_fraction)
     g = original.clone()
     n_old = len(g)
-    painted = paint_surface_gaussians(g, cam, edited, mask, pr_edit)
-    editable = None
-    if cfg.restrict:
-        editable = contributors(original, views, backend)
-    g.append_(raw_params(flat))
-    if editable is not None:
-        editable = torch.cat([editable, torch.ones(len(g) - n_old, dtype=torch.bool)])
+    painted = removed = 0
+    if cfg.surface == "paint":
+        painted = paint_surface_gaussians(g, cam, edited, mask, pr_edit, cfg.surface_tolerance)
+    else:
+        drop = surface_gaussians(g, cam, mask, pr_edit, cfg.surface_tolerance)
+        keep = torch.ones(len(g), dtype=torch.bool)
+        keep[torch.from_numpy(drop)] = False
+        g, removed = g.index(keep), len(drop)
+    editable = (contributors(g, [(v.camera, v.extras["mask"]) for v in views], backend) if cfg.restrict
+                else torch.ones(len(g), dtype=torch.bool))
 
-    # 4. Anchors: training views supervised with the original albedo render.
+    # 4. Anchors: training views supervised with the original albedo render, in the window where the
+    # editable and new Gaussians project.
     train_frames, test_frames = split_frames(capture.frames)
     anchors = []
+    moving = np.concatenate([g.means.detach()[editable].numpy(), flat["means"]])
     if cfg.anchor_views > 0 and train_frames:
         pick = np.unique(np.linspace(0, len(train_frames) - 1, min(cfg.anchor_views, len(train_frames))).round())
         for i in pick.astype(int):
             ac = view_camera(train_frames[i].camera, cfg.downscale)
-            anchors.append(View(i, ac, render_albedo(original, ac, backend).color.detach().clamp(0, 1)))
+            box = projected_box(moving, ac, cfg.crop_margin)
+            if box is None:
+                continue
+            # the edited albedo of this view: the original around the edit, the proxy where it is seen
+            img, m, _ = edited_albedo(original, proxy, ac.cropped(*box), backend, supersample=cfg.supersample)
+            anchors.append(View(i, ac.cropped(*box), torch.from_numpy(np.clip(img, 0, 1)),
+                                extras={"mask": torch.from_numpy(m)}))
+
+    # Only the Gaussians seen in some window take part (the others cannot change any supervised pixel);
+    # of those, the editable ones and the new ones are trained (and densified), the rest stay frozen.
+    active = contributors(g, [(v.camera, None) for v in views + anchors], backend) | editable
+    trained = g.index(editable)
+    trained.append_(raw_params(flat))
+    frozen = g.index(active & ~editable)
+    n_trained = len(trained)  # densification grows the set in place
+    events.log(f"bake {name}: {len(views)} edit views, {len(anchors)} anchor views; {int(active.sum())} of {n_old} "
+               f"Gaussians in their windows, {int(editable.sum())} editable, {len(flat['means'])} spawned")
 
     tcfg = TrainConfig(iterations=cfg.iterations, seed=cfg.seed, checkpoint_every=max(cfg.iterations, 1),
                        backend=backend, lambda_dssim=cfg.lambda_dssim, scale_schedule=False,
-                       lr=LearningRates(means=1.6e-5, means_final=1.6e-6, colors=cfg.color_lr))
+                       lr=LearningRates(means=1.6e-5, means_final=1.6e-6, colors=cfg.color_lr),
+                       densify=bake_densify(cfg, n_trained, int(mask.sum())))
     extent = scene_extent([f.camera for f in capture.frames])
-    stage = BakeStage(f"bake_{name}", g, views + anchors, [], tcfg, extent, None, "linear", editable=editable)
+    strategy = DensifyStrategy(tcfg.densify, extent) if cfg.densify else None
+    stage = BakeStage(f"bake_{name}", trained, views + anchors, [], tcfg, extent, strategy, "linear", frozen=frozen)
     ckpt = ws.checkpoints / "edits" / name
     result = train(stage, ckpt, resume=False)
-    baked = result.gaussians
+    baked = GaussianSet.concat([g.index(~editable), result.gaussians])
     shutil.rmtree(ckpt, ignore_errors=True)  # a bake is short: no resume
 
     # 5. Write and measure.
@@ -373,12 +491,13 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     if proxy_path is None or proxy_path.resolve() != saved_proxy.resolve():
         save_proxy(saved_proxy, proxy)
     held = [view_camera(f.camera, cfg.downscale) for f in test_frames] or [cam]
-    change = measure_change(original, baked, proxy, held, backend, cfg.outside_margin)
+    change = measure_change(original, baked, proxy, held, backend, cfg.outside_margin, cfg.supersample)
     summary = {
         "name": name, "edit_view": cam.name, "proxy": str(saved_proxy), "source_albedo": str(source),
-        "albedo": str(ply), "edit_pixels": int(mask.sum()), "virtual_views": len(views) - 1,
-        "anchor_views": len(anchors), "spawned": len(g) - n_old, "painted": painted, "gaussians_before": n_old,
-        "gaussians_after": len(baked), "editable": None if editable is None else int(editable.sum()),
+        "albedo": str(ply), "edit_pixels": int(mask.sum()), "virtual_views": len(full) - 1,
+        "anchor_views": len(anchors), "spawned": len(flat["means"]), "painted": painted, "removed": removed,
+        "densified": len(result.gaussians) - n_trained, "gaussians_before": n_old,
+        "gaussians_after": len(baked), "active": int(active.sum()), "editable": int(editable.sum()),
         "iterations": result.step, "train_seconds": round(result.train_seconds, 2),
         "wall_seconds": round(time.perf_counter() - t_start, 2), "held_out": change,
         "config": asdict(cfg),

@@ -184,7 +184,8 @@ def run_bake(args: argparse.Namespace) -> None:
         proxy = plane_from_json(args.plane, args.texture, args.color, name)
     cfg = BakeConfig(view=args.view, views=args.views, max_angle=args.max_angle, spawn_fraction=args.spawn_fraction,
                      iterations=args.iterations, anchor_views=args.anchor_views, restrict=not args.no_restrict,
-                     base=args.base, downscale=args.downscale, backend=args.backend, seed=args.seed)
+                     base=args.base, downscale=args.downscale, backend=args.backend, seed=args.seed,
+                     surface=args.surface, supersample=args.supersample)
     summary = bake_edit(args.workspace, proxy, name, cfg)
     print(json.dumps({k: v for k, v in summary.items() if k not in ("config",)} | {
         "held_out": {k: v for k, v in summary["held_out"].items() if k != "views"}}, indent=2))
@@ -262,6 +263,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--iterations", type=int, default=d.iterations, help=f"re-optimisation steps (default {d.iterations})")
     p.add_argument("--anchor-views", type=int, default=d.anchor_views,
                    help=f"training views supervised with the unedited albedo (default {d.anchor_views})")
+    p.add_argument("--surface", default=d.surface, choices=("replace", "paint"),
+                   help="old Gaussians on the proxy under the edit: replace them by the new ones (default) or "
+                        "keep them painted with the edit's colour")
+    p.add_argument("--supersample", type=int, default=d.supersample,
+                   help=f"proxy texture samples per pixel side (anti-aliasing; default {d.supersample})")
     p.add_argument("--no-restrict", action="store_true",
                    help="let every albedo Gaussian change (default: only those under the edit and the new ones)")
     p.add_argument("--downscale", type=float, default=1.0, help="divide image sizes by this factor (default 1)")

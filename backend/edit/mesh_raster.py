@@ -47,6 +47,8 @@ class RasterConfig:
     """Fragments with |cos(view ray, surface normal)| below this are dropped (0 keeps all)."""
     cull_back_faces: bool = False
     """Drop fragments whose counter-clockwise normal faces away from the camera."""
+    supersample: int = 1
+    """Colour and alpha averaged over ``s x s`` stratified samples per pixel (1: the pixel centre only)."""
 
 
 @dataclass
@@ -173,7 +175,31 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, extension: str = "REPEAT
 
 
 def rasterize_proxy(proxy: ProxyMesh, camera: Camera, config: RasterConfig = RasterConfig()) -> ProxyRender:
-    """Render ``proxy`` (validated) in ``camera``: colour, alpha, depth, mask, face, UV, normal."""
+    """Render ``proxy`` (validated) in ``camera``: colour, alpha, depth, mask, face, UV, normal.
+
+    With ``config.supersample`` s > 1 the geometry (mask, depth, face, UV, normal) stays that of the
+    pixel centre, while colour and alpha are the box-filtered average of s x s samples: a texture
+    finer than the pixels is filtered as a camera integrates it, instead of aliasing (the targets of
+    the bake are then comparable with a rendered photograph), and edges get fractional coverage.
+    """
+    s = int(config.supersample)
+    if s < 1:
+        raise ValueError(f"supersample must be >= 1, got {s}")
+    centre = _rasterize_centres(proxy, camera, config)
+    if s == 1:
+        return centre
+    H, W = camera.height, camera.width
+    fine = _rasterize_centres(proxy, camera.scaled(s), config)
+    a = fine.alpha.reshape(H, s, W, s)
+    ca = (fine.color * fine.alpha[..., None]).reshape(H, s, W, s, 3).sum(axis=(1, 3))
+    a_sum = a.sum(axis=(1, 3))
+    m = centre.mask & (a_sum > 0)
+    centre.color[m] = ca[m] / a_sum[m][:, None]
+    centre.alpha[centre.mask] = (a_sum[centre.mask] / (s * s)).astype(np.float32)
+    return centre
+
+
+def _rasterize_centres(proxy: ProxyMesh, camera: Camera, config: RasterConfig) -> ProxyRender:
     H, W = camera.height, camera.width
     frag = rasterize_triangles(proxy.corner_vertices, camera, config)
     mask = frag.face >= 0

@@ -149,7 +149,7 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         outside = ~dilate(mask, margin)
         acc.add("oracle/image", _srgb(srgb_to_linear(gt_alb) * shading + residual), gt_img, mask)
         # image-space baselines: the depth-tested proxy colour where it covers the pixel
-        comp, pm, _ = edited_albedo(original, proxy, cam, backend)
+        comp, pm, _ = edited_albedo(original, proxy, cam, backend, supersample=BakeConfig.supersample)
         colour = np.where(pm[..., None], comp, 0.0)
         tint = np.where(pm[..., None], orig_img * colour, orig_img)
         over = np.where(pm[..., None], colour, orig_img)

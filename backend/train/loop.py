@@ -30,6 +30,7 @@ from backend.errors import Cancelled, IGSError
 from backend.eval.metrics import image_metrics, mean_metrics
 from backend.io_utils import atomic_path, write_json
 from backend.render import RenderOutput, render
+from backend.render.threads import torch_threads
 from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.losses import depth_l1, photometric, scale_reg
@@ -319,7 +320,13 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     deleted and the run starts over). ``stop_after``: return once this many iterations are done
     (after writing a checkpoint), as if the process had been stopped there — used by tests.
     Cancel (SIGINT/SIGTERM via :mod:`backend.events`) writes a checkpoint and raises :class:`Cancelled`.
+    Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
     """
+    with torch_threads():
+        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after)
+
+
+def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None) -> TrainResult:
     cfg = stage.config
     # Adam's second moments of rows whose gradient stopped (pruned neighbours, inactive SH bands)
     # decay geometrically into denormal floats, which are ~20x slower on x86: flush them to zero.
