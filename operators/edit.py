@@ -26,6 +26,7 @@ from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
 from .job import BackendOperator
+from .modes import leave_mode, mode_set, view3d_override
 
 
 def target_proxy(context) -> tuple[str, bpy.types.Object]:
@@ -202,10 +203,8 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
         ply = ws / "edits" / self._name / "albedo.ply"
-        painting, mode = leave_mode(context)  # loading a layer converts a mesh, which needs Object mode
         obj = layers.load_layer(ply, name=layers.object_name("albedo", self._name), max_points=props.max_points,
                                 radius_scale=props.radius_scale)
-        restore_mode(context, painting, mode)  # e.g. back to Texture Paint on the proxy
         _, item = edits.find(props, self._name)
         item.albedo = obj
         item.baked = True
@@ -232,42 +231,6 @@ def new_paint_image(edit: str, path: Path) -> bpy.types.Image:
     return image
 
 
-def view3d_override(context) -> dict | None:
-    """Context members of a 3D viewport of the current window, or None (``blender -b`` has no window)."""
-    window = context.window
-    if window is None or window.screen is None:
-        return None
-    for area in window.screen.areas:
-        if area.type == "VIEW_3D":
-            region = next((r for r in area.regions if r.type == "WINDOW"), None)
-            if region is not None:
-                return {"window": window, "area": area, "region": region}
-    return None
-
-
-def _mode_set(context, obj: bpy.types.Object, mode: str) -> None:
-    override = view3d_override(context) or {}
-    with context.temp_override(**override, active_object=obj, object=obj):
-        bpy.ops.object.mode_set(mode=mode)
-
-
-def leave_mode(context) -> tuple[bpy.types.Object | None, str]:
-    """Put the active object in Object mode; returns (object, its mode) for :func:`restore_mode`."""
-    obj = context.view_layer.objects.active
-    if obj is None or obj.mode == "OBJECT":
-        return None, "OBJECT"
-    mode = obj.mode
-    _mode_set(context, obj, "OBJECT")
-    return obj, mode
-
-
-def restore_mode(context, obj: bpy.types.Object | None, mode: str) -> None:
-    if obj is None or mode == "OBJECT" or obj.name not in context.view_layer.objects:
-        return
-    context.view_layer.objects.active = obj
-    _mode_set(context, obj, mode)
-
-
 def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) -> bool:
     """Make ``image`` the Texture Paint canvas, select ``obj`` and switch to Texture Paint when a
     3D viewport exists. Returns whether the mode was switched."""
@@ -278,7 +241,7 @@ def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) 
     select_only(context, obj)
     if view3d_override(context) is None:
         return False
-    _mode_set(context, obj, "TEXTURE_PAINT")
+    mode_set(context, obj, "TEXTURE_PAINT")
     return True
 
 

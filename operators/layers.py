@@ -11,6 +11,7 @@ from ..igs_blender import layers
 from ..igs_blender.errors import UserError
 from ..igs_blender.ply_io import write_splat_ply
 from ..igs_blender.workspace_files import existing_workspace, metrics_summary
+from .modes import leave_mode, restore_mode
 
 
 class IGS_OT_load_layers(bpy.types.Operator):
@@ -22,6 +23,7 @@ class IGS_OT_load_layers(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
+        obj, mode = leave_mode(context)  # point clouds are made by converting meshes, in Object mode
         try:
             ws = existing_workspace(props.workspace)
             objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
@@ -29,6 +31,8 @@ class IGS_OT_load_layers(bpy.types.Operator):
         except UserError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        finally:
+            restore_mode(context, obj, mode)
         props.metrics_info = metrics_summary(ws)
         self.report({"INFO"}, "Loaded " + ", ".join(f"{k} ({len(o.data.points)} points)" for k, o in objs.items()))
         return {"FINISHED"}

@@ -918,6 +918,14 @@ def test_flow_3_decompose_and_load_layers(addon, flow):
         assert len(obj.data.points) == min(len(layer), scene.igs.max_points)
         np.testing.assert_allclose(attr(obj, "opacity", 1, "value"), layer.opacities, atol=1e-6)
     assert scene.igs.metrics_info
+    # Loading while the artist edits a mesh: the layers load and Edit Mode comes back.
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.view_layer.objects.active
+    bpy.ops.object.mode_set(mode="EDIT")
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}
+    assert cube.mode == "EDIT" and bpy.data.objects["IGS albedo"].type == "POINTCLOUD"
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bpy.data.objects.remove(cube)
 
 
 def test_flow_4_fit_a_plane_move_it_with_gizmos_and_bake(addon, flow):

@@ -36,6 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group("structure from motion")
     g.add_argument("--matching", choices=MATCHING, default="auto",
                    help="sequential (video), exhaustive (small photo sets), auto (default)")
+    g.add_argument("--max-reproj-error", type=float, default=SfMConfig.max_reproj_error,
+                   help="reprojection error (pixels) above which the mapper rejects observations (default "
+                        f"{SfMConfig.max_reproj_error:g}, COLMAP's; 2 suits short sweeps of small images)")
     g.add_argument("--camera-model", default="SIMPLE_RADIAL",
                    help="COLMAP camera model to estimate (SIMPLE_RADIAL, RADIAL, OPENCV, PINHOLE, ...)")
     g.add_argument("--camera-per-image", action="store_true", help="estimate one camera per image (zoom changes)")
@@ -54,7 +57,7 @@ def config_from_args(args: argparse.Namespace) -> ImportConfig:
                                  sharpest=not args.no_sharpest),
         sfm=SfMConfig(matching=args.matching, camera_model=args.camera_model,
                       single_camera=not args.camera_per_image, max_features=args.max_features,
-                      num_threads=args.threads, seed=args.seed),
+                      num_threads=args.threads, seed=args.seed, max_reproj_error=args.max_reproj_error),
         force=args.force)
 
 

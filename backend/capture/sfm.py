@@ -47,9 +47,11 @@ class SfMConfig:
     """Fail when fewer images than this are registered."""
     min_registered_fraction: float = 0.5
     """Fail when less than this fraction of the images is registered."""
-    max_reproj_error: float = 0.0
+    max_reproj_error: float = 4.0
     """Pixels: 3D points whose reprojection error exceeds this are not created, merged or kept (COLMAP's
-    filter/merge/complete thresholds and the initial pair's). 0: by image size, see :func:`reproj_threshold`."""
+    filter/merge/complete thresholds and the initial pair's; 4 is COLMAP's default). On small images with
+    repeated texture 2 halves the rotation error of a short sweep, but it can break long loops whose
+    middle has little texture (measured on the synthetic room, see the README), so it is not the default."""
     seed: int = 0
     """Random seed of COLMAP's RANSAC and mapper (repeatable runs)."""
     num_threads: int = -1
@@ -127,19 +129,6 @@ def token_watching_cancel():
     return token, _Watch(stop, thread, fds, old_fd)
 
 
-def reproj_threshold(config: SfMConfig, max_side: int) -> float:
-    """The mapper's reprojection threshold in pixels for images whose longer side is ``max_side``.
-
-    COLMAP's 4 px suits 2000-pixel photos; at a few hundred pixels it lets through the points of
-    wrong matches on repeated texture (a floor's planks, a patterned rug): on the synthetic room at
-    256x192, 2 px halves the rotation error of a 32-frame sweep. So 2 px up to 1000 px, growing
-    linearly to 4 px at 2000 px.
-    """
-    if config.max_reproj_error > 0:
-        return float(config.max_reproj_error)
-    return float(np.clip(2.0 * max_side / 1000.0, 2.0, 4.0))
-
-
 def _stamp(image_dir: Path, names: list[str], config: SfMConfig, matching: str) -> dict:
     files = [(n, (image_dir / n).stat().st_size, (image_dir / n).stat().st_mtime) for n in names]
     return {"files": files, "config": asdict(config), "matching": matching}
@@ -212,12 +201,7 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
         events.check_cancel()
         opts = pycolmap.IncrementalPipelineOptions(num_threads=config.num_threads, random_seed=config.seed,
                                                    min_model_size=max(3, config.min_registered))
-        db_cams = pycolmap.Database.open(str(db))
-        try:
-            max_side = max(max(c.width, c.height) for c in db_cams.read_all_cameras())
-        finally:
-            db_cams.close()
-        err = reproj_threshold(config, max_side)
+        err = float(config.max_reproj_error)
         opts.mapper.filter_max_reproj_error = err
         opts.mapper.init_max_error = err
         opts.triangulation.merge_max_reproj_error = err
