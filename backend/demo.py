@@ -45,6 +45,19 @@ def _step(argv: list[str]) -> None:
     args.func(args)
 
 
+def turntable_orbit(capture) -> tuple[str, float, float]:
+    """(centre "x,y,z", radius, height) of a turntable inside the capture's own camera loop: around the
+    scene points' centroid, at the cameras' mean height, 85 % of their mean horizontal distance (the
+    cameras were there, so the orbit is in free space and sees what the capture saw, from new angles)."""
+    import numpy as np
+
+    centre = capture.points.mean(axis=0)
+    eyes = np.array([f.camera.center for f in capture.frames])
+    radius = 0.85 * float(np.mean(np.linalg.norm(eyes[:, :2] - centre[:2], axis=1)))
+    height = float(np.mean(eyes[:, 2]) - centre[2])
+    return ",".join(f"{v:.4f}" for v in centre), radius, height
+
+
 def run(args: argparse.Namespace) -> dict:
     from backend.capture.synth import synthesize
     from backend.capture.workspace import capture_summary, load_capture
@@ -85,9 +98,11 @@ def run(args: argparse.Namespace) -> dict:
                          "--texture", str(edit_json.parent / edit["texture"]), "--view", edit["edit_view"],
                          "--name", DEMO_EDIT]))
     turntable = ws / "renders" / f"{DEMO_EDIT}-turntable"
+    center, radius, height = turntable_orbit(load_capture(ws))
     timed("turntable of the edited scene",
-          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", "--radius", "1.2",
-                         "--height", "0.4", "--frames", str(args.frames), "--out", str(turntable), "--mp4"]))
+          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", "--center", center,
+                         "--radius", f"{radius:.3f}", "--height", f"{height:.3f}", "--frames", str(args.frames),
+                         "--out", str(turntable), "--mp4"]))
 
     summary = {"workspace": str(ws), "preset": args.preset, "iterations": iterations, "steps_seconds": steps,
                "edit_plane": plane["source"],

@@ -41,7 +41,7 @@ from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
 from backend.errors import IGSError
-from backend.eval.metrics import merge_metrics
+from backend.io_utils import write_json
 
 EDITS = ("wall_decal", "rug_recolor", "column_decal")
 
@@ -215,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--anchor-views", type=int, default=BakeConfig.anchor_views)
     ap.add_argument("--margin", type=int, default=2, help="pixels around the mask left out of 'outside' (default 2)")
     ap.add_argument("--backend", default="auto")
+    ap.add_argument("--out", default=None, help="JSON output (default <ws>/bench_edit.json)")
     ap.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
                     help="fewest Gaussians the rectangle must select (lower it for tiny test captures)")
     args = ap.parse_args(argv)
@@ -227,8 +228,10 @@ def main(argv: list[str] | None = None) -> int:
     except IGSError as e:
         print(f"bench_edit: error: {e}", file=sys.stderr)
         return 2
-    merge_metrics(ws_root / "metrics.json", "bench_edit", {"results": results, "config": vars(args)})
+    out = Path(args.out) if args.out else ws_root / "bench_edit.json"
+    write_json(out, {"results": results, "config": vars(args), "table": table(results)})
     print(table(results))
+    print(f"wrote {out}", file=sys.stderr)
     return 0
 
 
