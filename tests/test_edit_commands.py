@@ -89,7 +89,7 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
     from backend.capture.workspace import load_capture
     proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
                         color=[0.9, 0.05, 0.9], name="magenta")
-    cfg = BakeConfig(view=EDIT_VIEW, views=4, iterations=80, anchor_views=4)
+    cfg = BakeConfig(view=EDIT_VIEW, views=4, iterations=120, anchor_views=4)
     summary = bake_edit(ws, proxy, "magenta", cfg)
     out = ws / "edits" / "magenta"
     assert (out / "albedo.ply").exists() and (out / "proxy.json").exists() and (out / "bake.json").exists()

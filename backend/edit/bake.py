@@ -14,9 +14,10 @@
    G_S and G_R are never read. So that the albedo outside the edit stays as it was, only the new
    Gaussians and the old ones that contribute to an edit pixel of some edited view are trained (and
    densified where the texture needs detail); the others are frozen; ``anchor_views`` training views
-   with the same composite (the original albedo around the edit) keep supervising the trained ones
-   where they spill outside the edit. Every view is cut to the window around the edit and only the
-   Gaussians seen in some window are rendered, so a bake costs little more than the edit's size.
+   rendered from the original albedo keep supervising the trained ones where they spill outside the
+   edit (the edit's own pixels are left out there, so that only the edit and virtual views teach it).
+   Every view is cut to the window around the edit and only the Gaussians seen in some window are
+   rendered, so a bake costs little more than the edit's size.
 5. The result goes to ``<ws>/edits/<name>/albedo.ply`` beside a copy of the proxy and
    ``bake.json`` (settings and the measured change inside and outside the edit on held-out views);
    ``<ws>/layers`` is never written, so edits can be undone (delete the folder) or stacked
@@ -318,7 +319,11 @@ class BakeStage(Stage):
                             out._means2d_node, start=self.n_frozen)
 
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
-        loss = photometric(pred, view.image, self.config.lambda_dssim)
+        target = view.image
+        ignore = view.extras.get("ignore")
+        if ignore is not None:  # no loss there: the target is the prediction itself
+            target = torch.where(ignore[..., None], pred.detach(), target)
+        loss = photometric(pred, target, self.config.lambda_dssim)
         return loss, {"photo": float(loss.detach())}
 
 
@@ -457,10 +462,12 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
             box = projected_box(moving, ac, cfg.crop_margin)
             if box is None:
                 continue
-            # the edited albedo of this view: the original around the edit, the proxy where it is seen
-            img, m, _ = edited_albedo(original, proxy, ac.cropped(*box), backend, supersample=cfg.supersample)
-            anchors.append(View(i, ac.cropped(*box), torch.from_numpy(np.clip(img, 0, 1)),
-                                extras={"mask": torch.from_numpy(m)}))
+            # the original albedo around the edit; the edit's own pixels (grown by the splat footprints
+            # at its border) are left out, so that only the edit and virtual views teach the edit
+            crop = ac.cropped(*box)
+            img, m, _ = edited_albedo(original, proxy, crop, backend, supersample=cfg.supersample)
+            before = render_albedo(original, crop, backend).color.detach().clamp(0, 1)
+            anchors.append(View(i, crop, before, extras={"ignore": torch.from_numpy(m)}))
 
     # Only the Gaussians seen in some window take part (the others cannot change any supervised pixel);
     # of those, the editable ones and the new ones are trained (and densified), the rest stay frozen.

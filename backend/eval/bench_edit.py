@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from dataclasses import replace
@@ -57,6 +58,21 @@ def _look(edit: dict, folder: Path) -> tuple[np.ndarray | None, np.ndarray | Non
     return tex, col
 
 
+def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig):
+    """``fn`` with the default inlier threshold, and once more with twice the threshold it reports when
+    too few centres are inliers (what an artist does after the error message); returns (fit, threshold note)."""
+    try:
+        return fn(cam, ids, centres, rect, config=fit_cfg), "default"
+    except IGSError as e:
+        if fit_cfg.threshold is not None or "raise --threshold" not in str(e):
+            raise
+        found = re.search(r"within ([0-9.eE+-]+) of", str(e))
+        if not found:
+            raise
+        t = 2.0 * float(found.group(1))
+        return fn(cam, ids, centres, rect, config=replace(fit_cfg, threshold=t)), f"{t:.4g} (default failed: {e})"
+
+
 def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plane: bool = False,
                  fit_cfg: FitConfig = FitConfig()) -> tuple[ProxyMesh, dict]:
     """The fitted surface with the decal placed as in the ground truth (module docstring)."""
@@ -65,7 +81,7 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
     tex, col = _look(edit, folder)
     ids, centres = out.ids, albedo.means.detach()
     if surf["type"] == "plane" or force_plane:
-        fit = fit_plane_from_rect(cam, ids, centres, edit["rect"], config=fit_cfg)
+        fit, threshold = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
         m = fit.proxy.matrix_world
         n, c0 = _unit(m[:3, 2]), m[:3, 3]
         if surf["type"] == "plane":
@@ -84,13 +100,14 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
         u = _unit(gu - np.dot(gu, n) * n)
         v = _unit(gv - np.dot(gv, n) * n - np.dot(gv, u) * u)
         proxy = plane_proxy(center, n, u, v, size, name=edit["name"], texture=tex, color=col)
-        info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers))}
+        info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers)),
+                "threshold": threshold}
         if surf["type"] == "plane":
             cosang = abs(float(np.dot(n, _unit(surf["normal"]))))
             info["normal_error_deg"] = float(np.degrees(np.arccos(min(1.0, cosang))))
             info["offset_error"] = float(abs(np.dot(gc - c0, n)))
         return proxy, info
-    fit = fit_cylinder_from_rect(cam, ids, centres, edit["rect"], config=fit_cfg)
+    fit, threshold = _fit(fit_cylinder_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
     f = fit.fit
     axis_gt = _unit(surf["axis"])
     axis = f.axis if np.dot(f.axis, axis_gt) >= 0 else -f.axis
@@ -103,7 +120,7 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
                            texture=tex, color=col)
     info = {"fit": "cylinder", "radius": float(f.radius), "radius_gt": surf["radius"],
             "axis_error_deg": float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(f.axis, axis_gt))))))),
-            "inliers": int(np.sum(f.inliers))}
+            "inliers": int(np.sum(f.inliers)), "threshold": threshold}
     return proxy, info
 
 
