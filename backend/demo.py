@@ -99,8 +99,9 @@ def run(args: argparse.Namespace) -> dict:
                          "--name", DEMO_EDIT]))
     turntable = ws / "renders" / f"{DEMO_EDIT}-turntable"
     center, radius, height = turntable_orbit(load_capture(ws))
+    # "--center=x,y,z" in one word: a centre starting with "-" would read as an option
     timed("turntable of the edited scene",
-          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", "--center", center,
+          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", f"--center={center}",
                          "--radius", f"{radius:.3f}", "--height", f"{height:.3f}", "--frames", str(args.frames),
                          "--out", str(turntable), "--mp4"]))
 

@@ -20,7 +20,8 @@ the held-out views (index % 8 == 0) are compared with the Cycles ground truth of
 
 PSNR aggregates the squared error over all pixels of all held-out views (peak 1, sRGB-encoded).
 For ``column_decal`` the row "plane_forced" bakes a plane fitted to the same rectangle with the
-decal laid flat on it (arc length x height), the comparison of issue 10.
+decal laid flat on it (arc length x height), the comparison of issue 10, and "true_cylinder" bakes
+the ground-truth cylinder (the bake's quality on a curved surface without the fit's error).
 """
 
 from __future__ import annotations
@@ -124,6 +125,19 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
     return proxy, info
 
 
+def true_cylinder(edit: dict, folder: Path) -> tuple[ProxyMesh, dict]:
+    """The ground-truth cylinder of a curved edit: the bake's quality with the geometry taken out."""
+    surf = edit["surface"]
+    tex, col = _look(edit, folder)
+    axis = _unit(surf["axis"])
+    h0, h1 = surf["height_range"]
+    t0, t1 = np.degrees(surf["theta_range"])
+    base = np.asarray(surf["base_center"], np.float64) + h0 * axis
+    proxy = cylinder_proxy(base, axis, surf["radius"], h1 - h0, (t0, t1), 128, x_dir=_unit(surf["ref_axis"]),
+                           name=edit["name"], texture=tex, color=col)
+    return proxy, {"fit": "none (ground-truth cylinder)"}
+
+
 class Acc:
     """Sum of squared errors and pixel counts per key -> PSNR."""
 
@@ -196,6 +210,7 @@ def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: 
         proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg)}
         if edit["surface"]["type"] == "cylinder":
             proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg)
+            proxies["true_cylinder"] = true_cylinder(edit, folder)
         variants, bakes = {}, {}
         for pname, (proxy, _) in proxies.items():
             runs = [("multi_view", cfg)] + ([("single_view", replace(cfg, views=0))] if pname == "fitted" else [])
