@@ -17,7 +17,7 @@ from backend.edit.composite import CompositeConfig, composite_over_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.mesh_raster import RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, load_proxy, plane_proxy, save_proxy
-from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, orthonormal_axes
+from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, grow_cylinder, orthonormal_axes
 from backend.edit.texture import texture_from_view, textured_from_view
 from backend.edit.views import (
     check_proxy_visible,
@@ -108,6 +108,34 @@ def test_cylinder_ransac_recovers_known_cylinder_with_outliers():
     assert fit.inliers[:1400].mean() > 0.9 and fit.inliers[1400:].mean() < 0.2
     h0, h1 = fit.height_range  # covers the true 1.2 (stray outliers on the surface may extend it)
     assert h0 < -0.55 and h1 > 0.55 and h1 - h0 < 2.0
+
+
+def column_field(rng, radius=0.35, arc_deg=200.0, noise=0.01):
+    """Centres of a column (axis z through the origin) seen over ``arc_deg``, a wall and a floor nearby."""
+    a = np.radians(rng.uniform(-arc_deg / 2, arc_deg / 2, 4000))
+    h = rng.uniform(0.0, 2.0, 4000)
+    r = radius + rng.normal(0, noise, 4000)
+    column = np.stack([r * np.cos(a), r * np.sin(a), h], 1)
+    wall = np.stack([np.full(1500, -0.6), rng.uniform(-1.5, 1.5, 1500), rng.uniform(0, 2, 1500)], 1)
+    floor = np.stack([rng.uniform(-0.6, 1.5, 1500), rng.uniform(-1.5, 1.5, 1500), rng.normal(0, 0.005, 1500)], 1)
+    return column, np.concatenate([column, wall, floor])
+
+
+def test_grow_cylinder_conditions_a_narrow_arc_fit_on_the_whole_field():
+    rng = np.random.default_rng(11)
+    column, field = column_field(rng)
+    a = np.degrees(np.arctan2(column[:, 1], column[:, 0]))
+    patch = column[(np.abs(a) < 12) & (column[:, 2] > 0.8) & (column[:, 2] < 1.4)]  # a 24 degree strip
+    errors = []
+    for seed in range(3):
+        fit = fit_cylinder_ransac(patch, threshold=0.015, seed=seed)
+        point, axis, radius, used = grow_cylinder(field, fit)
+        errors.append(abs(fit.radius - 0.35))
+        assert abs(radius - 0.35) < 0.01 and angle_deg(axis, [0, 0, 1]) < 1.5
+        assert np.linalg.norm(point[:2]) < 0.01
+        assert used > 3 * len(patch)  # it grew around the column
+        assert abs(np.dot(point - fit.point, axis)) < 0.05  # the axis point stays level with the strip
+    assert max(errors) > 0.03  # the strip alone is ill-conditioned: growing is what fixed the radius
 
 
 def test_cylinder_ransac_refuses_a_plane():

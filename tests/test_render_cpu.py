@@ -206,3 +206,25 @@ def test_broken_gaussians_are_culled_not_smeared():
         o = _render(s, cam, backend)
         assert o.radii[10] == 0
         assert torch.isfinite(o.color).all() and torch.isfinite(o.alpha).all()
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_compiled_sh_colour_matches_torch_with_gradients(degree):
+    from backend.render import cpu_sh, sh
+
+    gen = torch.Generator().manual_seed(degree)
+    n = cpu_sh.CHUNK + 517  # more than one task of the thread pool
+    k = (degree + 1) ** 2
+    coeffs = (0.6 * torch.randn(n, 16, 3, generator=gen)).requires_grad_(True)  # K > k: extra rows unused
+    means = torch.randn(n, 3, generator=gen).requires_grad_(True)
+    center = torch.tensor([0.3, -0.2, -4.0])
+    grad = torch.randn(n, 3, generator=gen)
+    ref = sh.sh_to_color(degree, coeffs[:, :k], means, center)
+    got = cpu_sh.sh_to_color(degree, coeffs, means, center)
+    assert (ref == 0).any() and (ref > 0).any()  # the clamp is exercised
+    torch.testing.assert_close(got, ref, atol=2e-6, rtol=1e-5)
+    g_ref = torch.autograd.grad(ref, (coeffs, means), grad, allow_unused=True, materialize_grads=True)
+    g_got = torch.autograd.grad(got, (coeffs, means), grad)
+    torch.testing.assert_close(g_got[0], g_ref[0], atol=2e-6, rtol=1e-5)
+    torch.testing.assert_close(g_got[1], g_ref[1], atol=2e-6, rtol=1e-4)
+    assert (g_got[0][:, k:] == 0).all()

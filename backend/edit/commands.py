@@ -131,7 +131,8 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
     albedo, source = load_albedo(ws, args.base)
     cam = view_camera(capture.frame(args.view).camera, 1.0)
     out = render_albedo(albedo, cam, args.backend, return_ids=True)
-    cfg = FitConfig(seed=args.seed, threshold=args.threshold, min_selected=args.min_selected)
+    cfg = FitConfig(seed=args.seed, threshold=args.threshold, min_selected=args.min_selected,
+                    grow=getattr(args, "grow", True))
     color = parse_color(args.color) if args.color else (0.5, 0.5, 0.5)
     fit_fn = fit_plane_from_rect if kind == "plane" else fit_cylinder_from_rect
     fit = fit_fn(cam, out.ids, albedo.means.detach(), args.rect, config=cfg, name=args.name, color=color)
@@ -146,9 +147,15 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
             "rect_pixels": [fit.rect.x0, fit.rect.y0, fit.rect.x1, fit.rect.y1], "kind": kind, kind: surface,
             "selected_gaussians": len(fit.gaussian_ids), "inliers": int(np.sum(fit.fit.inliers)),
             "extent_source": fit.extent_source, "albedo": str(source), "proxy": str(path)}
+    if kind == "cylinder":
+        meta["grown_points"] = fit.grown_points
+        if fit.ransac_fit is not None:
+            meta["rectangle_fit_radius"] = fit.ransac_fit.radius
     write_json(path.parent / EDIT_JSON, meta)
     events.output("proxy", path)
-    events.log(f"fit-{kind}: {len(fit.gaussian_ids)} Gaussians selected, {meta['inliers']} inliers; wrote {path}")
+    grown = f", refined on {fit.grown_points} centres on the surface" if fit.grown_points else ""
+    events.log(f"fit-{kind}: {len(fit.gaussian_ids)} Gaussians selected, {meta['inliers']} inliers{grown}; "
+               f"wrote {path}")
     print(json.dumps(meta, indent=2))
     return meta
 
@@ -219,6 +226,10 @@ def _add_fit(sub, kind: str) -> None:
                    help="RANSAC inlier distance in world units (default: 2%% of the selection's robust size)")
     p.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
                    help=f"fewest distinct Gaussians the rectangle must select (default {FitConfig.min_selected})")
+    if kind == "cylinder":
+        p.add_argument("--no-grow", dest="grow", action="store_false",
+                       help="keep the rectangle's RANSAC fit; by default it is refined on all the albedo centres "
+                       "lying on the cylinder (the rest of the column seen from other views)")
     p.set_defaults(func=lambda a: run_fit(a, kind))
 
 

@@ -34,8 +34,10 @@ from backend.edit.ransac import (
     PlaneFit,
     angle_cover,
     cylinder_angles,
+    cylinder_residuals,
     fit_cylinder_ransac,
     fit_plane_ransac,
+    grow_cylinder,
     orthonormal_axes,
     plane_extent,
     robust_size,
@@ -63,6 +65,9 @@ class FitConfig:
     """Fail when fewer of the selected centres lie on the fitted surface."""
     segments: int = 64
     """Cylinder: quads per full turn."""
+    grow: bool = True
+    """Cylinder: refine the rectangle's fit on all the field's centres lying on it (see
+    :func:`backend.edit.ransac.grow_cylinder`); a narrow arc alone gives a poorly conditioned radius."""
 
 
 @dataclass
@@ -81,6 +86,10 @@ class ProxyFit:
     """The validated rectangle."""
     extent_source: str
     """What the extent covers: "rect" (plane), "rect+inliers" (cylinder) or "inliers" (rectangle rays missed)."""
+    grown_points: int = 0
+    """Cylinder: field centres the grown refinement used (0 = the rectangle's RANSAC fit was kept)."""
+    ransac_fit: CylinderFit | None = None
+    """Cylinder: the rectangle's RANSAC fit before growing (None when not grown)."""
 
 
 def _np(x) -> np.ndarray:
@@ -193,6 +202,12 @@ def fit_cylinder_from_rect(camera: Camera, ids, centres, rect, *, normals=None, 
     nrm = None if normals is None else _np(normals).astype(np.float64)[sel]
     fit = fit_cylinder_ransac(pts, nrm, config.threshold, config.iterations, config.seed,
                               min_inlier_ratio=config.min_inlier_ratio)
+    ransac_fit, grown = None, 0
+    if config.grow:
+        ransac_fit = fit
+        fit, grown = _grown_fit(fit, pts, _np(centres).astype(np.float64), config)
+        if not grown:
+            ransac_fit = None
     axis = fit.axis if np.dot(fit.axis, -camera.R[1]) >= 0 else -fit.axis  # up in the image
     to_cam = camera.center - fit.point
     x_dir = to_cam - np.dot(to_cam, axis) * axis
@@ -218,4 +233,20 @@ def fit_cylinder_from_rect(camera: Camera, ids, centres, rect, *, normals=None, 
         proxy.primitive["mirror_u"] = True
     check_proxy_visible(camera, proxy)
     source = "rect+inliers" if len(hits) == len(border) else "inliers"
-    return ProxyFit(proxy, fit, sel, pts, pr, source)
+    return ProxyFit(proxy, fit, sel, pts, pr, source, grown, ransac_fit)
+
+
+def _grown_fit(fit: CylinderFit, pts: np.ndarray, centres: np.ndarray, config: FitConfig) -> tuple[CylinderFit, int]:
+    """(fit, points used) after :func:`grow_cylinder`; the RANSAC ``fit`` and 0 when growing lost the rectangle.
+
+    The grown cylinder must still carry the rectangle's points (at least ``min_inlier_ratio`` of them
+    within twice the threshold): growing must not wander onto a neighbouring surface.
+    """
+    point, axis, radius, used = grow_cylinder(centres, fit)
+    res = np.abs(cylinder_residuals(pts, point, axis, radius))
+    if used < int(fit.inliers.sum()) or not np.isfinite(radius) or (res < 2.0 * fit.threshold).mean() < config.min_inlier_ratio:
+        return fit, 0
+    inl = res < fit.threshold
+    h = (pts[inl] - point) @ axis if inl.any() else np.zeros(1)
+    rms = float(np.sqrt(np.mean(res[inl] ** 2))) if inl.any() else float("nan")
+    return CylinderFit(point, axis, float(radius), inl, (float(h.min()), float(h.max())), fit.threshold, rms), used

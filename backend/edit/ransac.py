@@ -78,7 +78,7 @@ class CylinderFit:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(N,) signed distances of ``points`` (N, 3) to the surface (positive outside)."""
-        return _cylinder_residuals(np.asarray(points, dtype=np.float64), self.point, self.axis, self.radius)
+        return cylinder_residuals(np.asarray(points, dtype=np.float64), self.point, self.axis, self.radius)
 
 
 def _as_points(points, what: str, minimum: int) -> np.ndarray:
@@ -229,7 +229,7 @@ def estimate_normals(points, k: int = 16) -> np.ndarray:
     return out
 
 
-def _cylinder_residuals(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
+def cylinder_residuals(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
     q = p - point
     radial = q - np.outer(q @ axis, axis)
     return np.linalg.norm(radial, axis=1) - radius
@@ -274,7 +274,7 @@ def _refine_cylinder(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius:
         return pt + x[2] * e1 + x[3] * e2, new_ax, base[2] + x[4]
 
     def res(params):
-        return _cylinder_residuals(p, params[0], params[1], params[2])
+        return cylinder_residuals(p, params[0], params[1], params[2])
 
     r0 = res(cur)
     cost = float(r0 @ r0)
@@ -365,16 +365,16 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
         raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
                        "the selection looks planar; use fit-plane)")
     point, axis, radius = best
-    inl = np.abs(_cylinder_residuals(p, point, axis, radius)) < thr
+    inl = np.abs(cylinder_residuals(p, point, axis, radius)) < thr
     for _ in range(2):
         if inl.sum() < MIN_CYLINDER_POINTS:
             break
         point, axis, radius = _refine_cylinder(p[inl], point, axis, radius)
-        inl = np.abs(_cylinder_residuals(p, point, axis, radius)) < thr
+        inl = np.abs(cylinder_residuals(p, point, axis, radius)) < thr
     if radius > 50.0 * size:
         raise IGSError(f"{what}: the best cylinder has radius {radius:.3g}, far larger than the selection "
                        f"({size:.3g}); the points look planar, use fit-plane")
-    inl_all = np.abs(_cylinder_residuals(p_all, point, axis, radius)) < thr
+    inl_all = np.abs(cylinder_residuals(p_all, point, axis, radius)) < thr
     ratio = float(inl_all.mean())
     if inl_all.sum() < MIN_CYLINDER_POINTS or ratio < min_inlier_ratio:
         raise IGSError(f"{what}: only {ratio:.0%} of the {len(p_all)} selected points lie within {thr:.3g} of one "
@@ -383,9 +383,51 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
     h = (q - point) @ axis
     point = point + h.mean() * axis  # centre the axis point on the inliers
     h = h - h.mean()
-    res = _cylinder_residuals(q, point, axis, radius)
+    res = cylinder_residuals(q, point, axis, radius)
     return CylinderFit(point, axis, float(radius), _full_mask(raw, inl_all), (float(h.min()), float(h.max())),
                        thr, float(np.sqrt(np.mean(res * res))))
+
+
+def grow_cylinder(points, fit: CylinderFit, *, iterations: int = 40, wide_iterations: int = 100,
+                  band_factor: float = 3.0, wide_fraction: float = 0.2, height_margin: float = 0.1,
+                  tol: float = 1e-4) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """Refine ``fit`` on every point of ``points`` (N, 3) lying on it, not just the sample it came from.
+
+    A rectangle on one view sees a narrow arc of a column, and a cylinder through a narrow arc of
+    fuzzy points is ill-conditioned (radius and axis offset trade against each other). The rest of the
+    surface is usually in the field, seen from other views: alternately select the points within a
+    band of the current cylinder, inside its height range (widened by ``height_margin`` radii), and
+    re-fit them by least squares: first with a wide band (``wide_fraction`` of the radius, at most
+    ``wide_iterations`` rounds, until the cylinder stops moving) so the selection can creep around the
+    surface from a poor start, then with the band narrowed to ``band_factor`` x the inlier
+    threshold (at most ``iterations`` rounds). Returns (point (3,), unit axis (3,), radius, points in
+    the final band).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    p = p[np.isfinite(p).all(axis=1)]
+    point, axis, radius = fit.point.copy(), fit.axis.copy(), float(fit.radius)
+    h0, h1 = fit.height_range
+    n_sel = 0
+    for wide, rounds in ((True, wide_iterations), (False, iterations)):
+        for _ in range(rounds):
+            band = max(band_factor * fit.threshold, wide_fraction * radius) if wide else band_factor * fit.threshold
+            h = (p - point) @ axis
+            margin = height_margin * radius
+            sel = (np.abs(cylinder_residuals(p, point, axis, radius)) < band) & (h > h0 - margin) & (h < h1 + margin)
+            n_sel = int(sel.sum())
+            if n_sel < MIN_CYLINDER_POINTS:
+                return point, axis, radius, n_sel
+            new_point, new_axis, new_radius = _refine_cylinder(p[sel], point, axis, radius, steps=10)
+            if np.dot(new_axis, axis) < 0:
+                new_axis = -new_axis
+            # Keep the axis point level with the original height range.
+            new_point = new_point + np.dot(point - new_point, new_axis) * new_axis
+            shift = new_point - point
+            moved = abs(new_radius - radius) + np.linalg.norm(shift) + np.linalg.norm(np.cross(axis, new_axis)) * radius
+            point, axis, radius = new_point, new_axis, new_radius
+            if moved < tol * max(radius, 1e-12):
+                break
+    return point, axis, radius, n_sel
 
 
 # ----------------------------------------------------------------------------------------------

@@ -3,9 +3,10 @@
 Needs a synthetic workspace with ``gt_edit/<edit>/`` and a trained albedo layer ``<ws>/layers/albedo.ply``.
 For each edit: the proxy's geometry is fitted from ``edit.json``'s rectangle in its edit view
 (``fit_plane_from_rect`` / ``fit_cylinder_from_rect`` on the albedo field's max-contributors); the
-decal's placement on that fitted surface (centre, in-plane axes, size / angle and height range) is
-taken from the ground-truth surface, as the artist would drag the fitted proxy onto the decal in
-Blender. Then the edit is baked (``igs edit bake``: 8 virtual views, and the single-view bake) and
+decal's placement on that fitted surface (its centre, in-plane axes and physical size: width x height,
+or arc length x height on a cylinder, so a cylinder fitted with a smaller radius spans a wider angle)
+is taken from the ground-truth surface, as the artist would drag and scale the fitted proxy onto the
+decal in Blender. Then the edit is baked (``igs edit bake``: 8 virtual views, and the single-view bake) and
 the held-out views (index % 8 == 0) are compared with the Cycles ground truth of the edited scene:
 
 - ``albedo``: the baked albedo render vs ``gt_edit/<edit>/albedo`` (sRGB-encoded), inside ``mask``;
@@ -115,13 +116,26 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
     h0, h1 = surf["height_range"]
     p_gt = np.asarray(surf["base_center"], np.float64) + h0 * axis_gt
     base = f.point + np.dot(p_gt - f.point, axis) * axis
+    # The decal keeps its physical size (arc length x height, as the forced plane does) and is centred
+    # on the ground-truth decal's middle as seen from the fitted axis.
     ref = _unit(np.asarray(surf["ref_axis"]) - np.dot(surf["ref_axis"], axis) * axis)
-    t0, t1 = np.degrees(surf["theta_range"])
-    proxy = cylinder_proxy(base, axis, f.radius, h1 - h0, (t0, t1), 128, x_dir=ref, name=edit["name"],
-                           texture=tex, color=col)
+    t0, t1 = surf["theta_range"]
+    side_gt = np.cross(axis_gt, _unit(surf["ref_axis"]))
+    tm = 0.5 * (t0 + t1)
+    mid_gt = np.asarray(surf["base_center"], np.float64) + surf["radius"] * (np.cos(tm) * _unit(surf["ref_axis"])
+                                                                              + np.sin(tm) * side_gt)
+    q = mid_gt - f.point
+    tm_fit = np.arctan2(np.dot(q, np.cross(axis, ref)), np.dot(q, ref))
+    half = 0.5 * (t1 - t0) * surf["radius"] / f.radius
+    proxy = cylinder_proxy(base, axis, f.radius, h1 - h0, (np.degrees(tm_fit - half), np.degrees(tm_fit + half)),
+                           128, x_dir=ref, name=edit["name"], texture=tex, color=col)
     info = {"fit": "cylinder", "radius": float(f.radius), "radius_gt": surf["radius"],
             "axis_error_deg": float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(f.axis, axis_gt))))))),
-            "inliers": int(np.sum(f.inliers)), "threshold": threshold}
+            "inliers": int(np.sum(f.inliers)), "threshold": threshold, "grown_points": fit.grown_points}
+    q = np.asarray(surf["base_center"], np.float64) - f.point
+    info["axis_offset"] = float(np.linalg.norm(q - np.dot(q, axis) * axis))  # gt axis point to the fitted line
+    if fit.ransac_fit is not None:
+        info["rectangle_fit_radius"] = float(fit.ransac_fit.radius)
     return proxy, info
 
 

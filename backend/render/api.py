@@ -22,7 +22,7 @@ from torch import Tensor
 from backend.capture.cameras import Camera
 from backend.errors import IGSError
 from backend.render import cpu as cpu_backend
-from backend.render import reference
+from backend.render import cpu_sh, reference
 from backend.render.projection import CameraTensors, check_gaussians, project
 from backend.render.sh import sh_to_color
 
@@ -188,7 +188,8 @@ def _render_fused(layers: Sequence[Splats], camera: Camera, backgrounds, near: f
         if s.sh_degree is None:
             c = s.colors.to(dtype)
         else:
-            c = sh_to_color(s.sh_degree, s.colors.to(dtype), s.means.to(dtype), cam.center)
+            fn = cpu_sh.sh_to_color if backend == "cpu" and dtype == torch.float32 else sh_to_color
+            c = fn(s.sh_degree, s.colors.to(dtype), s.means.to(dtype), cam.center)
         if c.shape[1] < n_ch:  # sets with fewer channels blend zeros in the spare ones
             c = torch.cat([c, c.new_zeros(c.shape[0], n_ch - c.shape[1])], dim=1)
         cols.append(c)
