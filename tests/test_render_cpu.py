@@ -228,3 +228,14 @@ def test_compiled_sh_colour_matches_torch_with_gradients(degree):
     torch.testing.assert_close(g_got[0], g_ref[0], atol=2e-6, rtol=1e-5)
     torch.testing.assert_close(g_got[1], g_ref[1], atol=2e-6, rtol=1e-4)
     assert (g_got[0][:, k:] == 0).all()
+
+
+def test_depth_argsort_is_the_stable_order_with_and_without_ties():
+    from backend.render.cpu import depth_argsort
+
+    rng = np.random.default_rng(3)
+    d = rng.random(5000).astype(np.float32)
+    np.testing.assert_array_equal(depth_argsort(d), np.argsort(d, kind="stable"))
+    d[::7] = d[3]  # exact ties keep index order
+    np.testing.assert_array_equal(depth_argsort(d), np.argsort(d, kind="stable"))
+    assert depth_argsort(np.zeros(0, np.float32)).dtype == np.int64

@@ -123,6 +123,18 @@ def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam
     return Projected(m2d, con, dep, opacities, bbox, radii)
 
 
+def depth_argsort(depths: np.ndarray) -> np.ndarray:
+    """(M,) int64 indices sorting ``depths`` (M,) front to back, ties in index order.
+
+    The same order as projection.depth_order (a stable sort) without torch's threads: numpy's SIMD
+    quicksort is ~5x faster than its stable sort on 100k floats, and the ties it orders arbitrarily
+    (cloned Gaussians share a depth) are put back in index order.
+    """
+    order = np.argsort(depths, kind="quicksort").astype(np.int64)
+    K.order_ties(order, depths[order])
+    return order
+
+
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height):
@@ -130,12 +142,13 @@ class _Rasterize(torch.autograd.Function):
         tiles_x, tiles_y = tile_grid(width, height)
         layer_np = np.ascontiguousarray(layer.cpu().numpy().astype(np.int32))
         bbox_np = np.ascontiguousarray(bbox.cpu().numpy().astype(np.int32))
-        # Same order as projection.depth_order (stable: ties keep index order), without torch's threads.
         visible = np.flatnonzero(bbox_np[:, 0] <= bbox_np[:, 1])
-        order = visible[np.argsort(_np32(depths)[visible], kind="stable")].astype(np.int64)
+        order = visible[depth_argsort(_np32(depths)[visible])]
         t0 = _tick("sort", t0)
-        gdat, gfeat, glay, gbox = K.pack(order, _np32(means2d), _np32(conics), _np32(opacities), _np32(feats),
-                                         layer_np, bbox_np)
+        packed = K.pack_buffers(len(order), feats.shape[1])
+        src = (order, _np32(means2d), _np32(conics), _np32(opacities), _np32(feats), layer_np, bbox_np)
+        run_chunks(K.pack_range, [(a, b, *src, *packed) for a, b in _range_chunks(len(order), GAUSSIANS_PER_CHUNK)])
+        gdat, gfeat, glay, gbox = packed
         tile_offsets, isect, rank_offsets, isect_of_rank, cost = K.bin_tiles(gbox, tiles_x, tiles_y)
         t0 = _tick("pack and bin", t0)
         bufs = K.forward_buffers(n_layers, height, width, gfeat.shape[1], tiles_x * tiles_y)
@@ -169,7 +182,10 @@ class _Rasterize(torch.autograd.Function):
         fixed = (tile_offsets, isect, gdat, gfeat, glay, gbox, tiles_x, out_T, last, gf, ga, rows)
         run_chunks(K.rasterize_backward_tiles, [(tiles, *fixed) for tiles in _tile_chunks(cost)])
         t0 = _tick("raster backward", t0)
-        g = torch.from_numpy(K.reduce_rows(rows, order, rank_offsets, isect_of_rank, n)).to(ctx.device)
+        summed = np.zeros((n, rows.shape[1]), np.float32)
+        run_chunks(K.reduce_rows_range, [(a, b, rows, order, rank_offsets, isect_of_rank, summed)
+                                         for a, b in _range_chunks(len(order), GAUSSIANS_PER_CHUNK)])
+        g = torch.from_numpy(summed).to(ctx.device)
         _tick("reduce", t0)
         d_m, d_c, d_o, d_f = ctx.dtypes
         return (g[:, 0:2].to(d_m), g[:, 2:5].to(d_c), g[:, 5].to(d_o), g[:, 6:].to(d_f),

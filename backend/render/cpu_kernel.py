@@ -4,7 +4,7 @@ numba ``parallel=True`` kernels over 16x16 tiles, float32, compiled once and cac
 
 Layout shared by every kernel (all arrays C-contiguous):
 
-- The visible Gaussians are first packed front to back (:func:`pack`), so that a tile reads its
+- The visible Gaussians are first packed front to back (:func:`pack_range`), so that a tile reads its
   Gaussians in increasing memory order: ``gdat (M, 8)`` float32 rows ``mx, my, conic a, b, c,
   opacity, power cut-off, 0``; ``gfeat (M, F)`` float32 (the colour channels and, last, the camera
   depth: the depth is "just a channel"); ``glay (M,) int32`` the accumulator (layer) ``0..L-1``;
@@ -53,16 +53,17 @@ CUT_MARGIN = 1e-3
 SPAN_MARGIN = 0.02  # pixels
 
 
-@njit(cache=True)
-def pack(order, xy, conic, opac, feat, layer, bbox):
-    """Gather the visible Gaussians front to back (see the module docstring for the layout)."""
-    m = order.shape[0]
+def pack_buffers(m: int, n_feat: int):
+    """Outputs of :func:`pack_range` for ``m`` visible Gaussians: gdat, gfeat, glay, gbox."""
+    return (np.empty((m, 8), np.float32), np.empty((m, n_feat), np.float32), np.empty(m, np.int32),
+            np.empty((m, 4), np.int32))
+
+
+@njit(nogil=True, cache=True)
+def pack_range(start, stop, order, xy, conic, opac, feat, layer, bbox, gdat, gfeat, glay, gbox):
+    """Gather ranks [start, stop) of the visible Gaussians front to back (layout: module docstring)."""
     n_feat = feat.shape[1]
-    gdat = np.empty((m, 8), np.float32)
-    gfeat = np.empty((m, n_feat), np.float32)
-    glay = np.empty(m, np.int32)
-    gbox = np.empty((m, 4), np.int32)
-    for r in range(m):
+    for r in range(start, stop):
         g = order[r]
         gdat[r, 0], gdat[r, 1] = xy[g, 0], xy[g, 1]
         gdat[r, 2], gdat[r, 3], gdat[r, 4] = conic[g, 0], conic[g, 1], conic[g, 2]
@@ -74,7 +75,29 @@ def pack(order, xy, conic, opac, feat, layer, bbox):
         glay[r] = layer[g]
         for c in range(4):
             gbox[r, c] = bbox[g, c]
-    return gdat, gfeat, glay, gbox
+
+
+@njit(cache=True)
+def order_ties(order, sorted_keys):
+    """Within each run of equal ``sorted_keys`` (M,), put ``order`` (M,) in increasing index order, in place.
+
+    Turns an unstable sort into the stable one. Runs are short (cloned Gaussians share a depth), so
+    an insertion sort per run is enough.
+    """
+    m = order.shape[0]
+    i = 0
+    while i < m:
+        j = i + 1
+        while j < m and sorted_keys[j] == sorted_keys[i]:
+            j += 1
+        for a in range(i + 1, j):
+            v = order[a]
+            b = a - 1
+            while b >= i and order[b] > v:
+                order[b + 1] = order[b]
+                b -= 1
+            order[b + 1] = v
+        i = j
 
 
 @njit(cache=True)
@@ -349,16 +372,14 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
                 rows[k, N_GRAD_COLS + ch] = g_feat[ch]
 
 
-@njit(cache=True)
-def reduce_rows(rows, order, rank_offsets, isect_of_rank, n_gauss):
-    """Sum each Gaussian's intersection rows in a fixed order, scattered back to the caller's
-    indices. Returns (N, 6 + F) float32 (zero for Gaussians that were not visible)."""
-    out = np.zeros((n_gauss, rows.shape[1]), np.float32)
-    for r in range(order.shape[0]):
+@njit(nogil=True, cache=True)
+def reduce_rows_range(start, stop, rows, order, rank_offsets, isect_of_rank, out):
+    """For ranks [start, stop): sum each Gaussian's intersection rows in a fixed order into its row of
+    ``out`` (N, 6 + F) float32 (zeros beforehand; Gaussians that were not visible stay zero)."""
+    n_cols = rows.shape[1]
+    for r in range(start, stop):
         g = order[r]
         for j in range(rank_offsets[r], rank_offsets[r + 1]):
             i = isect_of_rank[j]
-            for c in range(rows.shape[1]):
+            for c in range(n_cols):
                 out[g, c] += rows[i, c]
-    return out
-

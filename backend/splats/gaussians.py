@@ -163,7 +163,10 @@ class GaussianSet(nn.Module):
         if self.kind == "shading":
             return self.params["colors"]
         k = sh_coeffs(self.active_sh_degree)
-        return torch.cat([self.params["sh0"], self.params["shN"][:, : k - 1]], dim=1)
+        rest = self.params["shN"]
+        if rest.shape[1] != k - 1:  # slicing the whole tensor would still cost a zero-filled copy backwards
+            rest = rest[:, : k - 1]
+        return torch.cat([self.params["sh0"], rest], dim=1)
 
     def base_rgb(self) -> torch.Tensor:
         """(N, 3) view-independent colour (the SH DC term for SH kinds), detached."""
