@@ -14,7 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_train_3dgs(sub)
 
 
-# CPU-sized defaults: the demo capture reaches 28.04 dB with them in 9:50 on 2 idle cores; raise both on a GPU.
+# CPU-sized defaults: the demo capture reaches 28.04 dB with them in 9-10 min on 2 idle cores; raise both on a GPU.
 DEFAULT_ITERATIONS = 3_500
 DEFAULT_MAX_GAUSSIANS = 100_000
 
