@@ -117,6 +117,28 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
     assert held is not None and held > 35.0
 
 
+def test_capture_views_are_training_views_that_see_the_proxy(ws):
+    from backend.capture.workspace import load_capture, split_frames
+    from backend.edit.bake import capture_views_seeing
+
+    capture = load_capture(ws)
+    proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
+                        color=[0.9, 0.05, 0.9])
+    edit = capture.frame(EDIT_VIEW).camera
+    edit_pixels = int(rasterize_proxy(proxy, edit).mask.sum())
+    train, held = split_frames(capture.frames)
+    every = capture_views_seeing(capture, proxy, edit, edit_pixels, BakeConfig(capture_views=100))
+    names = [c.name for c in every]
+    assert names and EDIT_VIEW not in names
+    assert not set(names) & {f.name for f in held}  # held-out views never supervise a bake
+    for c in every:
+        assert rasterize_proxy(proxy, c).mask.sum() >= 0.3 * edit_pixels
+    # views that miss the face (the box is seen from all round) are not candidates
+    assert len(every) < len(train) - 1
+    two = capture_views_seeing(capture, proxy, edit, edit_pixels, BakeConfig(capture_views=2))
+    assert [c.name for c in two] == [names[0], names[-1]]  # spread over the candidates
+
+
 def _grow(mask, px):
     from backend.edit.bake import dilate
     return dilate(mask, px)

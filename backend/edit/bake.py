@@ -5,7 +5,8 @@
    its colour anti-aliased over ``supersample`` x ``supersample`` samples per pixel; the pixels where
    it wins are the edit pixels.
 2. ``views`` virtual cameras on a cap around the edit view (:func:`backend.edit.views.hemisphere_views`)
-   render the same composite: the edited albedo seen from around the edit view.
+   render the same composite: the edited albedo seen from around the edit view; ``capture_views``
+   training cameras that see the proxy add the capture's own viewpoints (:func:`capture_views_seeing`).
 3. The old Gaussians lying on the proxy under the edit are removed (``surface="replace"``; their
    centres scatter around the surface, so they cannot show one texture consistently from several
    views) and new flat albedo Gaussians are spawned on the proxy at ``spawn_fraction`` of the edit
@@ -79,6 +80,9 @@ class BakeConfig:
     """New albedo Gaussians at this fraction of the edit view's edit pixels."""
     iterations: int = 1000
     """Re-optimisation steps of G_A (one view per step)."""
+    capture_views: int = 8
+    """Training views of the capture that see the edit, composited like the virtual views (0: none).
+    They add the capture's own viewpoints, which the cap around the edit view may not reach."""
     anchor_views: int = 8
     """Training views rendered from the original G_A that keep supervising the albedo (0: none)."""
     restrict: bool = True
@@ -163,6 +167,33 @@ def resolve_view(capture: Capture, proxy: ProxyMesh, proxy_path: Path | None, co
 
 # ----------------------------------------------------------------------------------------------
 # Rendering helpers
+
+
+MIN_CAPTURE_VIEW_FRACTION = 0.3  # a capture view must show this fraction of the edit view's edit pixels
+
+
+def capture_views_seeing(capture: Capture, proxy: ProxyMesh, edit_cam: Camera, edit_pixels: int,
+                         cfg: BakeConfig) -> list[Camera]:
+    """Up to ``cfg.capture_views`` training cameras (held-out views never) that see the proxy.
+
+    Candidates cover at least MIN_CAPTURE_VIEW_FRACTION of the edit view's proxy pixels (faces near
+    edge-on dropped by the rasteriser's rule); the picks are spread evenly over the candidates in
+    capture order, so a camera path gives views from along the path rather than a cluster of
+    neighbours of the best one.
+    """
+    train_frames, _ = split_frames(capture.frames)
+    candidates = []
+    for f in train_frames:
+        c = view_camera(f.camera, cfg.downscale)
+        if c.name == edit_cam.name:
+            continue
+        covered = int(rasterize_proxy(proxy, c).mask.sum())
+        if covered >= MIN_CAPTURE_VIEW_FRACTION * edit_pixels:
+            candidates.append(c)
+    if len(candidates) <= cfg.capture_views:
+        return candidates
+    pick = np.unique(np.linspace(0, len(candidates) - 1, cfg.capture_views).round().astype(int))
+    return [candidates[i] for i in pick]
 
 
 def render_albedo(g: GaussianSet, camera: Camera, backend: str, return_ids: bool = False) -> RenderOutput:
@@ -397,6 +428,8 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
         raise IGSError(f"--views must be >= 0, got {cfg.views}")
     if cfg.iterations < 1:
         raise IGSError(f"--iterations must be >= 1, got {cfg.iterations}")
+    if cfg.capture_views < 0:
+        raise IGSError(f"--capture-views must be >= 0, got {cfg.capture_views}")
     if cfg.anchor_views < 0:
         raise IGSError(f"--anchor-views must be >= 0, got {cfg.anchor_views}")
     capture = load_capture(workspace)
@@ -427,6 +460,14 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
             for hc in cams:
                 img, m, _ = edited_albedo(original, proxy, hc, backend, supersample=cfg.supersample)
                 full.append((hc, img, m))
+                bar.update(1)
+    if cfg.capture_views > 0:
+        seen = capture_views_seeing(capture, proxy, cam, int(pr_edit.mask.sum()), cfg)
+        with events.stage("bake capture views", len(seen), unit="view") as bar:
+            for cc in seen:
+                img, m, _ = edited_albedo(original, proxy, cc, backend, supersample=cfg.supersample)
+                if m.sum() >= MIN_CAPTURE_VIEW_FRACTION * mask.sum():  # not hidden behind the scene
+                    full.append((cc, img, m))
                 bar.update(1)
     views = []
     for k, (c, img, m) in enumerate(full):

@@ -190,7 +190,8 @@ def run_bake(args: argparse.Namespace) -> None:
         name = name or Path(args.plane).stem
         proxy = plane_from_json(args.plane, args.texture, args.color, name)
     cfg = BakeConfig(view=args.view, views=args.views, max_angle=args.max_angle, spawn_fraction=args.spawn_fraction,
-                     iterations=args.iterations, anchor_views=args.anchor_views, restrict=not args.no_restrict,
+                     iterations=args.iterations, anchor_views=args.anchor_views, capture_views=args.capture_views,
+                     restrict=not args.no_restrict,
                      base=args.base, downscale=args.downscale, backend=args.backend, seed=args.seed,
                      surface=args.surface, supersample=args.supersample)
     summary = bake_edit(args.workspace, proxy, name, cfg)
@@ -272,6 +273,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spawn-fraction", type=float, default=d.spawn_fraction,
                    help=f"new Gaussians at this fraction of the edit pixels (default {d.spawn_fraction:g})")
     p.add_argument("--iterations", type=int, default=d.iterations, help=f"re-optimisation steps (default {d.iterations})")
+    p.add_argument("--capture-views", type=int, default=d.capture_views,
+                   help=f"training views that see the proxy, composited like the virtual views (default "
+                        f"{d.capture_views})")
     p.add_argument("--anchor-views", type=int, default=d.anchor_views,
                    help=f"training views supervised with the unedited albedo (default {d.anchor_views})")
     p.add_argument("--surface", default=d.surface, choices=("replace", "paint"),

@@ -227,7 +227,7 @@ def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: 
             proxies["true_cylinder"] = true_cylinder(edit, folder)
         variants, bakes = {}, {}
         for pname, (proxy, _) in proxies.items():
-            runs = [("multi_view", cfg)] + ([("single_view", replace(cfg, views=0))] if pname == "fitted" else [])
+            runs = [("multi_view", cfg)] + ([("single_view", replace(cfg, views=0, capture_views=0))] if pname == "fitted" else [])
             for label, c in runs:
                 key = f"{pname}_{label}" if pname != "fitted" else label
                 s = bake_edit(ws_root, proxy, f"bench_{name}_{key}", replace(c, view=edit["edit_view"]))
@@ -259,6 +259,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--iterations", type=int, default=BakeConfig.iterations)
     ap.add_argument("--views", type=int, default=BakeConfig.views)
     ap.add_argument("--anchor-views", type=int, default=BakeConfig.anchor_views)
+    ap.add_argument("--capture-views", type=int, default=BakeConfig.capture_views,
+                    help="training views that see the edit, added to the multi-view bake")
     ap.add_argument("--margin", type=int, default=2, help="pixels around the mask left out of 'outside' (default 2)")
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--out", default=None, help="JSON output (default <ws>/bench_edit.json)")
@@ -267,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     ws_root = Path(args.workspace)
     cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
+                     capture_views=args.capture_views,
                      backend=args.backend)
     try:
         results = run(ws_root, [e for e in args.edits.split(",") if e], cfg, args.margin,
