@@ -273,15 +273,20 @@ def surface_gaussians(g: GaussianSet, camera: Camera, mask: np.ndarray, pr: Prox
                       tolerance: float) -> np.ndarray:
     """(M,) indices of the Gaussians whose centres project into an edit pixel of ``camera`` within
     ``tolerance`` (relative) of the proxy's depth there: the surface the proxy repaints."""
-    with torch.no_grad():
-        uv, z = camera.project(g.means.detach().double().numpy())
+    return _surface_pixels(g, camera, mask, pr, tolerance)[0]
+
+
+def _surface_pixels(g: GaussianSet, camera: Camera, mask: np.ndarray, pr: ProxyRender,
+                    tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indices (M,), rows (M,), cols (M,)) of the Gaussians of :func:`surface_gaussians` and their pixels."""
+    uv, z = camera.project(g.means.detach().double().numpy())
     col = np.floor(uv[:, 0]).astype(np.int64)
     row = np.floor(uv[:, 1]).astype(np.int64)
     ok = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
     idx = np.flatnonzero(ok)
     r, c = row[idx], col[idx]
     on = mask[r, c] & (np.abs(z[idx] - pr.depth[r, c]) <= tolerance * z[idx])
-    return idx[on]
+    return idx[on], r[on], c[on]
 
 
 def paint_surface_gaussians(g: GaussianSet, camera: Camera, edited: np.ndarray, mask: np.ndarray,
@@ -292,15 +297,8 @@ def paint_surface_gaussians(g: GaussianSet, camera: Camera, edited: np.ndarray, 
     ``tolerance`` (relative) of the proxy's depth there. Starting from the painted colour, the short
     re-optimisation only has to refine. Returns how many were painted.
     """
+    idx, r, c = _surface_pixels(g, camera, mask, pr, tolerance)
     with torch.no_grad():
-        uv, z = camera.project(g.means.detach().double().numpy())
-        col = np.floor(uv[:, 0]).astype(np.int64)
-        row = np.floor(uv[:, 1]).astype(np.int64)
-        ok = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-        idx = np.flatnonzero(ok)
-        r, c = row[idx], col[idx]
-        on = mask[r, c] & (np.abs(z[idx] - pr.depth[r, c]) <= tolerance * z[idx])
-        idx, r, c = idx[on], r[on], c[on]
         if len(idx):
             rgb = torch.from_numpy(edited[r, c]).float().clamp(1e-4, 1 - 1e-4)
             g.params["colors"][torch.from_numpy(idx)] = torch.logit(rgb)

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from numba import njit
 
-from backend.render.sh import SH_C0, SH_C1, SH_C2, SH_C3, num_sh_bases
+from backend.render.sh import SH_C0, SH_C1, SH_C2, SH_C3, check_sh_coeffs
 from backend.render.threads import run_chunks
 
 _C2 = np.array(SH_C2, np.float32)
@@ -187,9 +187,4 @@ def sh_to_color(degree: int, coeffs: torch.Tensor, means: torch.Tensor, cam_cent
 
     coeffs: (N, K, C) with K >= (degree + 1) ** 2; means: (N, 3); cam_center: (3,). Returns (N, C).
     """
-    k = num_sh_bases(degree)
-    if coeffs.dim() != 3 or coeffs.shape[1] < k:
-        from backend.render.sh import eval_sh  # its message names the expected shape
-
-        eval_sh(degree, coeffs, means)
-    return _SHColor.apply(coeffs, means, cam_center, k)
+    return _SHColor.apply(coeffs, means, cam_center, check_sh_coeffs(degree, coeffs))

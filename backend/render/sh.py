@@ -74,15 +74,21 @@ def sh_basis(degree: int, dirs: Tensor) -> Tensor:
     return torch.stack(out, dim=-1)
 
 
+def check_sh_coeffs(degree: int, coeffs: Tensor) -> int:
+    """The number of bases of ``degree``; IGSError unless ``coeffs`` is (N, K >= that, C)."""
+    k = num_sh_bases(degree)
+    if coeffs.dim() != 3 or coeffs.shape[1] < k:
+        raise IGSError(f"colors: SH coefficients must be (N, K>={k}, C) for sh_degree={degree}, "
+                       f"got {tuple(coeffs.shape)}")
+    return k
+
+
 def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
     """Raw SH value (no offset, no clamp).
 
     coeffs: (N, K, C) with K >= (degree + 1) ** 2; dirs: (N, 3) unit vectors. Returns (N, C).
     """
-    k = num_sh_bases(degree)
-    if coeffs.dim() != 3 or coeffs.shape[1] < k:
-        raise IGSError(f"colors: SH coefficients must be (N, K>={k}, C) for sh_degree={degree}, "
-                       f"got {tuple(coeffs.shape)}")
+    k = check_sh_coeffs(degree, coeffs)
     basis = sh_basis(degree, dirs)  # (N, k)
     return torch.einsum("nk,nkc->nc", basis, coeffs[:, :k])
 
