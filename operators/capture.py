@@ -5,11 +5,11 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import backend_env, camera_objects, preferences
+from ..igs_blender import camera_objects
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, resolve
-from .job import BackendOperator
+from .job import BackendOperator, backend_job
 
 
 def import_args(props) -> list:
@@ -56,8 +56,7 @@ class IGS_OT_import_capture(BackendOperator, bpy.types.Operator):
         props = context.scene.igs
         args = import_args(props)
         label = f"Synthetic capture ({props.synth_preset})" if args[0] == "synth" else "Import"
-        prefs = preferences.get(context)
-        return backend_env.backend_job(preferences.interpreter(context), args, label, root=prefs.backend_root)
+        return backend_job(context, args, label)
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import bpy
 
-from ..igs_blender import backend_env, layers, preferences
+from ..igs_blender import layers
 from ..igs_blender.client import BackendJob
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
-from .job import BackendOperator
+from .job import BackendOperator, backend_job
 
 
 def decompose_args(props) -> tuple[list, int]:
@@ -44,9 +44,7 @@ class IGS_OT_decompose(BackendOperator, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         args, stages = decompose_args(context.scene.igs)
-        prefs = preferences.get(context)
-        return backend_env.backend_job(preferences.interpreter(context), args, "Decompose",
-                                       root=prefs.backend_root, expected_stages=stages)
+        return backend_job(context, args, "Decompose", expected_stages=stages)
 
     def finish(self, context, job: BackendJob) -> str:
         return "Decomposed; layers: " + _load_results(context, ("albedo", "shading", "residual"))
@@ -65,9 +63,7 @@ class IGS_OT_train_3dgs(BackendOperator, bpy.types.Operator):
             args += ["--iterations", props.iterations]
         if props.restart:
             args.append("--restart")
-        prefs = preferences.get(context)
-        return backend_env.backend_job(preferences.interpreter(context), args, "Train 3DGS", root=prefs.backend_root,
-                                       expected_stages=1)
+        return backend_job(context, args, "Train 3DGS", expected_stages=1)
 
     def finish(self, context, job: BackendJob) -> str:
         return "3DGS baseline trained; layers: " + _load_results(context, ("radiance",))

@@ -20,12 +20,12 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
-from ..igs_blender import backend_env, edits, layers, preferences, proxies
+from ..igs_blender import edits, layers, proxies
 from ..igs_blender.camera_objects import render_region_rect
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
-from .job import BackendOperator
+from .job import BackendOperator, backend_job
 from .modes import leave_mode, mode_set, view3d_override
 
 
@@ -81,9 +81,7 @@ class IGS_OT_fit_proxy(BackendOperator, bpy.types.Operator):
         self._name = name
         args = ["edit", f"fit-{self.primitive}", ws, "--view", cam["igs_frame"], "--rect", *rect,
                 "--name", name, "--out", self._out]
-        prefs = preferences.get(context)
-        return backend_env.backend_job(preferences.interpreter(context), args, f"Fit {self.primitive}",
-                                       root=prefs.backend_root)
+        return backend_job(context, args, f"Fit {self.primitive}")
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs
@@ -195,9 +193,7 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         args = ["edit", "bake", ws, "--proxy", json_path, "--name", name]
         if props.bake_iterations:
             args += ["--iterations", props.bake_iterations]
-        prefs = preferences.get(context)
-        return backend_env.backend_job(preferences.interpreter(context), args, f"Bake '{name}'",
-                                       root=prefs.backend_root)
+        return backend_job(context, args, f"Bake '{name}'")
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs
@@ -263,9 +259,7 @@ class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
         self._name = name
         self._out = edit_dir / "projected.json"
         args = ["edit", "project", ws, "--proxy", state, "--out", self._out]
-        prefs = preferences.get(context)
-        return backend_env.backend_job(preferences.interpreter(context), args, f"Project albedo onto '{name}'",
-                                       root=prefs.backend_root)
+        return backend_job(context, args, f"Project albedo onto '{name}'")
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs

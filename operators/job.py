@@ -12,10 +12,17 @@ import time
 
 import bpy
 
-from ..igs_blender import jobs, scene_objects
+from ..igs_blender import backend_env, jobs, preferences, scene_objects
 from ..igs_blender.client import BackendError, BackendJob
 from ..igs_blender.errors import UserError
 from .modes import leave_mode, restore_mode
+
+
+def backend_job(context, args: list, label: str, expected_stages: int = 0) -> BackendJob:
+    """A (not yet started) backend job ``args`` run by the add-on preferences' interpreter and backend."""
+    prefs = preferences.get(context)
+    return backend_env.backend_job(preferences.interpreter(context), args, label, root=prefs.backend_root,
+                                   expected_stages=expected_stages)
 
 
 def show_job(props, job: BackendJob) -> None:

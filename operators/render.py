@@ -17,13 +17,13 @@ import numpy as np
 from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
-from ..igs_blender import backend_env, compat, edits, images, preferences
+from ..igs_blender import compat, edits, images
 from ..igs_blender.camera_objects import sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
-from .job import BackendOperator
+from .job import BackendOperator, backend_job
 
 
 def edit_args(props) -> list:
@@ -61,12 +61,10 @@ def selection_center(context) -> Vector:
 def _render_job(context, cameras: Path, out: Path, label: str, mp4: bool = False) -> BackendJob:
     props = context.scene.igs
     ws = existing_workspace(props.workspace)
-    prefs = preferences.get(context)
     args = ["render", ws, *edit_args(props), "--cameras", cameras, "--out", out, "--layers", props.render_layer]
     if mp4:
         args.append("--mp4")
-    return backend_env.backend_job(preferences.interpreter(context), args, label, root=prefs.backend_root,
-                                   expected_stages=1)
+    return backend_job(context, args, label, expected_stages=1)
 
 
 class IGS_OT_render_view(BackendOperator, bpy.types.Operator):

@@ -873,6 +873,22 @@ def _flow_scene(flow):
     return scene
 
 
+def _region_around_gt_rect(scene, flow, edit_name: str, pad: tuple[int, int, int, int]) -> dict:
+    """Look through the ground-truth edit's view and draw the render region (Ctrl+B) around its
+    rectangle grown by ``pad`` = (left, top, right, bottom) pixels; returns the edit.json."""
+    edit = json.loads((flow["synth"] / "gt_edit" / edit_name / "edit.json").read_text())
+    cam = bpy.data.objects[sub("camera_objects").camera_object_name(edit["edit_view"])]
+    bpy.ops.igs.use_frame_camera(camera=cam.name)
+    w, h = cam["igs_width"], cam["igs_height"]
+    x0, y0, x1, y1 = edit["rect"]
+    x0, y0, x1, y1 = max(x0 - pad[0], 0), max(y0 - pad[1], 0), min(x1 + pad[2], w), min(y1 + pad[3], h)
+    r = scene.render
+    r.use_border = True
+    r.border_min_x, r.border_max_x = x0 / w, x1 / w
+    r.border_min_y, r.border_max_y = 1 - y1 / h, 1 - y0 / h
+    return edit
+
+
 def test_flow_1_synthetic_capture_from_the_capture_panel(addon, flow):
     need_command("synth")
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -933,16 +949,8 @@ def test_flow_4_fit_a_plane_move_it_with_gizmos_and_bake(addon, flow):
     if "ws" not in flow or not (flow["ws"] / "layers" / "albedo.ply").is_file():
         pytest.skip("needs the decomposed workspace of step 3")
     scene = _flow_scene(flow)
-    edit = json.loads((flow["synth"] / "gt_edit" / "wall_decal" / "edit.json").read_text())
-    cam = bpy.data.objects[sub("camera_objects").camera_object_name(edit["edit_view"])]
-    bpy.ops.igs.use_frame_camera(camera=cam.name)
-    w, h = cam["igs_width"], cam["igs_height"]
-    x0, y0, x1, y1 = edit["rect"]  # inside the decal; the fit needs more of the wall around it
-    x0, y0, x1, y1 = max(x0 - 8, 0), max(y0 - 2, 0), min(x1 + 8, w), min(y1 + 8, h)
-    r = scene.render
-    r.use_border = True
-    r.border_min_x, r.border_max_x = x0 / w, x1 / w
-    r.border_min_y, r.border_max_y = 1 - y1 / h, 1 - y0 / h
+    # inside the decal; the fit needs more of the wall around it
+    _region_around_gt_rect(scene, flow, "wall_decal", (8, 2, 8, 8))
     scene.igs.edit_name = "wall"
     assert bpy.ops.igs.fit_proxy(primitive="plane") == {"FINISHED"}, scene.igs.last_report
     proxy = bpy.data.objects["IGS proxy [wall]"]
@@ -993,16 +1001,8 @@ def test_flow_4b_fit_a_cylinder_paint_over_the_projected_albedo_and_bake(addon, 
 
     scene = _flow_scene(flow)
     ws = flow["ws"]
-    edit = json.loads((flow["synth"] / "gt_edit" / "column_decal" / "edit.json").read_text())
-    cam = bpy.data.objects[sub("camera_objects").camera_object_name(edit["edit_view"])]
-    bpy.ops.igs.use_frame_camera(camera=cam.name)
-    w, h = cam["igs_width"], cam["igs_height"]
-    x0, y0, x1, y1 = edit["rect"]  # the label; the fit wants more of the column around it
-    x0, y0, x1, y1 = max(x0 - 7, 0), max(y0 - 3, 0), min(x1 + 7, w), min(y1 + 24, h)
-    r = scene.render
-    r.use_border = True
-    r.border_min_x, r.border_max_x = x0 / w, x1 / w
-    r.border_min_y, r.border_max_y = 1 - y1 / h, 1 - y0 / h
+    # the label; the fit wants more of the column around it
+    edit = _region_around_gt_rect(scene, flow, "column_decal", (7, 3, 7, 24))
     scene.igs.edit_name = "label"
     assert bpy.ops.igs.fit_proxy(primitive="cylinder") == {"FINISHED"}, scene.igs.last_report
     proxy = bpy.data.objects["IGS proxy [label]"]
