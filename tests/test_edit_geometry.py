@@ -17,7 +17,7 @@ from backend.edit.composite import CompositeConfig, composite_over_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.mesh_raster import RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, load_proxy, plane_proxy, save_proxy
-from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, grow_cylinder, orthonormal_axes
+from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, grow_cylinder, grow_plane, orthonormal_axes
 from backend.edit.texture import texture_from_view, textured_from_view
 from backend.edit.views import (
     check_proxy_visible,
@@ -136,6 +136,26 @@ def test_grow_cylinder_conditions_a_narrow_arc_fit_on_the_whole_field():
         assert used > 3 * len(patch)  # it grew around the column
         assert abs(np.dot(point - fit.point, axis)) < 0.05  # the axis point stays level with the strip
     assert max(errors) > 0.03  # the strip alone is ill-conditioned: growing is what fixed the radius
+
+
+def test_grow_plane_levels_a_patch_fitted_on_a_bump():
+    """A wall with a 1 cm undulation: a small rectangle on its slope gives a tilted RANSAC plane;
+    growing over the centres around it (with a floor and a box in front among them) finds the wall."""
+    rng = np.random.default_rng(5)
+    x, z = rng.uniform(-0.9, 0.9, (2, 30_000))
+    wall = np.stack([x, 2.0 + 0.01 * np.sin(2 * np.pi * x / 0.6) + rng.normal(0, 0.002, x.shape), z + 1.0], 1)
+    floor = np.stack([rng.uniform(-0.9, 0.9, 5000), rng.uniform(1.0, 2.0, 5000), rng.normal(0, 0.002, 5000)], 1)
+    box = rng.uniform([-0.3, 1.4, 0.0], [0.3, 1.8, 0.4], (3000, 3))
+    patch = wall[(np.abs(wall[:, 0]) < 0.05) & (np.abs(wall[:, 2] - 1.0) < 0.05)]
+    fit = fit_plane_ransac(patch, threshold=0.005, seed=0)
+    assert angle_deg(fit.normal, [0, 1, 0]) > 3.0  # the slope of the bump
+    center, normal, used = grow_plane(np.concatenate([wall, floor, box]), fit)
+    assert angle_deg(normal, [0, 1, 0]) < 0.5
+    assert used > 20 * len(patch) and abs(center[1] - 2.0) < 0.01
+    assert np.linalg.norm((center - fit.center)[[0, 2]]) < 0.02  # stays at the patch, on the new plane
+    # A band no wider than the threshold keeps the tilt it started from.
+    _, narrow, _ = grow_plane(wall, fit, band_factor=0.5)
+    assert angle_deg(narrow, [0, 1, 0]) > 1.0
 
 
 def test_cylinder_ransac_refuses_a_plane():

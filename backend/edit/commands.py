@@ -147,10 +147,13 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
             "rect_pixels": [fit.rect.x0, fit.rect.y0, fit.rect.x1, fit.rect.y1], "kind": kind, kind: surface,
             "selected_gaussians": len(fit.gaussian_ids), "inliers": int(np.sum(fit.fit.inliers)),
             "extent_source": fit.extent_source, "albedo": str(source), "proxy": str(path)}
-    if kind == "cylinder":
-        meta["grown_points"] = fit.grown_points
-        if fit.ransac_fit is not None:
+    meta["grown_points"] = fit.grown_points
+    if fit.ransac_fit is not None:
+        if kind == "cylinder":
             meta["rectangle_fit_radius"] = fit.ransac_fit.radius
+        else:
+            cos = abs(float(np.dot(fit.ransac_fit.normal, fit.fit.normal)))
+            meta["rectangle_fit_tilt_deg"] = float(np.degrees(np.arccos(min(1.0, cos))))
     write_json(path.parent / EDIT_JSON, meta)
     events.output("proxy", path)
     grown = f", refined on {fit.grown_points} centres on the surface" if fit.grown_points else ""
@@ -227,10 +230,11 @@ def _add_fit(sub, kind: str) -> None:
                    help="RANSAC inlier distance in world units (default: 2%% of the selection's robust size)")
     p.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
                    help=f"fewest distinct Gaussians the rectangle must select (default {FitConfig.min_selected})")
-    if kind == "cylinder":
-        p.add_argument("--no-grow", dest="grow", action="store_false",
-                       help="keep the rectangle's RANSAC fit; by default it is refined on all the albedo centres "
-                       "lying on the cylinder (the rest of the column seen from other views)")
+    where = ("all the albedo centres lying on the cylinder (the rest of the column seen from other views)"
+             if kind == "cylinder" else "the albedo centres lying on the plane around the rectangle (the "
+             "rectangle widened by half its size on every side)")
+    p.add_argument("--no-grow", dest="grow", action="store_false",
+                   help=f"keep the rectangle's RANSAC fit; by default it is refined by least squares on {where}")
     p.set_defaults(func=lambda a: run_fit(a, kind))
 
 

@@ -38,6 +38,7 @@ from backend.edit.ransac import (
     fit_cylinder_ransac,
     fit_plane_ransac,
     grow_cylinder,
+    grow_plane,
     orthonormal_axes,
     plane_extent,
     robust_size,
@@ -66,8 +67,13 @@ class FitConfig:
     segments: int = 64
     """Cylinder: quads per full turn."""
     grow: bool = True
-    """Cylinder: refine the rectangle's fit on all the field's centres lying on it (see
-    :func:`backend.edit.ransac.grow_cylinder`); a narrow arc alone gives a poorly conditioned radius."""
+    """Refine the rectangle's fit on the field's other centres lying on the surface: for a cylinder all
+    of them (:func:`backend.edit.ransac.grow_cylinder`; a narrow arc alone gives a poorly conditioned
+    radius), for a plane those seen near the rectangle (:func:`backend.edit.ransac.grow_plane`; a small
+    patch of fuzzy centres gives a tilted normal)."""
+    grow_margin: float = 0.5
+    """Plane growth: candidates are the centres seen in the edit view within the rectangle widened by
+    this fraction of its width and height on every side."""
 
 
 @dataclass
@@ -87,9 +93,9 @@ class ProxyFit:
     extent_source: str
     """What the extent covers: "rect" (plane), "rect+inliers" (cylinder) or "inliers" (rectangle rays missed)."""
     grown_points: int = 0
-    """Cylinder: field centres the grown refinement used (0 = the rectangle's RANSAC fit was kept)."""
-    ransac_fit: CylinderFit | None = None
-    """Cylinder: the rectangle's RANSAC fit before growing (None when not grown)."""
+    """Field centres the grown refinement used (0 = the rectangle's RANSAC fit was kept)."""
+    ransac_fit: PlaneFit | CylinderFit | None = None
+    """The rectangle's RANSAC fit before growing (None when not grown)."""
 
 
 def _np(x) -> np.ndarray:
@@ -154,6 +160,12 @@ def fit_plane_from_rect(camera: Camera, ids, centres, rect, *, config: FitConfig
     pr, sel, pts = select_centres(camera, ids, centres, rect, config.min_selected)
     fit = fit_plane_ransac(pts, config.threshold, config.iterations, config.seed,
                            min_inlier_ratio=config.min_inlier_ratio)
+    ransac_fit, grown = None, 0
+    if config.grow:
+        ransac_fit = fit
+        fit, grown = _grown_plane(camera, pr, fit, pts, _np(centres).astype(np.float64), config)
+        if not grown:
+            ransac_fit = None
     n, u, v = _view_oriented_plane(camera, fit)
     inl = pts[fit.inliers]
     center, size = plane_extent(fit.center, u, v, inl)
@@ -170,7 +182,26 @@ def fit_plane_from_rect(camera: Camera, ids, centres, rect, *, config: FitConfig
     proxy = plane_proxy(center, n, u, v, size, name=name, texture=texture,
                         color=None if texture is not None else color)
     check_proxy_visible(camera, proxy)
-    return ProxyFit(proxy, fit, sel, pts, pr, source)
+    return ProxyFit(proxy, fit, sel, pts, pr, source, grown, ransac_fit)
+
+
+def _grown_plane(camera: Camera, pr: PixelRect, fit: PlaneFit, pts: np.ndarray, centres: np.ndarray,
+                 config: FitConfig) -> tuple[PlaneFit, int]:
+    """(fit, points used) after :func:`grow_plane` on the centres seen near the rectangle; the RANSAC
+    ``fit`` and 0 when growing lost the rectangle (fewer than ``min_inlier_ratio`` of its points within
+    twice the threshold) or found fewer points than the rectangle alone."""
+    uv, z = camera.project(centres)
+    mx, my = config.grow_margin * (pr.x1 - pr.x0), config.grow_margin * (pr.y1 - pr.y0)
+    near = ((z > 0) & (uv[:, 0] >= pr.x0 - mx) & (uv[:, 0] <= pr.x1 + mx)
+            & (uv[:, 1] >= pr.y0 - my) & (uv[:, 1] <= pr.y1 + my))
+    center, normal, used = grow_plane(centres[near], fit)
+    dist = np.abs((pts - center) @ normal)
+    if used < int(fit.inliers.sum()) or (dist < 2.0 * fit.threshold).mean() < config.min_inlier_ratio:
+        return fit, 0
+    inl = dist < fit.threshold
+    u, v = orthonormal_axes(normal)
+    rms = float(np.sqrt(np.mean(dist[inl] ** 2))) if inl.any() else float("nan")
+    return PlaneFit(center, normal, u, v, inl, fit.threshold, rms), used
 
 
 def _ray_cylinder_front_hits(origin: np.ndarray, dirs: np.ndarray, point: np.ndarray, axis: np.ndarray,

@@ -388,6 +388,38 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
                        thr, float(np.sqrt(np.mean(res * res))))
 
 
+def grow_plane(points, fit: PlaneFit, *, iterations: int = 50, band_factor: float = 3.0,
+               tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, int]:
+    """Refine ``fit`` on every point of ``points`` (N, 3) within ``band_factor`` x its threshold.
+
+    The rectangle's max-contributors are a small patch of fuzzy centres, and a plane through a small
+    patch tilts easily (a wall at 256x192 came out 1.6 degrees off from 123 inliers). ``points`` are
+    the candidates around the patch (the caller picks them, e.g. the centres seen near the rectangle):
+    alternately select those in the band of the current plane and re-fit them by least squares, until
+    the normal stops moving. A band wider than the inlier threshold lets the selection follow the
+    true plane from a tilted start; a narrow one keeps the tilt. Returns (a point on the plane: the
+    fit's centre projected onto it (3,), unit normal (3,), points in the final band).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    p = p[np.isfinite(p).all(axis=1)]
+    center, normal = fit.center.copy(), fit.normal.copy()
+    band = band_factor * fit.threshold
+    n_sel = 0
+    for _ in range(iterations):
+        sel = np.abs((p - center) @ normal) < band
+        n_sel = int(sel.sum())
+        if n_sel < MIN_PLANE_POINTS:
+            break
+        c, n = _plane_lsq(p[sel], "plane growth")
+        if np.dot(n, normal) < 0:
+            n = -n
+        moved = np.linalg.norm(n - normal)
+        center, normal = c, n
+        if moved < tol:
+            break
+    return fit.center - np.dot(fit.center - center, normal) * normal, normal, n_sel
+
+
 def grow_cylinder(points, fit: CylinderFit, *, iterations: int = 40, wide_iterations: int = 100,
                   band_factor: float = 3.0, wide_fraction: float = 0.2, height_margin: float = 0.1,
                   tol: float = 1e-4) -> tuple[np.ndarray, np.ndarray, float, int]:
