@@ -6,6 +6,7 @@ Budget: < 30 s on 2 CPU cores.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -18,6 +19,7 @@ from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_r
 from backend.edit.mesh_raster import RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, load_proxy, plane_proxy, save_proxy
 from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, grow_cylinder, grow_plane, orthonormal_axes
+from backend.edit.sweep import shifted, sweep_plane_offset
 from backend.edit.texture import texture_from_view, textured_from_view
 from backend.edit.views import (
     check_proxy_visible,
@@ -663,6 +665,36 @@ def test_fit_plane_from_rect_gives_an_upright_proxy_covering_the_rectangle():
     back = rasterize_proxy(textured, cam)
     inner = slice(res.rect.y0 + 2, res.rect.y1 - 2), slice(res.rect.x0 + 2, res.rect.x1 - 2)
     assert np.abs(back.color[inner] - image[inner]).max() < 0.03
+
+
+def test_offset_sweep_finds_the_depth_where_the_texture_lines_up():
+    """Renders of a textured wall 7 mm in front of the fitted plane: the sweep moves the plane there;
+    a wall of one flat colour gives no minimum and the plane stays."""
+    n = np.array([0.0, -1.0, 0.0])
+    tex = np.stack([smooth_texture(96, 96, seed=s)[..., 0] for s in range(3)], -1)
+    tex = tex + 0.3 * (np.indices((96, 96)).sum(0) % 7 < 2)[..., None]  # fine stripes, as a rug's weave
+    fitted = plane_proxy([0.0, 2.0, 1.0], n, [1, 0, 0], [0, 0, 1], [1.0, 1.0], texture=tex.astype(np.float32))
+    edit = Camera.look_at("edit", [0.0, 1.0, 1.1], [0.0, 2.0, 1.0], [0, 0, 1], 160, 120, 50)
+    others = [Camera.look_at(f"v{i}", [x, 1.1, 1.2], [0.0, 2.0, 1.0], [0, 0, 1], 160, 120, 50)
+              for i, x in enumerate((-0.9, -0.5, 0.6, 1.0))]
+
+    def scene(truth):
+        er = rasterize_proxy(truth, edit)
+        views = []
+        for c in others:
+            r = rasterize_proxy(truth, c)
+            views.append((c, r.color, np.where(r.mask, r.depth, np.inf)))
+        return er.color, views
+
+    img, views = scene(shifted(fitted, 0.007))
+    res = sweep_plane_offset(fitted, edit, img, views)
+    assert res.accepted and abs(res.offset - 0.007) < 0.001, (res.offset, res.reason)
+    assert int(np.nanargmin(res.errors)) != len(res.errors) // 2  # 0 was not the best offset
+    flat = replace(fitted, texture=None, color=np.array([0.4, 0.5, 0.6], np.float32))
+    img, views = scene(shifted(flat, 0.007))
+    res = sweep_plane_offset(flat, edit, img, views)
+    assert not res.accepted and res.offset == 0.0 and "texture" in res.reason
+    assert not sweep_plane_offset(fitted, edit, img, []).accepted  # no other view
 
 
 def test_fit_plane_from_rect_rejects_small_selections_and_edge_on_views():

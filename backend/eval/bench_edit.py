@@ -43,6 +43,7 @@ from backend.capture.workspace import load_capture, split_frames
 from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load_albedo, render_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
+from backend.edit.sweep import sweep_fitted_plane
 from backend.errors import IGSError
 from backend.io_utils import write_json
 
@@ -76,15 +77,18 @@ def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig):
 
 
 def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plane: bool = False,
-                 fit_cfg: FitConfig = FitConfig()) -> tuple[ProxyMesh, dict]:
-    """The fitted surface with the decal placed as in the ground truth (module docstring)."""
+                 fit_cfg: FitConfig = FitConfig(), capture=None) -> tuple[ProxyMesh, dict]:
+    """The fitted surface with the decal placed as in the ground truth (module docstring). A plane is
+    placed by ``igs edit fit-plane``'s offset sweep over ``capture``'s views (none without a capture)."""
     out = render_albedo(albedo, cam, backend, return_ids=True)
     surf = edit["surface"]
     tex, col = _look(edit, folder)
     ids, centres = out.ids, albedo.means.detach()
     if surf["type"] == "plane" or force_plane:
         fit, threshold = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
-        m = fit.proxy.matrix_world
+        plane, sweep = (sweep_fitted_plane(capture, albedo, fit.proxy, cam, backend) if capture is not None
+                        else (fit.proxy, None))
+        m = plane.matrix_world
         n, c0 = _unit(m[:3, 2]), m[:3, 3]
         if surf["type"] == "plane":
             gc, gu, gv, size = (np.asarray(surf[k], np.float64) for k in ("center", "u_axis", "v_axis", "size"))
@@ -103,7 +107,9 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
         v = _unit(gv - np.dot(gv, n) * n - np.dot(gv, u) * u)
         proxy = plane_proxy(center, n, u, v, size, name=edit["name"], texture=tex, color=col)
         info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers)),
-                "threshold": threshold}
+                "threshold": threshold, "grown_points": fit.grown_points,
+                "offset_sweep": None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted,
+                                                            "reason": sweep.reason}}
         if surf["type"] == "plane":
             cosang = abs(float(np.dot(n, _unit(surf["normal"]))))
             info["normal_error_deg"] = float(np.degrees(np.arccos(min(1.0, cosang))))
@@ -221,9 +227,9 @@ def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: 
         edit = json.loads((folder / "edit.json").read_text())
         cam = capture.frame(edit["edit_view"]).camera
         t0 = time.perf_counter()
-        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg)}
+        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg, capture=capture)}
         if edit["surface"]["type"] == "cylinder":
-            proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg)
+            proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture)
             proxies["true_cylinder"] = true_cylinder(edit, folder)
         variants, bakes = {}, {}
         for pname, (proxy, _) in proxies.items():

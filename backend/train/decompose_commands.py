@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
     p.add_argument("--iterations", type=int, default=None,
-                   help=f"iterations per stage: albedo N, shading N/2, residual N/4 (default "
+                   help=f"iterations per stage: albedo N, shading N, residual N/2 (default "
                         f"{d.albedo.iterations}/{d.shading.iterations}/{d.residual.iterations})")
     for s in STAGES:
         p.add_argument(f"--{s}-iterations", type=int, default=None, help=f"iterations of the {s} stage")
