@@ -116,3 +116,31 @@ def test_contact_sheet_lays_out_labelled_cells(tmp_path):
     path = report.write_report(tmp_path / "r.png", rows)
     assert path.exists() and path.stat().st_size > 0
 
+
+
+def test_bench_targets_without_the_single_set_report_its_target_as_not_measured():
+    from backend.eval.bench_decompose import table, targets
+
+    def method(albedo, full, ratio):
+        return {"layers": {"albedo": {"psnr": albedo}, "shading": {"psnr": 23.0}, "full": {"psnr": full}},
+                "gaussians": {"albedo": 1, "shading": 1, "residual": 1, "total": 3}, "decompose_seconds": 10.0,
+                "time_vs_3dgs": ratio, "stages": {}}
+
+    r = {"vanilla_3dgs": {"full": {"psnr": 27.9, "ssim": None, "lpips": None}, "gaussians": 5, "train_seconds": 5.0},
+         "three_set": method(32.0, 27.5, 1.7), "single_set": None}
+    t = targets(r)
+    assert t["albedo_vs_single_set"]["met"] is None and t["full_vs_3dgs"]["met"] is True
+    assert "not run: --no-single-set" in table({**r, "targets": t})
+    r["single_set"] = method(31.5, 28.0, 3.0)
+    t = targets(r)
+    assert t["albedo_vs_single_set"]["met"] is False and t["albedo_vs_single_set"]["value"] == 0.5
+    r["three_set"] = method(32.0, 27.3, 2.1)
+    t = targets(r)
+    assert t["full_vs_3dgs"]["met"] is False and t["time_vs_3dgs"]["met"] is False
+
+
+def test_budget_split_gives_the_shading_the_albedo_budget():
+    assert intrinsic.split_iterations(3000) == {"albedo": 3000, "shading": 3000, "residual": 1500}
+    cfg = DecomposeConfig()
+    assert cfg.shading.iterations == cfg.albedo.iterations == 2 * cfg.residual.iterations
+    assert cfg.shading.densify.grad_threshold < cfg.albedo.densify.grad_threshold
