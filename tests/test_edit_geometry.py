@@ -19,7 +19,7 @@ from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_r
 from backend.edit.mesh_raster import RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, load_proxy, plane_proxy, save_proxy
 from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, grow_cylinder, grow_plane, orthonormal_axes
-from backend.edit.sweep import shifted, sweep_plane_offset
+from backend.edit.sweep import shifted, sweep_offset
 from backend.edit.texture import texture_from_view, textured_from_view
 from backend.edit.views import (
     check_proxy_visible,
@@ -687,14 +687,39 @@ def test_offset_sweep_finds_the_depth_where_the_texture_lines_up():
         return er.color, views
 
     img, views = scene(shifted(fitted, 0.007))
-    res = sweep_plane_offset(fitted, edit, img, views)
+    res = sweep_offset(fitted, edit, img, views)
     assert res.accepted and abs(res.offset - 0.007) < 0.001, (res.offset, res.reason)
     assert int(np.nanargmin(res.errors)) != len(res.errors) // 2  # 0 was not the best offset
     flat = replace(fitted, texture=None, color=np.array([0.4, 0.5, 0.6], np.float32))
     img, views = scene(shifted(flat, 0.007))
-    res = sweep_plane_offset(flat, edit, img, views)
+    res = sweep_offset(flat, edit, img, views)
     assert not res.accepted and res.offset == 0.0 and "texture" in res.reason
-    assert not sweep_plane_offset(fitted, edit, img, []).accepted  # no other view
+    assert not sweep_offset(fitted, edit, img, []).accepted  # no other view
+
+
+def test_offset_sweep_finds_the_radius_of_a_column_fitted_too_thin():
+    """A textured column of radius 0.30 rendered from around the edit view; the fitted cylinder has
+    the right axis but radius 0.27 (centres sit inside the surface): the sweep restores the radius."""
+    tex = np.stack([smooth_texture(64, 128, seed=s)[..., 0] for s in range(3)], -1)
+    tex = tex + 0.3 * (np.indices((64, 128)).sum(0) % 5 < 2)[..., None]
+    edit = Camera.look_at("edit", [0.0, -1.2, 1.0], [0.0, 0.0, 1.0], [0, 0, 1], 160, 120, 50)
+    others = [Camera.look_at(f"v{i}", [x, -1.1, 1.1], [0.0, 0.0, 1.0], [0, 0, 1], 160, 120, 50)
+              for i, x in enumerate((-0.8, -0.4, 0.4, 0.8))]
+    fitted = cylinder_proxy([0.0, 0.0, 0.6], [0, 0, 1], 0.27, 0.8, (-80.0, 80.0), 128, x_dir=[0.0, -1.0, 0.0],
+                            texture=tex.astype(np.float32))
+    truth = shifted(fitted, 0.03)
+    assert truth.primitive["radius"] == pytest.approx(0.30)
+    assert np.allclose(np.linalg.norm(truth.local_vertices[:, :2], axis=1), 0.30)
+    er = rasterize_proxy(truth, edit)
+    views = []
+    for c in others:
+        r = rasterize_proxy(truth, c)
+        views.append((c, r.color, np.where(r.mask, r.depth, np.inf)))
+    res = sweep_offset(fitted, edit, er.color, views)
+    assert res.offsets[-1] == pytest.approx(0.15 * 0.27)  # the range scales with the radius
+    assert res.accepted and abs(res.offset - 0.03) < 0.002, (res.offset, res.reason)
+    with pytest.raises(IGSError, match="radius"):
+        shifted(fitted, -0.3)
 
 
 def test_fit_plane_from_rect_rejects_small_selections_and_edge_on_views():

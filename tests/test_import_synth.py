@@ -1,8 +1,8 @@
 """The Cycles synthetic capture (``igs synth --preset sfm``) through import and SfM, photos and MP4.
 
-The ``sfm`` preset is a 32-frame hand-held sweep (192x144, 16 spp) over a third of the room; it is
+The ``sfm`` preset is a 32-frame hand-held sweep (384x288, 16 spp) over a third of the room; it is
 rendered once per session. Recovered poses are aligned to the rendered cameras by a similarity and
-compared. Budget: about 90 s on 2 cores, most of it the render.
+compared: every frame must be within 1°. Budget: about 2.5 min on 2 cores, most of it the render.
 """
 
 import json
@@ -45,9 +45,9 @@ def _check(kind, rep, err, n):
           f"max {err.rotation_deg_max:.3f} deg; centre error mean {err.translation_mean:.4f} "
           f"(max {err.translation_max:.4f}, room 6 units wide), {100 * err.translation_rel:.2f}% of the path extent")
     assert rep["registered"] == n
-    assert err.rotation_deg_mean < 1.0
-    assert err.rotation_deg_max < 2.0
-    assert err.translation_rel < 0.03
+    assert err.rotation_deg_max < 1.0  # measured 0.38° (photos) and 0.53° (MP4)
+    assert err.rotation_deg_mean < 0.5
+    assert err.translation_rel < 0.015
 
 
 def test_synthetic_photos_recover_the_rendered_cameras(sweep, tmp_path):

@@ -37,7 +37,7 @@ from backend.edit.bake import (
     resolve_view,
 )
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
-from backend.edit.sweep import sweep_fitted_plane
+from backend.edit.sweep import sweep_fitted
 from backend.edit.proxy import ProxyMesh, load_proxy, plane_proxy, save_proxy
 from backend.edit.texture import textured_from_view
 from backend.errors import IGSError
@@ -139,10 +139,10 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
     fit = fit_fn(cam, out.ids, albedo.means.detach(), args.rect, config=cfg, name=args.name, color=color)
     proxy = fit.proxy
     sweep = None
-    if kind == "plane" and getattr(args, "sweep", True):
-        proxy, sweep = sweep_fitted_plane(capture, albedo, proxy, cam, args.backend)
-        events.log(f"fit-plane: offset sweep {'moved the plane by ' + format(sweep.offset, '+.4g') if sweep.accepted else 'kept the plane'} "
-                   f"({sweep.reason})")
+    if getattr(args, "sweep", True):
+        proxy, sweep = sweep_fitted(capture, albedo, proxy, cam, args.backend)
+        moved = ("moved the plane by " if kind == "plane" else "changed the radius by ") + format(sweep.offset, "+.4g")
+        events.log(f"fit-{kind}: offset sweep {moved if sweep.accepted else 'kept the ' + kind} ({sweep.reason})")
     if not args.color:  # the rendered albedo projected onto the proxy: painting starts from the scene
         proxy = textured_from_view(proxy, cam, out.color.clamp(0, 1).numpy())
     path = Path(args.out) if args.out else edit_dir(ws, args.name) / "proxy.json"
@@ -243,11 +243,11 @@ def _add_fit(sub, kind: str) -> None:
              "rectangle widened by half its size on every side)")
     p.add_argument("--no-grow", dest="grow", action="store_false",
                    help=f"keep the rectangle's RANSAC fit; by default it is refined by least squares on {where}")
-    if kind == "plane":
-        p.add_argument("--no-sweep", dest="sweep", action="store_false",
-                       help="keep the plane at its fitted centres; by default it is moved along its normal to where "
-                       "the edit view's albedo, projected onto it, best matches the field's renders in up to 8 "
-                       "training views that see it (the centres sit a few mm behind the surface they draw)")
+    how = "moved along its normal to" if kind == "plane" else "resized about its fitted axis to"
+    p.add_argument("--no-sweep", dest="sweep", action="store_false",
+                   help=f"keep the {kind} at its fitted centres; by default it is {how} where the edit view's "
+                   "albedo, projected onto it, best matches the field's renders in up to 8 training views that see "
+                   "it (the centres sit behind the surface they draw)")
     p.set_defaults(func=lambda a: run_fit(a, kind))
 
 

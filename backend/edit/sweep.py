@@ -1,13 +1,15 @@
-"""Placing a fitted plane at the depth where the field shows its texture (a plane sweep).
+"""Placing a fitted plane or cylinder at the depth where the field shows its texture (a sweep).
 
 The centres of the Gaussians that draw a surface scatter around it, and on the demo capture they sit
-5-9 mm behind it on average: a plane fitted to them has the right normal but is set back. At a
-slant a set-back decal slides across the surface between views (9 mm cost the rug 4 dB in the held-out
-views). The field's *renders* put the texture where it belongs, so the plane is moved along its
-normal to where the texture the edit view shows (projected onto the plane) best reproduces the
-field's renders in other views that see it: the minimum of that photometric error over a range of
-offsets, refined by a parabola through its neighbours. A surface without texture gives a flat curve;
-then, or when the minimum sits at the end of the range, the plane stays where the fit put it.
+5-9 mm behind it on average: a plane fitted to them has the right normal but is set back, and a
+cylinder fitted to a column comes out 3 cm too thin. At a slant a set-back decal slides across the
+surface between views (9 mm cost the rug 4 dB in the held-out views). The field's *renders* put the
+texture where it belongs, so the surface is moved along its normal (a plane along its normal, a
+cylinder by changing its radius about the fitted axis) to where the texture the edit view shows
+(projected onto the surface) best reproduces the field's renders in other views that see it: the
+minimum of that photometric error over a range of offsets, refined by a parabola through its
+neighbours. A surface without texture gives a flat curve; then, or when the minimum sits at the end
+of the range, the surface stays where the fit put it.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from backend.capture.cameras import Camera
+from backend.errors import IGSError
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import ProxyMesh
 from backend.edit.texture import textured_from_view
@@ -25,10 +28,13 @@ from backend.edit.texture import textured_from_view
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """Settings of :func:`sweep_plane_offset`."""
+    """Settings of :func:`sweep_offset`."""
 
     half_range: float = 0.02
-    """Offsets tried: -half_range .. +half_range (world units) along the plane's normal."""
+    """Offsets tried: -half_range .. +half_range (world units) along the surface's normal."""
+    cylinder_range: float = 0.15
+    """A cylinder's half range is at least this fraction of its radius (radii of thin columns are
+    poorly fixed by the centres on one side of them)."""
     steps: int = 41
     """Offsets tried (odd, so 0 is one of them)."""
     depth_tolerance: float = 0.05
@@ -60,25 +66,40 @@ class SweepResult:
 
 
 def shifted(proxy: ProxyMesh, offset: float) -> ProxyMesh:
-    """``proxy`` moved by ``offset`` along its local z axis (a plane proxy's normal)."""
+    """``proxy`` moved by ``offset`` along its surface normal: a plane along its local z axis, a
+    cylinder (as :func:`backend.edit.proxy.cylinder_proxy` builds it) by ``offset`` added to its radius."""
+    if proxy.primitive.get("type") == "cylinder":
+        p = proxy.primitive
+        if list(p["base"]) != [0.0, 0.0, 0.0] or list(p["axis"]) != [0.0, 0.0, 1.0]:
+            raise IGSError(f"proxy '{proxy.name}': only a cylinder with its axis along local z can be swept")
+        r = float(p["radius"])
+        if r + offset <= 0:
+            raise IGSError(f"proxy '{proxy.name}': an offset of {offset:+.4g} leaves no cylinder of radius {r:.4g}")
+        local = proxy.local_vertices.copy()
+        local[:, :2] *= (r + offset) / r  # radial in the object frame, UVs unchanged
+        return replace(proxy, local_vertices=local, uvs=proxy.uvs.copy(), primitive={**p, "radius": r + offset})
     m = proxy.matrix_world.copy()
     z = m[:3, 2] / np.linalg.norm(m[:3, 2])
     m[:3, 3] = m[:3, 3] + offset * z
     return replace(proxy, matrix_world=m, uvs=proxy.uvs.copy(), primitive=dict(proxy.primitive))
 
 
-def sweep_plane_offset(proxy: ProxyMesh, edit_camera: Camera, edit_image: np.ndarray,
-                       views: Sequence[tuple[Camera, np.ndarray, np.ndarray]],
-                       config: SweepConfig = SweepConfig()) -> SweepResult:
-    """The offset along the normal of the plane ``proxy`` at which the field's texture lines up.
+def sweep_offset(proxy: ProxyMesh, edit_camera: Camera, edit_image: np.ndarray,
+                 views: Sequence[tuple[Camera, np.ndarray, np.ndarray]],
+                 config: SweepConfig = SweepConfig()) -> SweepResult:
+    """The offset along the normal of the plane or cylinder ``proxy`` at which the field's texture
+    lines up (see :func:`shifted`).
 
     ``edit_image``: (H, W, 3) the field's render in ``edit_camera``; ``views``: (camera, render (h, w, 3),
     rendered depth (h, w)) of other views that see the plane. Returns a :class:`SweepResult`.
     """
-    offsets = np.linspace(-config.half_range, config.half_range, config.steps)
+    half = config.half_range
+    if proxy.primitive.get("type") == "cylinder":
+        half = max(half, config.cylinder_range * float(proxy.primitive["radius"]))
+    offsets = np.linspace(-half, half, config.steps)
     errors = np.full(len(offsets), np.nan)
     if not views:
-        return SweepResult(0.0, False, "no other view sees the plane", offsets, errors)
+        return SweepResult(0.0, False, "no other view sees the surface", offsets, errors)
     for k, d in enumerate(offsets):
         textured = textured_from_view(shifted(proxy, float(d)), edit_camera, edit_image)
         se, n = 0.0, 0
@@ -89,15 +110,20 @@ def sweep_plane_offset(proxy: ProxyMesh, edit_camera: Camera, edit_image: np.nda
             n += int(ok.sum()) * image.shape[-1]
         if n >= config.min_pixels * 3:
             errors[k] = se / n
-    if np.isnan(errors).any():
-        return SweepResult(0.0, False, "too few pixels of the plane seen in the other views", offsets, errors)
-    i = int(np.argmin(errors))
-    worst = max(errors[0], errors[-1])
+    # Offsets that put the surface beyond the depth tolerance of the renders compare no pixels: the
+    # curve is read over the offsets that do, which must be one run that includes 0.
+    valid = np.flatnonzero(~np.isnan(errors))
+    zero = len(offsets) // 2
+    if len(valid) < 3 or np.isnan(errors[zero]) or len(valid) != valid[-1] - valid[0] + 1:
+        return SweepResult(0.0, False, "too few pixels of the surface seen in the other views", offsets, errors)
+    lo, hi = int(valid[0]), int(valid[-1])
+    i = lo + int(np.argmin(errors[lo:hi + 1]))
+    worst = max(errors[lo], errors[hi])
     contrast = worst / max(errors[i], 1e-12)
     if contrast < config.min_contrast or worst - errors[i] < config.min_error_rise:
         return SweepResult(0.0, False, f"too little texture (error contrast {contrast:.2f}, rise "
                            f"{worst - errors[i]:.2g})", offsets, errors)
-    if i == 0 or i == len(offsets) - 1:
+    if i == lo or i == hi:
         return SweepResult(0.0, False, "the error is lowest at the end of the range", offsets, errors)
     # vertex of the parabola through the minimum and its two neighbours
     e0, e1, e2 = errors[i - 1], errors[i], errors[i + 1]
@@ -108,11 +134,11 @@ def sweep_plane_offset(proxy: ProxyMesh, edit_camera: Camera, edit_image: np.nda
                        f"minimum at {offsets[i]:+.4g}, error contrast {contrast:.2f}", offsets, errors)
 
 
-def sweep_fitted_plane(capture, albedo, proxy: ProxyMesh, edit_camera: Camera, backend: str, views: int = 8,
-                       config: SweepConfig = SweepConfig()) -> tuple[ProxyMesh, SweepResult]:
-    """:func:`sweep_plane_offset` with the albedo field ``albedo`` rendered in ``edit_camera`` and in up
-    to ``views`` training views of ``capture`` that see the plane (held-out views never); returns the
-    plane moved by the chosen offset (``proxy`` itself when the sweep is not accepted) and the result."""
+def sweep_fitted(capture, albedo, proxy: ProxyMesh, edit_camera: Camera, backend: str, views: int = 8,
+                 config: SweepConfig = SweepConfig()) -> tuple[ProxyMesh, SweepResult]:
+    """:func:`sweep_offset` with the albedo field ``albedo`` rendered in ``edit_camera`` and in up
+    to ``views`` training views of ``capture`` that see the surface (held-out views never); returns the
+    surface moved by the chosen offset (``proxy`` itself when the sweep is not accepted) and the result."""
     from backend.edit.bake import BakeConfig, capture_views_seeing, render_albedo
 
     edit = render_albedo(albedo, edit_camera, backend).color.clamp(0, 1).numpy()
@@ -121,5 +147,5 @@ def sweep_fitted_plane(capture, albedo, proxy: ProxyMesh, edit_camera: Camera, b
     for cam in capture_views_seeing(capture, proxy, edit_camera, seen, BakeConfig(capture_views=views)):
         out = render_albedo(albedo, cam, backend)
         others.append((cam, out.color.clamp(0, 1).numpy(), out.depth.numpy()))
-    result = sweep_plane_offset(proxy, edit_camera, edit, others, config)
+    result = sweep_offset(proxy, edit_camera, edit, others, config)
     return (shifted(proxy, result.offset) if result.accepted else proxy), result

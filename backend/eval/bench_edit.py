@@ -43,7 +43,7 @@ from backend.capture.workspace import load_capture, split_frames
 from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load_albedo, render_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
-from backend.edit.sweep import sweep_fitted_plane
+from backend.edit.sweep import sweep_fitted
 from backend.errors import IGSError
 from backend.io_utils import write_json
 
@@ -79,14 +79,15 @@ def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig):
 def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plane: bool = False,
                  fit_cfg: FitConfig = FitConfig(), capture=None) -> tuple[ProxyMesh, dict]:
     """The fitted surface with the decal placed as in the ground truth (module docstring). A plane is
-    placed by ``igs edit fit-plane``'s offset sweep over ``capture``'s views (none without a capture)."""
+    or cylinder is placed by ``igs edit fit-plane/fit-cylinder``'s offset sweep over ``capture``'s views
+    (none without a capture)."""
     out = render_albedo(albedo, cam, backend, return_ids=True)
     surf = edit["surface"]
     tex, col = _look(edit, folder)
     ids, centres = out.ids, albedo.means.detach()
     if surf["type"] == "plane" or force_plane:
         fit, threshold = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
-        plane, sweep = (sweep_fitted_plane(capture, albedo, fit.proxy, cam, backend) if capture is not None
+        plane, sweep = (sweep_fitted(capture, albedo, fit.proxy, cam, backend) if capture is not None
                         else (fit.proxy, None))
         m = plane.matrix_world
         n, c0 = _unit(m[:3, 2]), m[:3, 3]
@@ -117,6 +118,8 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
         return proxy, info
     fit, threshold = _fit(fit_cylinder_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
     f = fit.fit
+    sweep = sweep_fitted(capture, albedo, fit.proxy, cam, backend)[1] if capture is not None else None
+    radius = f.radius + (sweep.offset if sweep is not None else 0.0)
     axis_gt = _unit(surf["axis"])
     axis = f.axis if np.dot(f.axis, axis_gt) >= 0 else -f.axis
     h0, h1 = surf["height_range"]
@@ -132,12 +135,14 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
                                                                               + np.sin(tm) * side_gt)
     q = mid_gt - f.point
     tm_fit = np.arctan2(np.dot(q, np.cross(axis, ref)), np.dot(q, ref))
-    half = 0.5 * (t1 - t0) * surf["radius"] / f.radius
-    proxy = cylinder_proxy(base, axis, f.radius, h1 - h0, (np.degrees(tm_fit - half), np.degrees(tm_fit + half)),
+    half = 0.5 * (t1 - t0) * surf["radius"] / radius
+    proxy = cylinder_proxy(base, axis, radius, h1 - h0, (np.degrees(tm_fit - half), np.degrees(tm_fit + half)),
                            128, x_dir=ref, name=edit["name"], texture=tex, color=col)
-    info = {"fit": "cylinder", "radius": float(f.radius), "radius_gt": surf["radius"],
+    info = {"fit": "cylinder", "radius": float(radius), "radius_gt": surf["radius"], "fitted_radius": float(f.radius),
             "axis_error_deg": float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(f.axis, axis_gt))))))),
-            "inliers": int(np.sum(f.inliers)), "threshold": threshold, "grown_points": fit.grown_points}
+            "inliers": int(np.sum(f.inliers)), "threshold": threshold, "grown_points": fit.grown_points,
+            "offset_sweep": None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted,
+                                                        "reason": sweep.reason}}
     q = np.asarray(surf["base_center"], np.float64) - f.point
     info["axis_offset"] = float(np.linalg.norm(q - np.dot(q, axis) * axis))  # gt axis point to the fitted line
     if fit.ransac_fit is not None:
