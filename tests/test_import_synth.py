@@ -7,11 +7,13 @@ compared: every frame must be within 1°. Budget: about 2.5 min on 2 cores, most
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import pytest
 
 from backend.capture.colmap_io import read_model
+from backend.cli import main
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.pose_eval import compare_cameras
 from backend.capture.sfm import SfMConfig
@@ -58,15 +60,37 @@ def test_synthetic_photos_recover_the_rendered_cameras(sweep, tmp_path):
     _check("synthetic photos", rep, _errors(out, gt_cams), len(gt_cams))
 
 
-def test_synthetic_mp4_recovers_the_rendered_cameras(sweep, tmp_path):
-    ws, gt_cams = sweep
-    video = tmp_path / "sweep.mp4"
+def _mp4(ws: Path, gt_cams, video: Path) -> Path:
     first = cv2.imread(str(ws / "images" / gt_cams[0].name))
     vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 24, (first.shape[1], first.shape[0]))
     for cam in gt_cams:
         vw.write(cv2.imread(str(ws / "images" / cam.name)))
     vw.release()
+    return video
+
+
+def test_synthetic_mp4_recovers_the_rendered_cameras(sweep, tmp_path):
+    ws, gt_cams = sweep
+    video = _mp4(ws, gt_cams, tmp_path / "sweep.mp4")
     out = tmp_path / "ws"
     rep = import_capture(video, out, ImportConfig(selection=FrameSelection(every=1), sfm=SFM))
     assert rep["poses"]["matching"] == "sequential"
     _check("synthetic MP4", rep, _errors(out, gt_cams), len(gt_cams))
+
+
+def test_from_a_video_file_to_a_decomposition_in_two_commands(sweep, tmp_path):
+    """The README's two commands: `igs import` of the MP4 with albedo and depth maps computed elsewhere
+    (here the render's own, one per video frame), then `igs decompose` (few iterations, quarter size)."""
+    ws, gt_cams = sweep
+    video = _mp4(ws, gt_cams, tmp_path / "room.mp4")
+    out = tmp_path / "room"
+    assert main(["import", str(video), str(out), "--every", "1", "--threads", "1", "--max-reproj-error", "2",
+                 "--albedo", f"folder:{ws / 'gt' / 'albedo'}", "--depth", f"folder:{ws / 'gt' / 'depth'}"]) == 0
+    assert len(list((out / "albedo").glob("*"))) == len(gt_cams)
+    assert main(["decompose", str(out), "--iterations", "40", "--downscale", "4", "--residual-points", "300",
+                 "--backend", "cpu"]) == 0
+    for layer in ("albedo", "shading", "residual"):
+        assert (out / "layers" / f"{layer}.ply").stat().st_size > 0
+    metrics = json.loads((out / "metrics.json").read_text())["decompose"]
+    assert metrics["priors"]["albedo"].startswith("folder") and metrics["priors"]["albedo_folder"] == "albedo"
+    assert (out / "report.png").exists()
