@@ -46,15 +46,11 @@ def _step(argv: list[str]) -> None:
 
 
 def turntable_orbit(capture) -> tuple[str, float, float]:
-    """(centre "x,y,z", radius, height) of a turntable inside the capture's own camera loop: around the
-    scene points' centroid, at the cameras' mean height, 85 % of their mean horizontal distance (the
-    cameras were there, so the orbit is in free space and sees what the capture saw, from new angles)."""
-    import numpy as np
+    """(centre "x,y,z", radius, height) of a turntable inside the capture's own camera loop (world z
+    up: the synthetic capture's), as ``igs render --turntable`` chooses by default."""
+    from backend.eval.render_views import capture_orbit
 
-    centre = capture.points.mean(axis=0)
-    eyes = np.array([f.camera.center for f in capture.frames])
-    radius = 0.85 * float(np.mean(np.linalg.norm(eyes[:, :2] - centre[:2], axis=1)))
-    height = float(np.mean(eyes[:, 2]) - centre[2])
+    centre, radius, height = capture_orbit([f.camera for f in capture.frames], capture.points, (0.0, 0.0, 1.0))
     return ",".join(f"{v:.4f}" for v in centre), radius, height
 
 
@@ -101,7 +97,7 @@ def run(args: argparse.Namespace) -> dict:
     center, radius, height = turntable_orbit(load_capture(ws))
     # "--center=x,y,z" in one word: a centre starting with "-" would read as an option
     timed("turntable of the edited scene",
-          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", f"--center={center}",
+          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", f"--center={center}", "--up=0,0,1",
                          "--radius", f"{radius:.3f}", "--height", f"{height:.3f}", "--frames", str(args.frames),
                          "--out", str(turntable), "--mp4"]))
 

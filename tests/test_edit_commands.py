@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from backend.capture.imageio import read_image
 from backend.cli import main
 from backend.edit.bake import BakeConfig, bake_edit, render_albedo
 from backend.edit.mesh_raster import rasterize_proxy
@@ -144,7 +145,7 @@ def _grow(mask, px):
     return dilate(mask, px)
 
 
-def test_render_command_writes_layers_and_video(ws, tmp_path):
+def test_render_command_writes_layers_and_video(ws, tmp_path, capsys):
     cams = [{"name": "a", "width": 40, "height": 30, "fx": 40.0, "fy": 40.0, "cx": 20.0, "cy": 15.0,
              "matrix_world": [[1, 0, 0, 0], [0, 0, -1, -3], [0, 1, 0, 0.5], [0, 0, 0, 1]]}]
     (tmp_path / "cams.json").write_text(json.dumps(cams))
@@ -153,11 +154,48 @@ def test_render_command_writes_layers_and_video(ws, tmp_path):
     for layer in ("A", "S", "R", "full"):
         assert (out / layer / "a.png").exists()
     out2 = tmp_path / "t"
-    assert main(["render", str(ws), "--turntable", "--radius", "3", "--height", "1", "--frames", "4",
+    assert main(["render", str(ws), "--turntable", "--frames", "4",  # the orbit from the capture's cameras
                  "--size", "32", "24", "--out", str(out2), "--mp4", "--layers", "full"]) == 0
     assert len(list((out2 / "full").glob("*.png"))) == 4
     assert (out2 / "full.mp4").stat().st_size > 0
+    # the scene is inside the orbit: the turntable's frames are not empty
+    assert np.mean([read_image(p).mean() for p in (out2 / "full").glob("*.png")]) > 0.05
+    assert main(["render", str(ws), "--turntable", "--radius", "3", "--height", "1", "--up", "0,0,1", "--frames",
+                 "2", "--size", "32", "24", "--out", str(tmp_path / "t2"), "--layers", "A"]) == 0
+    assert main(["render", str(ws), "--turntable", "--up", "0,0", "--out", str(tmp_path / "t3")]) == 2
+    assert "--up must be x,y,z" in capsys.readouterr().err
     if (ws / "edits" / "magenta" / "albedo.ply").exists():
         assert main(["render", str(ws), "--edit", "magenta", "--cameras", str(tmp_path / "cams.json"),
                      "--out", str(tmp_path / "e"), "--layers", "A"]) == 0
     assert Path(out / "A" / "a.png").exists()
+
+
+def test_turntable_defaults_follow_the_capture_cameras_in_a_tilted_world():
+    """An imported capture's SfM world has any up: cameras circling a point with z up, turned by a
+    rotation Q, give the up Q z, the orbit inside their path, and turntable frames level around it."""
+    from backend.capture.cameras import Camera, qvec_to_rotmat
+    from backend.eval.render_views import capture_orbit, capture_up, turntable
+
+    Q = qvec_to_rotmat(np.array([0.8, 0.3, -0.4, 0.2]))
+    centre = np.array([0.5, -1.0, 2.0])
+    rng = np.random.default_rng(0)
+    cams = []
+    for k in range(24):
+        a = 2 * np.pi * k / 24
+        eye = np.array([2.0 * np.cos(a), 2.0 * np.sin(a), 0.6 + 0.05 * rng.normal()])
+        look = rng.normal(0, 0.2, 3) * [1, 1, 0.3]  # hand-held: not quite at the centre, slightly pitched
+        c = Camera.look_at(f"{k}", eye, look, [0.0, 0.0, 1.0], 64, 48, 60)
+        R = c.R @ Q.T  # the same camera in the tilted world x' = Q x + centre
+        cams.append(Camera(c.name, 64, 48, c.fx, c.fy, c.cx, c.cy, R, c.t - R @ centre))
+    points = centre + rng.normal(0, 0.3, (200, 3)) @ Q.T
+    up = capture_up(cams)
+    assert np.degrees(np.arccos(np.clip(up @ (Q @ [0, 0, 1]), -1, 1))) < 3.0
+    c0, radius, height = capture_orbit(cams, points, up)
+    assert np.linalg.norm(c0 - centre) < 0.1 and abs(radius - 0.85 * 2.0) < 0.1 and abs(height - 0.6) < 0.1
+    ring = turntable(c0, radius, height, 8, cams[0], None, up)
+    for cam in ring:
+        rel = cam.center - c0
+        assert abs(rel @ up - height) < 1e-9
+        assert np.linalg.norm(rel - (rel @ up) * up) == pytest.approx(radius)
+        assert -cam.R[1] @ up > 0.9  # level: image up is the capture's up
+        assert cam.R[2] @ (c0 - cam.center) / np.linalg.norm(c0 - cam.center) > 0.999  # looks at the centre

@@ -9,8 +9,12 @@ Cameras come from one of:
   (row-major as Blender prints it; camera looks down its local -z, local y up) or ``"R"`` (3x3) and
   ``"t"`` (3): world -> camera ``x_cam = R x + t`` with OpenCV axes (x right, y down, +z forward).
   World = the workspace's SfM/COLMAP world (Blender's scene after import).
-- ``--turntable``: ``--frames`` cameras on a horizontal circle (world z up) of ``--radius`` around
-  ``--center`` (default: the centroid of the SfM points), ``--height`` above it, all looking at it.
+- ``--turntable``: ``--frames`` cameras on a circle of ``--radius`` around ``--center``, ``--height``
+  above it along ``--up``, all looking at it. Defaults come from the capture, so an imported video
+  (whose SfM world has an arbitrary up) gets a sensible orbit: ``--up`` the mean of the cameras' up
+  directions, ``--center`` the centroid of the SfM points, ``--radius`` 85 % of the cameras' mean
+  distance from the vertical through the centre and ``--height`` their mean height above it (the
+  cameras were there, so the orbit is in free space and sees what the capture saw).
 - ``--path transforms.json``: a nerfstudio-style camera path (``frames[].transform_matrix`` OpenGL
   camera-to-world, intrinsics ``fl_x, fl_y, cx, cy, w, h`` at the top level or per frame).
 
@@ -147,20 +151,63 @@ def read_path(path: str | Path) -> list[Camera]:
     return cams
 
 
-def turntable(center, radius: float, height: float, frames: int, template: Camera, fov_x_deg: float | None) -> list[Camera]:
-    """``frames`` cameras on a horizontal circle (world z up) around ``center`` looking at it."""
+def capture_up(cameras: list[Camera]) -> np.ndarray:
+    """(3,) the world direction that is up in the capture: the mean of the cameras' up axes (image -y).
+
+    People hold cameras roughly level, so the mean is close to the true vertical; when the cameras
+    roll every way (their up axes cancel out) there is no up to read and z is returned."""
+    ups = np.stack([-np.asarray(c.R, dtype=np.float64)[1] for c in cameras])
+    mean = ups.mean(axis=0)
+    n = float(np.linalg.norm(mean))
+    if n < 0.5:
+        events.log(f"render: the cameras' up directions disagree (mean length {n:.2f}); using world z as up")
+        return np.array([0.0, 0.0, 1.0])
+    return mean / n
+
+
+def capture_orbit(cameras: list[Camera], points: np.ndarray, up) -> tuple[np.ndarray, float, float]:
+    """(centre (3,), radius, height) of a turntable inside the capture's own camera path (module
+    docstring); ``points`` (N, 3) the SfM points, the cameras' centroid standing in when there are none."""
+    up = np.asarray(up, dtype=np.float64)
+    eyes = np.array([c.center for c in cameras])
+    centre = points.mean(axis=0) if len(points) else eyes.mean(axis=0)
+    rel = eyes - centre
+    h = rel @ up
+    radius = 0.85 * float(np.mean(np.linalg.norm(rel - h[:, None] * up, axis=1)))
+    return centre, radius, float(np.mean(h))
+
+
+def turntable(center, radius: float, height: float, frames: int, template: Camera, fov_x_deg: float | None,
+              up=(0.0, 0.0, 1.0)) -> list[Camera]:
+    """``frames`` cameras on a circle of ``radius`` perpendicular to ``up`` (3,), ``height`` above
+    ``center`` (3,) along it, looking at ``center``, starting on the side of the world x axis."""
     if not (np.isfinite(radius) and radius > 0):
         raise IGSError(f"--radius must be > 0, got {radius}")
     if frames < 1:
         raise IGSError(f"--frames must be >= 1, got {frames}")
+    u = np.asarray(up, dtype=np.float64).reshape(3)
+    if not (np.all(np.isfinite(u)) and np.linalg.norm(u) > 1e-9):
+        raise IGSError(f"--up must be a non-zero x,y,z direction, got {list(u)}")
+    u = u / np.linalg.norm(u)
+    e1 = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = e1 - np.dot(e1, u) * u
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
     c = np.asarray(center, dtype=np.float64)
+    fov = fov_x_deg if fov_x_deg is not None else float(np.degrees(2 * np.arctan(template.width / (2 * template.fx))))
     cams = []
     for k in range(frames):
         a = 2 * np.pi * k / frames
-        eye = c + np.array([radius * np.cos(a), radius * np.sin(a), height])
-        fov = fov_x_deg if fov_x_deg is not None else float(np.degrees(2 * np.arctan(template.width / (2 * template.fx))))
-        cams.append(Camera.look_at(f"{k:04d}", eye, c, [0.0, 0.0, 1.0], template.width, template.height, fov))
+        eye = c + radius * (np.cos(a) * e1 + np.sin(a) * e2) + height * u
+        cams.append(Camera.look_at(f"{k:04d}", eye, c, u, template.width, template.height, fov))
     return cams
+
+
+def _vector(text: str, flag: str) -> np.ndarray:
+    try:
+        return np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
+    except ValueError:
+        raise IGSError(f"{flag} must be x,y,z, got {text!r}") from None
 
 
 def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, GaussianSet]:
@@ -248,16 +295,17 @@ def run_render(args: argparse.Namespace) -> None:
             template = template.scaled(args.size[0] / template.width)
             template = Camera(template.name, int(args.size[0]), int(args.size[1]), template.fx, template.fx,
                               args.size[0] / 2, args.size[1] / 2, template.R, template.t)
+        frames = [f.camera for f in capture.frames]
+        up = _vector(args.up, "--up") if args.up else capture_up(frames)
+        center, radius, height = capture_orbit(frames, capture.points, up)
         if args.center:
-            try:
-                center = np.array([float(v) for v in args.center.split(",")], dtype=np.float64).reshape(3)
-            except ValueError:
-                raise IGSError(f"--center must be x,y,z, got {args.center!r}") from None
-        elif len(capture.points):
-            center = capture.points.mean(axis=0)
-        else:
-            raise IGSError(f"{ws.root}: no SfM points to centre the turntable on; give --center x,y,z")
-        cams = turntable(center, args.radius, args.height, args.frames, template, args.fov)
+            center = _vector(args.center, "--center")
+            _, radius, height = capture_orbit(frames, center[None], up)
+        radius = args.radius if args.radius is not None else radius
+        height = args.height if args.height is not None else height
+        events.log(f"render: turntable around {np.round(center, 3).tolist()}, radius {radius:.3g}, height "
+                   f"{height:.3g} along up {np.round(up, 3).tolist()}")
+        cams = turntable(center, radius, height, args.frames, template, args.fov, up)
     needed = set().union(*(NEEDS[w] for w in wanted))
     layers = load_layers(ws.root, args.edit, needed)
     out = Path(args.out) if args.out else ws.renders / (args.edit or "layers")
@@ -276,10 +324,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--edit", default=None, help="use <ws>/edits/EDIT/albedo.ply as the albedo")
     p.add_argument("--cameras", default=None, help="cameras.json (format above)")
     p.add_argument("--path", default=None, help="camera path as a nerfstudio-style transforms.json")
-    p.add_argument("--turntable", action="store_true", help="orbit around --center")
+    p.add_argument("--turntable", action="store_true", help="orbit around --center (defaults: inside the capture's "
+                   "own camera path)")
     p.add_argument("--center", default=None, help="turntable centre x,y,z (default: centroid of the SfM points)")
-    p.add_argument("--radius", type=float, default=3.0, help="turntable radius (default 3)")
-    p.add_argument("--height", type=float, default=1.0, help="turntable camera height above the centre (default 1)")
+    p.add_argument("--up", default=None, help="turntable axis x,y,z (default: the mean up direction of the "
+                   "capture's cameras)")
+    p.add_argument("--radius", type=float, default=None,
+                   help="turntable radius (default: 85%% of the cameras' mean distance from the axis)")
+    p.add_argument("--height", type=float, default=None,
+                   help="camera height above the centre along --up (default: the cameras' mean height)")
     p.add_argument("--frames", type=int, default=60, help="turntable frames (default 60)")
     p.add_argument("--size", type=int, nargs=2, default=None, metavar=("W", "H"),
                    help="turntable image size (default: the capture's)")
