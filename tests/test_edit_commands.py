@@ -172,7 +172,9 @@ def test_render_command_writes_layers_and_video(ws, tmp_path, capsys):
 
 def test_turntable_defaults_follow_the_capture_cameras_in_a_tilted_world():
     """An imported capture's SfM world has any up: cameras circling a point with z up, turned by a
-    rotation Q, give the up Q z, the orbit inside their path, and turntable frames level around it."""
+    rotation Q, give the up Q z, the orbit inside their path, and turntable frames level around it.
+    A third of a loop of cameras all looking down (their mean up axis leans 15° there) still gives the
+    vertical, and so does a camera that never turned."""
     from backend.capture.cameras import Camera, qvec_to_rotmat
     from backend.eval.render_views import capture_orbit, capture_up, turntable
 
@@ -193,6 +195,14 @@ def test_turntable_defaults_follow_the_capture_cameras_in_a_tilted_world():
     c0, radius, height = capture_orbit(cams, points, up)
     assert np.linalg.norm(c0 - centre) < 0.1 and abs(radius - 0.85 * 2.0) < 0.1 and abs(height - 0.6) < 0.1
     ring = turntable(c0, radius, height, 8, cams[0], None, up)
+    arc = [Camera.look_at(f"a{k}", [2.0 * np.cos(a), 2.0 * np.sin(a), 1.0], [0.0, 0.0, 0.4], [0, 0, 1], 64, 48, 60)
+           for k, a in enumerate(np.linspace(0.0, 2.1, 12))]
+    mean_up = -np.mean([c.R[1] for c in arc], axis=0)
+    assert np.degrees(np.arccos(mean_up[2] / np.linalg.norm(mean_up))) > 10.0
+    assert capture_up(arc)[2] > np.cos(np.radians(0.5))
+    walk = [Camera.look_at(f"w{k}", [0.0, 0.1 * k, 1.0], [0.0, 0.1 * k + 2.0, 0.4], [0, 0, 1], 64, 48, 60)
+            for k in range(10)]
+    assert capture_up(walk)[2] > 0.9
     for cam in ring:
         rel = cam.center - c0
         assert abs(rel @ up - height) < 1e-9

@@ -11,8 +11,8 @@ Cameras come from one of:
   World = the workspace's SfM/COLMAP world (Blender's scene after import).
 - ``--turntable``: ``--frames`` cameras on a circle of ``--radius`` around ``--center``, ``--height``
   above it along ``--up``, all looking at it. Defaults come from the capture, so an imported video
-  (whose SfM world has an arbitrary up) gets a sensible orbit: ``--up`` the mean of the cameras' up
-  directions, ``--center`` the centroid of the SfM points, ``--radius`` 85 % of the cameras' mean
+  (whose SfM world has an arbitrary up) gets a sensible orbit: ``--up`` the direction most nearly
+  perpendicular to the cameras' x axes (:func:`capture_up`), ``--center`` the centroid of the SfM points, ``--radius`` 85 % of the cameras' mean
   distance from the vertical through the centre and ``--height`` their mean height above it (the
   cameras were there, so the orbit is in free space and sees what the capture saw).
 - ``--path transforms.json``: a nerfstudio-style camera path (``frames[].transform_matrix`` OpenGL
@@ -152,17 +152,27 @@ def read_path(path: str | Path) -> list[Camera]:
 
 
 def capture_up(cameras: list[Camera]) -> np.ndarray:
-    """(3,) the world direction that is up in the capture: the mean of the cameras' up axes (image -y).
+    """(3,) the world direction that is up in the capture.
 
-    People hold cameras roughly level, so the mean is close to the true vertical; when the cameras
-    roll every way (their up axes cancel out) there is no up to read and z is returned."""
-    ups = np.stack([-np.asarray(c.R, dtype=np.float64)[1] for c in cameras])
-    mean = ups.mean(axis=0)
-    n = float(np.linalg.norm(mean))
-    if n < 0.5:
-        events.log(f"render: the cameras' up directions disagree (mean length {n:.2f}); using world z as up")
+    People hold cameras level (no roll) but pitch them freely, so each camera's x axis is close to
+    horizontal while its up axis leans with the pitch: up is the direction most nearly perpendicular
+    to all the x axes (the smallest eigenvector of their scatter), signed by the mean of the cameras'
+    up axes (image -y). When the x axes do not span a plane (the camera never turned) that direction
+    is not fixed, and the mean up axis, kept perpendicular to the x axes, is used. Cameras that roll
+    every way have no up to read: world z then."""
+    R = np.stack([np.asarray(c.R, dtype=np.float64) for c in cameras])
+    xs, mean_up = R[:, 0], -R[:, 1].mean(axis=0)
+    if np.linalg.norm(mean_up) < 0.5:
+        events.log(f"render: the cameras' up directions disagree (mean length {np.linalg.norm(mean_up):.2f}); "
+                   "using world z as up")
         return np.array([0.0, 0.0, 1.0])
-    return mean / n
+    w, v = np.linalg.eigh(xs.T @ xs / len(xs))  # ascending eigenvalues
+    if w[1] > 4.0 * w[0] and w[1] > 0.02:
+        up = v[:, 0]
+    else:  # the camera never turned: the mean up, without its part along the (common) x axis
+        up = mean_up - np.dot(mean_up, v[:, 2]) * v[:, 2]
+    up = up / np.linalg.norm(up)
+    return up if np.dot(up, mean_up) >= 0 else -up
 
 
 def capture_orbit(cameras: list[Camera], points: np.ndarray, up) -> tuple[np.ndarray, float, float]:
@@ -327,8 +337,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--turntable", action="store_true", help="orbit around --center (defaults: inside the capture's "
                    "own camera path)")
     p.add_argument("--center", default=None, help="turntable centre x,y,z (default: centroid of the SfM points)")
-    p.add_argument("--up", default=None, help="turntable axis x,y,z (default: the mean up direction of the "
-                   "capture's cameras)")
+    p.add_argument("--up", default=None, help="turntable axis x,y,z (default: the capture's up, read from its "
+                   "cameras: the direction most nearly perpendicular to their x axes)")
     p.add_argument("--radius", type=float, default=None,
                    help="turntable radius (default: 85%% of the cameras' mean distance from the axis)")
     p.add_argument("--height", type=float, default=None,
