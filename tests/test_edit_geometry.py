@@ -18,7 +18,13 @@ from backend.edit.composite import CompositeConfig, composite_over_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.mesh_raster import RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, load_proxy, plane_proxy, save_proxy
-from backend.edit.ransac import fit_cylinder_ransac, fit_plane_ransac, grow_cylinder, grow_plane, orthonormal_axes
+from backend.edit.ransac import (
+    fit_cylinder_ransac,
+    fit_plane_ransac,
+    grow_cylinder,
+    grow_plane,
+    orthonormal_axes,
+)
 from backend.edit.sweep import shifted, sweep_offset
 from backend.edit.texture import texture_from_view, textured_from_view
 from backend.edit.views import (

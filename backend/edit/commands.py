@@ -37,8 +37,8 @@ from backend.edit.bake import (
     resolve_view,
 )
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
-from backend.edit.sweep import sweep_fitted
 from backend.edit.proxy import ProxyMesh, load_proxy, plane_proxy, save_proxy
+from backend.edit.sweep import sweep_fitted
 from backend.edit.texture import textured_from_view
 from backend.errors import IGSError
 from backend.io_utils import write_json
