@@ -14,6 +14,7 @@ import pytest
 
 from backend.cli import main
 from backend.train.loop import load_checkpoint
+from igs_blender.client import parse_event
 
 ITERATIONS = 100
 EVERY = 30
@@ -59,18 +60,25 @@ def test_train_3dgs_learns_and_survives_kill_and_cancel(capture, tmp_path):
     proc.wait()
     assert ckpt_step(ws) in (EVERY, 2 * EVERY, 3 * EVERY)
 
-    # 2) SIGTERM (what the Blender add-on's Cancel sends): a checkpoint at the current iteration, exit 130
+    # 2) SIGTERM (what the Blender add-on's Cancel sends): a checkpoint at the current iteration, exit 130.
+    # Signal at the first progress event after the resume point (the first update always reports), so the
+    # run cannot finish first however fast the machine; stdout lines without an "event" key (the command's
+    # result summary) are skipped, as the Blender client does.
+    resumed = ckpt_step(ws)
     proc = start(ws, "--events")
     events = []
     signalled_at = None
     for line in proc.stdout:
-        events.append(json.loads(line))
-        if events[-1]["event"] == "progress" and events[-1]["step"] >= ckpt_step(ws) + 3:
-            signalled_at = events[-1]["step"]
+        if (ev := parse_event(line)) is None:
+            continue
+        events.append(ev)
+        if ev["event"] == "progress" and ev["step"] > resumed:
+            signalled_at = ev["step"]
             proc.send_signal(signal.SIGTERM)
             break
     rest = proc.communicate(timeout=120)[0]
-    events += [json.loads(x) for x in rest.splitlines() if x.startswith("{")]
+    events += [ev for ev in map(parse_event, rest.splitlines()) if ev is not None]
+    assert signalled_at is not None, events
     assert proc.returncode == 130
     assert events[-1]["event"] == "cancelled"
     prog = [e for e in events if e["event"] == "progress"]
