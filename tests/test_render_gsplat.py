@@ -37,7 +37,12 @@ def test_gsplat_matches_reference_on_cuda():
     drawn = r.alpha > 0.5
     torch.testing.assert_close(g.depth[drawn], r.depth[drawn], atol=1e-2, rtol=1e-3)
     assert (g.ids == r.ids).float().mean() > 0.99
-    assert ((g.radii > 0) == (r.radii > 0)).float().mean() > 0.99
+    # gsplat sizes each footprint by its opacity (sqrt(2 ln(255 o)) sigma, at most 3.33, per axis) where we
+    # use 3 sigma of the largest axis, so a few faint or border Gaussians are culled by one and not the other;
+    # every Gaussian that is some pixel's top contributor is drawn by both
+    top = torch.unique(r.ids[r.ids >= 0])
+    assert (g.radii[top] > 0).all() and (r.radii[top] > 0).all()
+    assert ((g.radii > 0) == (r.radii > 0)).float().mean() > 0.9
     g.color.sum().backward()
     assert g.means2d_grad is not None and g.means2d_grad.shape == (300, 2)
     ref_leaf = with_grad(s)

@@ -18,7 +18,7 @@ from igs_blender.client import parse_event
 
 ITERATIONS = 100
 EVERY = 30
-ARGS = ["--iterations", str(ITERATIONS), "--checkpoint-every", str(EVERY)]
+ARGS = ["--iterations", str(ITERATIONS), "--checkpoint-every", str(EVERY), "--device", "cpu"]  # bit-identical resume
 ROOT = Path(__file__).resolve().parents[1]
 
 

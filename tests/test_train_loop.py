@@ -29,7 +29,7 @@ def small_config(iterations, checkpoint_every=10, **kw):
     d.start, d.every, d.stop, d.reset_every, d.grad_threshold = 4, 6, iterations - 5, 15, 5e-5
     d.floaters, d.floater_start, d.floater_stop, d.floater_views = True, 4, iterations, 3
     train.sh_up_every = 8
-    return BaselineConfig(train=train, sh_degree=2)
+    return BaselineConfig(train=train, sh_degree=2, device="cpu")  # bit-identical resume: the cpu kernel
 
 
 def params_of(ws):

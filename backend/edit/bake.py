@@ -58,6 +58,7 @@ from backend.render import RenderOutput, render
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyConfig, DensifyStrategy, scene_extent
+from backend.train.device import describe, resolve_device
 from backend.train.loop import LearningRates, Stage, TrainConfig, train
 from backend.train.losses import photometric
 from backend.train.views import View, view_camera
@@ -93,6 +94,8 @@ class BakeConfig:
     """Divide image sizes by this factor."""
     backend: str = "auto"
     """Renderer backend."""
+    device: str = "auto"
+    """Where the re-optimisation runs: auto (CUDA when gsplat is installed), cpu, cuda or cuda:N."""
     seed: int = 0
     """Random seed (virtual views, spawned pixels, view order)."""
     lambda_dssim: float = 0.2
@@ -340,6 +343,11 @@ class BakeStage(Stage):
         self.frozen = {k: v.detach() for k, v in frozen.render_args().items() if isinstance(v, torch.Tensor)}
         self.n_frozen = len(frozen)
 
+    def to(self, device: torch.device | str) -> BakeStage:
+        super().to(device)
+        self.frozen = {k: v.to(self.device) for k, v in self.frozen.items()}
+        return self
+
     def render(self, view: View) -> RenderOutput:
         args = self.gaussians.render_args()
         joint = {k: torch.cat([self.frozen[k], v]) if isinstance(v, torch.Tensor) else v for k, v in args.items()}
@@ -430,6 +438,7 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
         raise IGSError(f"--capture-views must be >= 0, got {cfg.capture_views}")
     if cfg.anchor_views < 0:
         raise IGSError(f"--anchor-views must be >= 0, got {cfg.anchor_views}")
+    device = resolve_device(cfg.device)
     capture = load_capture(workspace)
     ws = capture.workspace
     out_dir = edit_dir(ws, name)
@@ -526,7 +535,7 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     strategy = DensifyStrategy(tcfg.densify, extent) if cfg.densify else None
     stage = BakeStage(f"bake_{name}", trained, views + anchors, [], tcfg, extent, strategy, "linear", frozen=frozen)
     ckpt = ws.checkpoints / "edits" / name
-    result = train(stage, ckpt, resume=False)
+    result = train(stage, ckpt, resume=False, device=device)
     baked = GaussianSet.concat([g.index(~editable), result.gaussians])
     shutil.rmtree(ckpt, ignore_errors=True)  # a bake is short: no resume
 
@@ -544,7 +553,7 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
         "anchor_views": len(anchors), "spawned": len(flat["means"]), "painted": painted, "removed": removed,
         "densified": len(result.gaussians) - n_trained, "gaussians_before": n_old,
         "gaussians_after": len(baked), "active": int(active.sum()), "editable": int(editable.sum()),
-        "iterations": result.step, "train_seconds": round(result.train_seconds, 2),
+        "iterations": result.step, "train_seconds": round(result.train_seconds, 2), "device": describe(device),
         "wall_seconds": round(time.perf_counter() - t_start, 2), "held_out": change,
         "config": asdict(cfg),
     }

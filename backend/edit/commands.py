@@ -42,6 +42,7 @@ from backend.edit.sweep import sweep_fitted
 from backend.edit.texture import textured_from_view
 from backend.errors import IGSError
 from backend.io_utils import write_json
+from backend.train.device import add_device_argument
 from backend.train.views import view_camera
 
 BACKENDS = ("auto", "cpu", "reference", "gsplat")
@@ -203,8 +204,8 @@ def run_bake(args: argparse.Namespace) -> None:
     cfg = BakeConfig(view=args.view, views=args.views, max_angle=args.max_angle, spawn_fraction=args.spawn_fraction,
                      iterations=args.iterations, anchor_views=args.anchor_views, capture_views=args.capture_views,
                      restrict=not args.no_restrict,
-                     base=args.base, downscale=args.downscale, backend=args.backend, seed=args.seed,
-                     surface=args.surface, supersample=args.supersample)
+                     base=args.base, downscale=args.downscale, backend=args.backend, device=args.device,
+                     seed=args.seed, surface=args.surface, supersample=args.supersample)
     summary = bake_edit(args.workspace, proxy, name, cfg)
     print(json.dumps({k: v for k, v in summary.items() if k not in ("config",)} | {
         "held_out": {k: v for k, v in summary["held_out"].items() if k != "views"}}, indent=2))
@@ -290,6 +291,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spawn-fraction", type=float, default=d.spawn_fraction,
                    help=f"new Gaussians at this fraction of the edit pixels (default {d.spawn_fraction:g})")
     p.add_argument("--iterations", type=int, default=d.iterations, help=f"re-optimisation steps (default {d.iterations})")
+    add_device_argument(p)
     p.add_argument("--capture-views", type=int, default=d.capture_views,
                    help=f"training views that see the proxy, composited like the virtual views (default "
                         f"{d.capture_views})")

@@ -30,6 +30,7 @@ from backend import events
 from backend.errors import IGSError
 from backend.io_utils import write_json
 from backend.train.baseline import BaselineConfig, train_3dgs
+from backend.train.device import add_device_argument
 from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
 from backend.train.loop import TrainConfig
 from backend.train.single_set import decompose_single_set
@@ -38,11 +39,11 @@ DEFAULT_WS = "demo"
 
 
 def configs(iterations: int, downscale: float, max_gaussians: int, backend: str,
-            residual_points: int) -> tuple[BaselineConfig, DecomposeConfig]:
+            residual_points: int, device: str = "auto") -> tuple[BaselineConfig, DecomposeConfig]:
     base = TrainConfig(iterations=iterations, backend=backend, checkpoint_every=max(iterations, 1))
     base.densify.max_gaussians = max_gaussians
-    vanilla = BaselineConfig(train=base, downscale=downscale)
-    dec = DecomposeConfig(downscale=downscale).set_all(backend=backend, checkpoint_every=max(iterations, 1))
+    vanilla = BaselineConfig(train=base, downscale=downscale, device=device)
+    dec = DecomposeConfig(downscale=downscale, device=device).set_all(backend=backend, checkpoint_every=max(iterations, 1))
     dec.spawn.points = residual_points
     for s, n in split_iterations(iterations).items():
         t = dec.stage(s)
@@ -57,8 +58,8 @@ def _num(x: Any) -> float | None:
 
 
 def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend: str,
-        residual_points: int, single_set: bool = True) -> dict[str, Any]:
-    vanilla_cfg, dec_cfg = configs(iterations, downscale, max_gaussians, backend, residual_points)
+        residual_points: int, single_set: bool = True, device: str = "auto") -> dict[str, Any]:
+    vanilla_cfg, dec_cfg = configs(iterations, downscale, max_gaussians, backend, residual_points, device)
     t0 = time.perf_counter()
     events.log(f"bench_decompose: vanilla 3DGS, {iterations} iterations")
     vanilla = train_3dgs(ws, vanilla_cfg, resume=False)
@@ -90,7 +91,8 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
             "iterations_three_set": {s: dec_cfg.stage(s).iterations for s in STAGES},
             "iterations_single_set": sum(dec_cfg.stage(s).iterations for s in STAGES),
             "downscale": downscale, "resolution": three["resolution"], "max_gaussians_per_field": max_gaussians,
-            "residual_points": residual_points, "backend": backend, "held_out_views": three["held_out_views"],
+            "residual_points": residual_points, "backend": backend, "device": three["device"],
+            "held_out_views": three["held_out_views"],
             "priors": three["priors"], "alignment": three["alignment"], "metric_space": three["metric_space"],
             "time": "optimisation loop seconds (+ frozen-layer caching for the decomposition), same process",
         },
@@ -180,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="skip the single-set baseline (it costs about 3x the decomposition on the CPU); its "
                         "target is then reported as n/a")
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"))
+    add_device_argument(p)
     args = p.parse_args(argv)
     if args.iterations < 4:
         print("bench_decompose: --iterations must be >= 4", file=sys.stderr)
@@ -190,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         result = run(args.ws, args.iterations, args.downscale, args.max_gaussians, args.backend, args.residual_points,
-                     args.single_set)
+                     args.single_set, args.device)
     except IGSError as e:
         print(f"bench_decompose: error: {e}", file=sys.stderr)
         return 2

@@ -43,7 +43,7 @@ def render_frame(layers: Mapping[str, GaussianSet], frame: Frame, downscale: flo
     kinds = [k for k in ORDER if k in layers]
     with torch.no_grad():
         outs = render_layers([Splats(**layers[k].render_args()) for k in kinds], cam, backend=backend)
-    got = {k: o.color for k, o in zip(kinds, outs)}
+    got = {k: o.color.cpu() for k, o in zip(kinds, outs)}
     if "albedo" in got and "shading" in got:
         got["diffuse"] = got["albedo"] * got["shading"]
         got["full"] = got["diffuse"] + got["residual"] if "residual" in got else got["diffuse"]

@@ -25,7 +25,11 @@ def _fit(img: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def _text(canvas: np.ndarray, text: str, x: int, y: int, scale: float) -> None:
-    cv2.putText(canvas, text, (x, y), _FONT, scale, _TEXT, 1, cv2.LINE_AA)
+    # drawn as an 8-bit coverage mask, then laid over the float sheet: OpenCV 5 draws on 8-bit images only
+    mask = np.zeros(canvas.shape[:2], dtype=np.uint8)
+    cv2.putText(mask, text, (x, y), _FONT, scale, 255, 1, cv2.LINE_AA)
+    a = mask.astype(np.float32)[..., None] / 255.0
+    canvas[:] = canvas * (1.0 - a) + np.asarray(_TEXT, dtype=np.float32) * a
 
 
 def contact_sheet(rows: Sequence[Row], title: str = "", min_cell_width: int = 192) -> np.ndarray:

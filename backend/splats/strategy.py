@@ -112,10 +112,13 @@ class DensifyStats:
     max_radii: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
     """(N,) largest screen radius seen, as a fraction of the image size."""
 
-    def reset(self, n: int) -> None:
-        self.grad2d = torch.zeros(n)
-        self.count = torch.zeros(n)
-        self.max_radii = torch.zeros(n)
+    def reset(self, n: int, device: torch.device | str = "cpu") -> None:
+        self.grad2d = torch.zeros(n, device=device)
+        self.count = torch.zeros(n, device=device)
+        self.max_radii = torch.zeros(n, device=device)
+
+    def to(self, device: torch.device | str) -> None:
+        self.grad2d, self.count, self.max_radii = (t.to(device) for t in (self.grad2d, self.count, self.max_radii))
 
     def keep(self, rows: torch.Tensor) -> None:
         """Follow a prune: keep the rows where ``rows`` (bool (N,)) is true."""
@@ -123,7 +126,7 @@ class DensifyStats:
 
     def extend(self, k: int) -> None:
         """Follow an append of ``k`` new Gaussians (no statistics yet)."""
-        z = torch.zeros(k)
+        z = torch.zeros(k, device=self.grad2d.device)
         self.grad2d, self.count, self.max_radii = (torch.cat([t, z]) for t in (self.grad2d, self.count,
                                                                               self.max_radii))
 
@@ -152,9 +155,12 @@ class DensifyStrategy:
 
     # --- hooks --------------------------------------------------------------------------------
 
-    def _sync(self, n: int) -> None:
-        if self.stats.grad2d.shape[0] != n:
-            self.stats.reset(n)
+    def _sync(self, gaussians: GaussianSet) -> None:
+        """Statistics for the set's rows, on its device (fresh after a change of size)."""
+        if self.stats.grad2d.shape[0] != len(gaussians):
+            self.stats.reset(len(gaussians), gaussians.device)
+        elif self.stats.grad2d.device != gaussians.device:
+            self.stats.to(gaussians.device)
 
     def accumulate(self, gaussians: GaussianSet, grad2d: torch.Tensor | None, radii: torch.Tensor,
                    width: int, height: int, step: int) -> None:
@@ -163,11 +169,12 @@ class DensifyStrategy:
         cfg = self.config
         if step >= cfg.stop or grad2d is None:
             return
-        self._sync(len(gaussians))
+        self._sync(gaussians)
         visible = radii > 0
-        zero = torch.zeros((), dtype=self.stats.grad2d.dtype)
+        zero = torch.zeros((), dtype=self.stats.grad2d.dtype, device=self.stats.grad2d.device)
         # pixel-space gradients -> NDC units, the scale 3DGS's threshold is tuned for
-        g = grad2d.detach().to(zero.dtype) * torch.tensor([width / 2.0, height / 2.0], dtype=zero.dtype)
+        g = grad2d.detach().to(zero.dtype) * torch.tensor([width / 2.0, height / 2.0], dtype=zero.dtype,
+                                                          device=zero.device)
         self.stats.grad2d += torch.where(visible, g.norm(dim=-1), zero)
         self.stats.count += visible
         frac = radii.detach().to(zero.dtype) / float(max(width, height))
@@ -183,13 +190,13 @@ class DensifyStrategy:
         cfg = self.config
         report: dict[str, int] = {}
         if self.is_refine_step(step):
-            self._sync(len(gaussians))
+            self._sync(gaussians)
             if (cfg.floaters and render_features is not None and cameras
                     and cfg.floater_start <= step <= cfg.floater_stop):
                 report["floaters"] = self.remove_floaters(gaussians, optimizer, cameras, render_features)
             report.update(self.densify(gaussians, optimizer))
             report.update(self.prune(gaussians, optimizer, step))
-            self.stats.reset(len(gaussians))
+            self.stats.reset(len(gaussians), gaussians.device)
         if cfg.reset_every and step < cfg.stop and step % cfg.reset_every == 0 and step > 0:
             self.reset_opacity(gaussians, optimizer)
             report["opacity_reset"] = 1
@@ -203,7 +210,7 @@ class DensifyStrategy:
         """Clone small and split large Gaussians whose mean screen gradient is high."""
         cfg = self.config
         n = len(gaussians)
-        self._sync(n)
+        self._sync(gaussians)
         grads = self.stats.grad2d / self.stats.count.clamp_min(1)
         high = (grads > cfg.grad_threshold) & (self.stats.count > 0)
         room = max(0, cfg.max_gaussians - n)
@@ -215,7 +222,7 @@ class DensifyStrategy:
         cand = torch.nonzero(high).squeeze(1)
         order = cand[torch.argsort(grads[cand], descending=True, stable=True)]
         take = order[torch.cumsum(cost[order], 0) <= room]
-        sel = torch.zeros(n, dtype=torch.bool)
+        sel = torch.zeros(n, dtype=torch.bool, device=gaussians.device)
         sel[take] = True
         clone, split = sel & small, sel & ~small
 
@@ -226,7 +233,8 @@ class DensifyStrategy:
         parent = {name: v[split] for name, v in raw.items()}
         scales = torch.exp(parent["log_scales"])
         rot = quat_to_rotmat(torch.nn.functional.normalize(parent["quats"], dim=-1))
-        noise = torch.randn(k, *scales.shape) * scales
+        # drawn on the CPU generator on every device: one random stream, saved in checkpoints
+        noise = torch.randn(k, *scales.shape).to(scales.device) * scales
         child_means = (parent["means"] + torch.einsum("nij,knj->kni", rot, noise)).reshape(-1, 3)
         children = {name: v.repeat(k, *([1] * (v.ndim - 1))) for name, v in parent.items()}
         children["means"] = child_means
@@ -236,7 +244,7 @@ class DensifyStrategy:
         n_split = int(split.sum())
         gaussians.append_(new_rows, optimizer)
         self.stats.extend(len(new_rows["means"]))
-        keep = torch.ones(len(gaussians), dtype=torch.bool)
+        keep = torch.ones(len(gaussians), dtype=torch.bool, device=gaussians.device)
         keep[:n][split] = False  # drop split parents
         gaussians.prune_(keep, optimizer)
         self.stats.keep(keep)
@@ -245,7 +253,7 @@ class DensifyStrategy:
     def prune(self, gaussians: GaussianSet, optimizer: torch.optim.Optimizer, step: int) -> dict[str, int]:
         """Remove transparent Gaussians, and after the first opacity reset the oversized ones."""
         cfg = self.config
-        self._sync(len(gaussians))
+        self._sync(gaussians)
         drop = gaussians.opacities.detach() < cfg.prune_opacity
         if cfg.reset_every and step > cfg.reset_every:
             drop |= gaussians.scales.detach().max(dim=1).values > cfg.prune_world_scale * self.scene_extent
@@ -286,12 +294,13 @@ def floater_scores(gaussians: GaussianSet, cameras: Sequence[Camera], render_fea
     """(flagged (N,), seen (N,)): per Gaussian, the weighted pixel count of its footprint where it lies
     in front of ``mean - n_std * std`` of the pixel's blended depths, and of its whole footprint."""
     n = len(gaussians)
-    flagged = torch.zeros(n, dtype=torch.float64)
-    seen = torch.zeros(n, dtype=torch.float64)
+    dev = gaussians.device
+    flagged = torch.zeros(n, dtype=torch.float64, device=dev)
+    seen = torch.zeros(n, dtype=torch.float64, device=dev)
     means = gaussians.means.detach()
     for cam in cameras:
-        R = torch.as_tensor(cam.R, dtype=torch.float32)
-        t = torch.as_tensor(cam.t, dtype=torch.float32)
+        R = torch.as_tensor(cam.R, dtype=torch.float32, device=dev)
+        t = torch.as_tensor(cam.t, dtype=torch.float32, device=dev)
         z = means @ R[2] + t[2]
         with torch.no_grad():
             out = render_features(cam, torch.stack([z, z * z], dim=1))
@@ -301,7 +310,7 @@ def floater_scores(gaussians: GaussianSet, cameras: Sequence[Camera], render_fea
             std = (out.color[..., 1] / a - mean * mean).clamp_min(0).sqrt()
             valid = (alpha >= min_alpha).to(torch.float32)
             thr = (mean - n_std * std) * valid
-        ones = torch.ones(n, 2, requires_grad=True)
+        ones = torch.ones(n, 2, device=dev, requires_grad=True)
         out = render_features(cam, ones)
         # d/dc_i of sum_p g_p C_p = sum_p g_p w_ip: footprint weight and weight-averaged threshold
         grad_out = torch.stack([valid, thr], dim=-1)

@@ -29,6 +29,7 @@ from backend.splats.init import (
 )
 from backend.splats.ply import write_ply
 from backend.splats.strategy import DensifyStrategy, scene_extent
+from backend.train.device import describe, resolve_device
 from backend.train.loop import Stage, TrainConfig, train
 from backend.train.views import check_space, load_views, resize_depth, resize_image, to_space, view_camera
 
@@ -51,6 +52,8 @@ class BaselineConfig:
     """Divide image sizes by this factor (1 = full resolution)."""
     hold_every: int = 8
     """Every this-many-th view (0, 8, 16, ...) is held out for evaluation (0 = none)."""
+    device: str = "auto"
+    """Where to train: auto (CUDA when gsplat is installed), cpu, cuda or cuda:N."""
 
 
 def initial_gaussians(capture: Capture, frames, cfg: BaselineConfig, kind: str = "radiance",
@@ -86,6 +89,7 @@ def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume:
     if cfg.train.iterations < 1:
         raise IGSError(f"--iterations must be >= 1, got {cfg.train.iterations}")
     t_start = time.perf_counter()
+    device = resolve_device(cfg.device)
     capture = load_capture(workspace)
     ws = capture.workspace
     train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
@@ -103,7 +107,7 @@ def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume:
                f"from {source}, scene extent {extent:.3g}")
     strategy = DensifyStrategy(cfg.train.resolved_densify(), extent)
     stage = Stage(STAGE, gaussians, train_views, test_views, cfg.train, extent, strategy, cfg.color_space)
-    result = train(stage, ws.checkpoints / STAGE, resume=resume, stop_after=stop_after)
+    result = train(stage, ws.checkpoints / STAGE, resume=resume, stop_after=stop_after, device=device)
     if result.step < cfg.train.iterations:
         return {"step": result.step, "finished": False}
 
@@ -122,6 +126,7 @@ def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume:
         "seconds_per_iteration": round(result.train_seconds / max(result.step, 1), 4),
         "wall_seconds_this_run": round(time.perf_counter() - t_start, 2),
         "resumed_from": result.resumed_from,
+        "device": describe(device),
         "resolution": [train_views[0].camera.width, train_views[0].camera.height],
         "train_views": len(train_views),
         "init": source,

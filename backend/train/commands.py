@@ -7,6 +7,7 @@ import json
 
 from backend.errors import IGSError
 from backend.train.baseline import BaselineConfig, train_3dgs
+from backend.train.device import add_device_argument
 from backend.train.loop import TrainConfig
 
 
@@ -37,6 +38,7 @@ def add_train_3dgs(sub: argparse._SubParsersAction) -> None:
     group.add_argument("--restart", dest="resume", action="store_false", help="discard checkpoints and start over")
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
                    help="renderer backend (default auto: gsplat on CUDA, else the compiled cpu kernel)")
+    add_device_argument(p)
     p.add_argument("--downscale", type=float, default=1.0, help="divide the image size by this factor (default 1)")
     p.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0)")
     p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
@@ -58,7 +60,7 @@ def run_train_3dgs(args: argparse.Namespace) -> dict:
                         backend=args.backend, lambda_depth=args.depth_weight)
     train.densify.max_gaussians = args.max_gaussians
     cfg = BaselineConfig(train=train, sh_degree=args.sh_degree, color_space=args.color_space,
-                         downscale=args.downscale)
+                         downscale=args.downscale, device=args.device)
     entry = train_3dgs(args.workspace, cfg, resume=args.resume)
     summary = {k: entry.get(k) for k in ("psnr", "ssim", "lpips", "iterations", "gaussians", "train_seconds")}
     print(json.dumps(summary))

@@ -8,6 +8,7 @@ import json
 from dataclasses import replace
 
 from backend.errors import IGSError
+from backend.train.device import add_device_argument
 from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
 
 
@@ -41,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="discard the checkpoints of the stages run and start them over")
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
                    help="renderer backend (default auto: gsplat on CUDA, else the compiled cpu kernel)")
+    add_device_argument(p)
     p.add_argument("--downscale", type=float, default=1.0, help="divide the image size by this factor (default 1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--checkpoint-every", type=int, default=d.albedo.checkpoint_every,
@@ -62,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def config_from_args(args: argparse.Namespace) -> DecomposeConfig:
     if args.checkpoint_every < 1:
         raise IGSError(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
-    cfg = DecomposeConfig(downscale=args.downscale, lambda_gray=args.gray_weight)
+    cfg = DecomposeConfig(downscale=args.downscale, lambda_gray=args.gray_weight, device=args.device)
     cfg.spawn = replace(cfg.spawn, points=args.residual_points)
     cfg = cfg.set_all(seed=args.seed, backend=args.backend, checkpoint_every=args.checkpoint_every)
     if args.iterations is not None:

@@ -44,6 +44,7 @@ from backend.splats.gaussians import GaussianSet
 from backend.splats.init import InitConfig, backproject, from_points
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyConfig, DensifyStrategy, scene_extent
+from backend.train.device import describe, resolve_device
 from backend.train.loop import LearningRates, Stage, TrainConfig, TrainResult, train
 from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
 from backend.train.views import View, load_views, to_space
@@ -111,6 +112,8 @@ class DecomposeConfig:
     """Every this-many-th view (0, 8, 16, ...) is held out for evaluation (0 = none)."""
     report_views: int = 3
     """Held-out views shown in report.png."""
+    device: str = "auto"
+    """Where the stages train: auto (CUDA when gsplat is installed), cpu, cuda or cuda:N."""
 
     def stage(self, name: str) -> TrainConfig:
         return getattr(self, name)
@@ -194,6 +197,9 @@ class ShadingStage(Stage):
         self.lambda_gray = lambda_gray
         self.cache_seconds = 0.0
 
+    def frozen_sets(self) -> list[GaussianSet]:
+        return [self.albedo]
+
     def prepare(self) -> None:
         self.cache_seconds += cache_frozen(self.train_views + self.test_views, [self.albedo],
                                            self.config.backend, "albedo")
@@ -220,6 +226,9 @@ class ResidualStage(Stage):
         super().__init__(*args, **kw)
         self.frozen = [albedo, shading]
         self.cache_seconds = 0.0
+
+    def frozen_sets(self) -> list[GaussianSet]:
+        return list(self.frozen)
 
     def prepare(self) -> None:
         self.cache_seconds += cache_frozen(self.train_views + self.test_views, self.frozen,
@@ -260,10 +269,10 @@ def sample_at_points(points: np.ndarray, views: Sequence[View], images: Callable
         ok = (z > 0) & (x >= 0) & (y >= 0) & (x < cam.width) & (y < cam.height)
         idx = np.nonzero(ok)[0]
         if v.depth is not None and len(idx):
-            d = v.depth.numpy()[y[idx], x[idx]]
+            d = v.depth.cpu().numpy()[y[idx], x[idx]]
             keep = (d <= 0) | (np.abs(z[idx] - d) <= depth_tol * d)
             idx = idx[keep]
-        img = images(v).numpy()
+        img = images(v).cpu().numpy()
         acc[idx] += img[y[idx], x[idx]]
         hits[idx] += 1
     out = np.where(hits[:, None] > 0, acc / np.maximum(hits, 1)[:, None], np.nan)
@@ -291,8 +300,8 @@ def _depth_points(views: Sequence[View], colour: Callable[[View], torch.Tensor],
                   seed: int) -> tuple[np.ndarray, np.ndarray]:
     from backend.splats.init import points_from_depth
 
-    return points_from_depth([v.camera for v in views], [v.depth.numpy() for v in views],
-                             [colour(v).numpy() for v in views], n, seed)
+    return points_from_depth([v.camera for v in views], [v.depth.cpu().numpy() for v in views],
+                             [colour(v).cpu().numpy() for v in views], n, seed)
 
 
 def _luminance(x: np.ndarray) -> np.ndarray:
@@ -340,9 +349,9 @@ def spawn_residual(views: Sequence[View], cfg: DecomposeConfig) -> GaussianSet:
     per_view = max(1, math.ceil(sc.points / max(1, len(views))))
     pts, cols = [], []
     for v in views:
-        diff = (v.image - v.extras["AS"]).numpy()
+        diff = (v.image - v.extras["AS"]).cpu().numpy()
         err = np.abs(diff).sum(-1).reshape(-1)
-        depth = (v.depth if v.depth is not None else v.extras["depth_A"]).numpy()
+        depth = (v.depth if v.depth is not None else v.extras["depth_A"]).cpu().numpy()
         valid = (np.isfinite(depth) & (depth > 0)).reshape(-1)
         err = np.where(valid, err, 0.0)
         k = max(1, int(sc.top_fraction * valid.sum()))
@@ -418,6 +427,8 @@ class Setup:
     priors: dict[str, Any]
     layers_dir: Path
     ckpt_root: Path
+    device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+    """Where the stages train and the layers are evaluated."""
 
     def views(self, frames: Sequence[Frame], target: str, downscale: float, with_depth: bool) -> list[View]:
         """Views in linear RGB; ``target`` 'albedo' (the albedo maps) or 'image' (the input photos)."""
@@ -432,6 +443,7 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
         raise IGSError(f"--downscale must be > 0, got {cfg.downscale}")
     if cfg.residual_sh_degree not in (0, 1, 2, 3):
         raise IGSError(f"residual SH degree must be 0..3, got {cfg.residual_sh_degree}")
+    device = resolve_device(cfg.device)
     for s in STAGES:
         if cfg.stage(s).iterations < 1:
             raise IGSError(f"--{s}-iterations must be >= 1, got {cfg.stage(s).iterations}")
@@ -447,7 +459,7 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
               "color_space": "linear (inverse sRGB curve applied to images and albedo maps)"}
     return Setup(capture, train_frames, test_frames, {f.name: i for i, f in enumerate(capture.frames)},
                  scene_extent([f.camera for f in train_frames]), priors,
-                 layers_dir or ws.layers, ckpt_root or ws.checkpoints)
+                 layers_dir or ws.layers, ckpt_root or ws.checkpoints, device)
 
 
 def stage_entry(result: TrainResult, cfg: TrainConfig, seconds: float, cache_seconds: float,
@@ -485,14 +497,14 @@ def run_stage(name: str, setup: Setup, cfg: DecomposeConfig, layers: dict[str, G
     elif name == "shading":
         stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
                              strategy=DensifyStrategy(tcfg.resolved_densify(), extent), albedo=layers["albedo"],
-                             lambda_gray=cfg.lambda_gray, **common)
+                             lambda_gray=cfg.lambda_gray, **common).to(setup.device)
         stage.prepare()  # the albedo cache feeds the ratio initialisation too
         init, how = initial_shading(setup.capture, train_views, cfg)
         stage.gaussians = init
     else:
         stage = ResidualStage("residual", GaussianSet.empty("residual", cfg.residual_sh_degree), train_views,
                               test_views, strategy=DensifyStrategy(tcfg.resolved_densify(), extent),
-                              albedo=layers["albedo"], shading=layers["shading"], **common)
+                              albedo=layers["albedo"], shading=layers["shading"], **common).to(setup.device)
         stage.prepare()
         init = spawn_residual(train_views, cfg)
         how = f"{len(init)} spawned at high |I - A*S| pixels"
@@ -501,7 +513,7 @@ def run_stage(name: str, setup: Setup, cfg: DecomposeConfig, layers: dict[str, G
     events.log(f"{name}: {len(train_views)} training / {len(test_views)} held-out views at "
                f"{train_views[0].camera.width}x{train_views[0].camera.height}, {initial_n} initial Gaussians ({how})")
     setup_seconds = time.perf_counter() - t0
-    result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume)
+    result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device)
     cache_seconds = getattr(stage, "cache_seconds", 0.0)
     return result.gaussians, stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
 
@@ -588,6 +600,8 @@ def finish(setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet], e
     """Evaluate the layers on the held-out views, write report.png and the metrics.json entry."""
     ws = setup.capture.workspace
     backend = cfg.albedo.backend
+    for g in layers.values():  # render every layer where the stages trained
+        g.to(setup.device)
     ev = evaluate_layers(layers, setup.test_frames, cfg.downscale, setup.priors["albedo"], backend)
     report = None
     if setup.test_frames:
@@ -613,6 +627,7 @@ def finish(setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet], e
         "decompose_seconds": round(train_s + cache_s, 2),
         "wall_seconds_this_run": round(wall, 2),
         "priors": setup.priors,
+        "device": describe(setup.device),
         "resolution": _resolution(setup, cfg),
         "train_views": len(setup.train_frames),
         "config": jsonable(asdict(cfg)),

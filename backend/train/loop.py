@@ -127,8 +127,27 @@ class Stage:
         self.strategy = strategy
         self.color_space = color_space
         self.background = None if background is None else torch.tensor(background, dtype=torch.float32)
+        self.device = torch.device("cpu")
+        """Where the Gaussians, views and caches live (:meth:`to`)."""
         self.iteration = 0
         """Iterations done before the current one (set by :func:`train`; stages with phases read it)."""
+
+    def to(self, device: torch.device | str) -> Stage:
+        """Move the optimised set, the views (with their cached layers) and :meth:`frozen` sets to
+        ``device``; the loop calls it before training, stages may call it earlier."""
+        self.device = torch.device(device)
+        self.gaussians = self.gaussians.to(self.device)
+        for v in self.train_views + self.test_views:
+            v.to_(self.device)
+        if self.background is not None:
+            self.background = self.background.to(self.device)
+        for g in self.frozen_sets():
+            g.to(self.device)
+        return self
+
+    def frozen_sets(self) -> list[GaussianSet]:
+        """Sets the stage renders but does not optimise (they follow :meth:`to`)."""
+        return []
 
     # --- hooks --------------------------------------------------------------------------------
 
@@ -251,7 +270,7 @@ def evaluate(stage: Stage, views: Sequence[View]) -> dict[str, Any]:
         for view in views:
             out = stage.render(view)
             pred, target = stage.display(view, stage.predict(view, out))
-            per_view[view.name] = image_metrics(pred, target)
+            per_view[view.name] = image_metrics(pred.cpu(), target.cpu())
     return {**mean_metrics(list(per_view.values())), "views": len(per_view), "per_view": per_view}
 
 
@@ -313,9 +332,13 @@ def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
         raise IGSError(f"{path}: the checkpoint was made with other training views; use --restart")
 
 
-def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None) -> TrainResult:
+def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None,
+          device: torch.device | str | None = None) -> TrainResult:
     """Optimise ``stage.gaussians``; checkpoints go to ``ckpt_dir`` (created).
 
+    ``device``: where to train (None: where the stage is, see :meth:`Stage.to`). Checkpoints hold
+    CPU-loadable tensors, so a run may resume on another device (bit-identical only on the same one).
+    The returned set is on the CPU.
     ``resume``: continue from the checkpoint in ``ckpt_dir`` when there is one (otherwise it is
     deleted and the run starts over). ``stop_after``: return once this many iterations are done
     (after writing a checkpoint), as if the process had been stopped there — used by tests.
@@ -323,11 +346,14 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
     """
     with torch_threads():
+        if device is not None:
+            stage.to(device)
         return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after)
 
 
 def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None) -> TrainResult:
     cfg = stage.config
+    stage.to(stage.device)  # a set assigned after the last move (initial or restored) follows the stage
     # Adam's second moments of rows whose gradient stopped (pruned neighbours, inactive SH bands)
     # decay geometrically into denormal floats, which are ~20x slower on x86: flush them to zero.
     np.finfo(np.float32), np.finfo(np.float64)  # cache numpy's limits first: it warns when computed under FTZ
@@ -343,7 +369,7 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
     step, train_seconds, extra = 0, 0.0, {}
     if ckpt is not None:
         _check_resumable(ckpt, stage, _checkpoint_path(ckpt_dir))
-        stage.gaussians = stage.restore_gaussians(ckpt)
+        stage.gaussians = stage.restore_gaussians(ckpt).to(stage.device)
     optimizer = make_optimizer(stage.gaussians, cfg, stage.scene_extent)
     if ckpt is not None:
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -398,7 +424,7 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
         metrics = evaluate(stage, stage.test_views)
         metrics["initial"] = extra.get("initial_metrics")
     history = stage.strategy.history if stage.strategy else []
-    return TrainResult(stage.gaussians, step, train_seconds, metrics, resumed_from, history)
+    return TrainResult(stage.gaussians.to("cpu"), step, train_seconds, metrics, resumed_from, history)
 
 
 def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler, step: int,

@@ -131,7 +131,7 @@ class SingleSetStage(Stage):
 
     def render(self, view: View) -> RenderOutput:
         g = self.gaussians
-        center = torch.as_tensor(view.camera.center, dtype=torch.float32)
+        center = torch.as_tensor(view.camera.center, dtype=torch.float32, device=self.device)
         return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, g.features(center),
                       view.camera, log_scales=True, backend=self.config.backend)
 
@@ -207,7 +207,7 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
                f"+ residual {cfg.residual.iterations} iterations")
     setup_seconds = time.perf_counter() - t0
     initial_n = len(init)  # densification edits the set in place
-    result = train(stage, setup.ckpt_root / f"decompose_{NAME}", resume=resume and not stale)
+    result = train(stage, setup.ckpt_root / f"decompose_{NAME}", resume=resume and not stale, device=setup.device)
     g: LayeredGaussians = result.gaussians
     layers = {k: g.layer(k) for k in STAGES}
     for k, layer in layers.items():

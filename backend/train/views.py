@@ -38,6 +38,14 @@ class View:
     def name(self) -> str:
         return self.camera.name
 
+    def to_(self, device: torch.device) -> View:
+        """Move the view's tensors to ``device`` in place."""
+        self.image = self.image.to(device)
+        if self.depth is not None:
+            self.depth = self.depth.to(device)
+        self.extras = {k: v.to(device) for k, v in self.extras.items()}
+        return self
+
 
 def check_space(space: str) -> None:
     if space not in COLOR_SPACES:
