@@ -144,3 +144,28 @@ def test_budget_split_gives_the_shading_the_albedo_budget():
     cfg = DecomposeConfig()
     assert cfg.shading.iterations == cfg.albedo.iterations == 2 * cfg.residual.iterations
     assert cfg.shading.densify.grad_threshold < cfg.albedo.densify.grad_threshold
+
+
+def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
+    import pytest
+
+    from backend.errors import IGSError
+    from backend.eval.bench_decompose import configs, scaled_iterations, targets
+
+    _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
+    half = scaled_iterations(dec, 0.3)
+    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 300, 150]
+    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 1000, 500]
+    assert scaled_iterations(dec, 1.0) is dec
+    with pytest.raises(IGSError, match="--single-set-fraction"):
+        scaled_iterations(dec, 0.0)
+
+    def method(albedo):
+        return {"layers": {"albedo": {"psnr": albedo}, "shading": {"psnr": 23.0}, "full": {"psnr": 27.5}},
+                "time_vs_3dgs": 1.7}
+
+    r = {"vanilla_3dgs": {"full": {"psnr": 27.9}}, "three_set": method(32.0), "single_set": method(28.0),
+         "protocol": {"single_set_fraction": 1.0}}
+    assert targets(r)["albedo_vs_single_set"]["met"] is True
+    r["protocol"]["single_set_fraction"] = 0.3
+    assert targets(r)["albedo_vs_single_set"]["met"] is None
