@@ -102,9 +102,14 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     turntable_frames: IntProperty(name="Frames", default=36, min=1, max=3600)
     turntable_radius: FloatProperty(name="Radius", default=3.0, min=0.001, subtype="DISTANCE")
     turntable_height: FloatProperty(name="Height", default=1.0, subtype="DISTANCE")
-    turntable_target: EnumProperty(name="Around", items=[("CURSOR", "3D Cursor", ""),
-                                                         ("SELECTION", "Selection", "Centre of the selected objects")],
-                                   default="CURSOR")
+    turntable_target: EnumProperty(name="Around", items=[
+        ("CURSOR", "3D Cursor", "Circle the 3D cursor about Blender's Z axis at Radius and Height"),
+        ("SELECTION", "Selection", "Circle the centre of the selected objects about Blender's Z axis"),
+        ("CAPTURE", "Capture", "The orbit the capture suggests, computed by the backend: up from the cameras' "
+                               "level axes, around the SfM points' centre, inside the camera path, at the "
+                               "capture's field of view (Radius and Height are not used); for an imported "
+                               "video whose world is tilted")],
+        default="CURSOR")
     write_mp4: BoolProperty(name="MP4", default=True, description="Also write an MP4 of the sequence")
 
     # -- the running job (written by operators, drawn by panels) -------------------------------------

@@ -1,7 +1,9 @@
 """Render operators: the active camera's view, a turntable, or the scene's animated camera.
 
 Blender computes the cameras (so a turntable circles the 3D cursor in Blender's world, and a camera
-path follows any animation) and writes them as ``{"cameras": [{"name", "width", "height", "fx",
+path follows any animation), except for a turntable around the *capture*, whose orbit the backend
+derives from the capture's cameras (``render --turntable --frames N --size W H``). Blender's cameras are
+written as ``{"cameras": [{"name", "width", "height", "fx",
 "fy", "cx", "cy", "R", "t"}, ...]}`` (OpenCV convention in SfM coordinates: ``x_cam = R x + t``);
 ``render --cameras`` writes ``OUT/<layer>/<name>.png`` per camera and ``OUT/<layer>.mp4``.
 """
@@ -18,7 +20,7 @@ from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
 from ..igs_blender import compat, edits, images
-from ..igs_blender.camera_objects import sfm_view_from_object
+from ..igs_blender.camera_objects import render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
@@ -58,10 +60,12 @@ def selection_center(context) -> Vector:
     return (lo + hi) / 2
 
 
-def _render_job(context, cameras: Path, out: Path, label: str, mp4: bool = False) -> BackendJob:
+def _render_job(context, cameras: Path | list, out: Path, label: str, mp4: bool = False) -> BackendJob:
+    """``cameras``: a cameras.json Blender wrote, or the backend's own camera arguments."""
     props = context.scene.igs
     ws = existing_workspace(props.workspace)
-    args = ["render", ws, *edit_args(props), "--cameras", cameras, "--out", out, "--layers", props.render_layer]
+    source = list(cameras) if isinstance(cameras, list) else ["--cameras", cameras]
+    args = ["render", ws, *edit_args(props), *source, "--out", out, "--layers", props.render_layer]
     if mp4:
         args.append("--mp4")
     return backend_job(context, args, label, expected_stages=1)
@@ -91,7 +95,7 @@ class IGS_OT_render_view(BackendOperator, bpy.types.Operator):
 
 
 class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
-    """Render a turntable around the 3D cursor or the selection, or along the scene's animated camera, as an image sequence (and MP4), then load it"""
+    """Render a turntable around the 3D cursor, the selection or the capture, or along the scene's animated camera, as an image sequence (and MP4), then load it"""
 
     bl_idname = "igs.render_sequence"
     bl_label = "Render Sequence"
@@ -126,10 +130,15 @@ class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
-        views = self.views(context)
-        self._count = len(views)
         self._out = ws / "renders" / time.strftime(f"{self.mode.lower()}-%Y%m%d-%H%M%S")
-        cams = write_cameras(self._out / "cameras.json", views)
+        if self.mode == "TURNTABLE" and props.turntable_target == "CAPTURE":
+            self._count = props.turntable_frames
+            w, h = render_size(context.scene)
+            cams = ["--turntable", "--frames", self._count, "--size", w, h]
+        else:
+            views = self.views(context)
+            self._count = len(views)
+            cams = write_cameras(self._out / "cameras.json", views)
         return _render_job(context, cams, self._out, "Turntable" if self.mode == "TURNTABLE" else "Camera path",
                            mp4=props.write_mp4)
 

@@ -187,8 +187,10 @@ class IGS_PT_render(_Panel, bpy.types.Panel):
         col = box.column(align=True)
         col.prop(props, "turntable_target")
         col.prop(props, "turntable_frames")
-        col.prop(props, "turntable_radius")
-        col.prop(props, "turntable_height")
+        sub = col.column(align=True)
+        sub.active = props.turntable_target != "CAPTURE"  # the backend picks the orbit then
+        sub.prop(props, "turntable_radius")
+        sub.prop(props, "turntable_height")
         box.prop(props, "write_mp4")
         box.operator("igs.render_sequence", text="Render Turntable", icon="ORIENTATION_GIMBAL").mode = "TURNTABLE"
         box.operator("igs.render_sequence", text="Render Camera Path", icon="CAMERA_DATA").mode = "CAMERA"

@@ -684,6 +684,7 @@ p.add_argument("--view"); p.add_argument("--rect", type=float, nargs=4); p.add_a
 p.add_argument("--proxy"); p.add_argument("--name"); p.add_argument("--edit"); p.add_argument("--cameras")
 p.add_argument("--layers", default="A,S,R,full")
 p.add_argument("--mp4", action="store_true")
+p.add_argument("--turntable", action="store_true"); p.add_argument("--frames", type=int); p.add_argument("--size", type=int, nargs=2)
 a = p.parse_args(argv if cmd == "edit" else [argv[0], *argv[1:]])
 ws = Path(a.ws)
 
@@ -729,8 +730,15 @@ elif cmd == "edit" and a.sub == "bake":
     emit("output", kind="layer", path=str(out))
 elif cmd == "render":
     import cv2
-    cams = json.loads(Path(a.cameras).read_text())["cameras"]
     out = Path(a.out)
+    if a.turntable:  # the backend's own orbit: only the count and size come from Blender
+        assert a.cameras is None and a.frames >= 1, argv
+        cams = [{{"name": f"{{k:04d}}", "width": a.size[0], "height": a.size[1], "fx": 1.0, "R": np.eye(3).tolist(),
+                  "t": [0.0, 0.0, 0.0]}} for k in range(a.frames)]
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "argv.json").write_text(json.dumps(argv))
+    else:
+        cams = json.loads(Path(a.cameras).read_text())["cameras"]
     emit("stage", stage="render", total=len(cams))
     for lay in a.layers.split(","):
         (out / lay).mkdir(parents=True, exist_ok=True)
@@ -838,6 +846,18 @@ def test_operators_follow_the_backend_contract_from_import_to_turntable(scene, t
     np.testing.assert_allclose(np.linalg.norm(centres[:, :2], axis=1), 2.0, atol=1e-5)
     np.testing.assert_allclose(centres[:, 2], 0.7, atol=1e-5)
     assert (tt_dir / "full.mp4").stat().st_size > 0 and "IGS Sequence MP4" in bpy.data.images
+
+    props.turntable_target = "CAPTURE"  # the backend's orbit from the capture: no cameras.json is written
+    props.turntable_frames = 3
+    assert bpy.ops.igs.render_sequence(mode="TURNTABLE") == {"FINISHED"}, props.last_report
+    assert bpy.data.images["IGS Sequence"]["igs_frames"] == 3
+    tt_dir = next(d for d in (ws / "renders").glob("turntable-*") if (d / "argv.json").exists())
+    w, h = sub("camera_objects").render_size(scene)
+    sent = json.loads((tt_dir / "argv.json").read_text())
+    assert sent[sent.index("--turntable"):sent.index("--out")] == ["--turntable", "--frames", "3", "--size", str(w),
+                                                                    str(h)]
+    assert "--cameras" not in sent and not (tt_dir / "cameras.json").exists()
+    props.turntable_target = "CURSOR"
 
     cam.keyframe_insert("location", frame=1)
     cam.location.x += 0.3
@@ -1088,6 +1108,22 @@ def test_flow_5_render_the_view_and_a_turntable_of_the_edited_scene(addon, flow)
     frames_dir = Path(bpy.path.abspath(seq.filepath)).parent
     assert frames_dir.name == "full" and len([p for p in frames_dir.iterdir() if p.suffix == ".png"]) == 4
     assert (frames_dir.parent / "full.mp4").stat().st_size > 0
+    scene.igs.turntable_target = "CAPTURE"  # the backend's orbit around the capture, at the scene's size
+    scene.igs.turntable_frames = 3
+    scene.igs.write_mp4 = False
+    try:
+        assert bpy.ops.igs.render_sequence(mode="TURNTABLE") == {"FINISHED"}, scene.igs.last_report
+    finally:
+        scene.igs.turntable_target = "CURSOR"
+    import cv2
+
+    seq = bpy.data.images["IGS Sequence"]
+    frames = sorted(Path(bpy.path.abspath(seq.filepath)).parent.glob("*.png"))
+    assert seq["igs_frames"] == 3 and len(frames) == 3
+    pixels = [cv2.imread(str(p)) for p in frames]
+    w, h = sub("camera_objects").render_size(scene)
+    assert all(p.shape == (h, w, 3) for p in pixels)
+    assert min(float(p.mean()) for p in pixels) > 10  # the scene is in view from the orbit
 
 
 def test_flow_6_cancel_a_real_decompose_mid_run(addon, flow):

@@ -209,3 +209,36 @@ def test_turntable_defaults_follow_the_capture_cameras_in_a_tilted_world():
         assert np.linalg.norm(rel - (rel @ up) * up) == pytest.approx(radius)
         assert -cam.R[1] @ up > 0.9  # level: image up is the capture's up
         assert cam.R[2] @ (c0 - cam.center) / np.linalg.norm(c0 - cam.center) > 0.999  # looks at the centre
+
+
+def test_render_and_layer_evaluation_hold_torch_at_one_thread(ws, tmp_path, monkeypatch):
+    """As in training, the cpu kernels do the parallel work while `igs render` and the held-out
+    evaluation run; torch's thread count is back to the caller's afterwards."""
+    import backend.eval.layer_metrics as lm
+    import backend.eval.render_views as rv
+    from backend.capture.workspace import load_capture
+
+    seen = []
+
+    def spy(render):
+        def wrapped(*a, **k):
+            seen.append(torch.get_num_threads())
+            return render(*a, **k)
+        return wrapped
+
+    monkeypatch.setattr(rv, "render_layers", spy(rv.render_layers))
+    monkeypatch.setattr(lm, "render_layers", spy(lm.render_layers))
+    monkeypatch.delenv("IGS_TORCH_THREADS", raising=False)
+    saved = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        assert main(["render", str(ws), "--turntable", "--frames", "2", "--size", "32", "24",
+                     "--out", str(tmp_path / "t"), "--layers", "full"]) == 0
+        assert torch.get_num_threads() == 2
+        layers = rv.load_layers(ws, None, {"albedo", "shading", "residual"})
+        frames = load_capture(ws).frames[:2]
+        ev = lm.evaluate_layers(layers, frames, 4.0, "gt")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)
+    assert seen == [1, 1, 1, 1] and "full" in ev["layers"]

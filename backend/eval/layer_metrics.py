@@ -27,6 +27,7 @@ from backend.capture.imageio import read_exr, read_image, srgb_to_linear
 from backend.capture.workspace import Frame
 from backend.eval.metrics import image_metrics, mean_metrics, psnr
 from backend.render import Splats, render_layers
+from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.train.views import resize_image, to_display, view_camera
 
@@ -73,7 +74,15 @@ def channel_scale(pred: Sequence[torch.Tensor], target: Sequence[torch.Tensor]) 
 
 def evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
                     albedo_source: str, backend: str = "auto") -> dict[str, Any]:
-    """Per-layer metrics on ``frames`` (held-out views): means per layer, per view, and the alignment used."""
+    """Per-layer metrics on ``frames`` (held-out views): means per layer, per view, and the alignment used.
+
+    Torch runs on one thread meanwhile, as in training (:func:`backend.render.threads.torch_threads`)."""
+    with torch_threads():
+        return _evaluate_layers(layers, frames, downscale, albedo_source, backend)
+
+
+def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
+                     albedo_source: str, backend: str) -> dict[str, Any]:
     renders, gts = [], []
     for f in frames:
         r = render_frame(layers, f, downscale, backend)

@@ -40,6 +40,7 @@ from backend.capture.imageio import linear_to_srgb, write_image
 from backend.capture.workspace import load_capture
 from backend.errors import IGSError
 from backend.render import render_layers
+from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
 from backend.train.intrinsic import layer_splats
@@ -246,8 +247,9 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
     sizes: dict[str, tuple[int, int]] = {}
     for w in wanted:
         (out / w).mkdir(parents=True, exist_ok=True)
+    # torch held at one thread as in training: its spinning workers would take the cpu kernels' cores
     try:
-        with events.stage("render", len(cameras), unit="view") as bar:
+        with torch_threads(), events.stage("render", len(cameras), unit="view") as bar:
             for cam in cameras:
                 with torch.no_grad():
                     outs = render_layers([layer_splats(g) for g in splats], cam, backend=backend)
