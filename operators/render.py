@@ -28,6 +28,17 @@ from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existi
 from .job import BackendOperator, backend_job
 
 
+def fresh_output_dir(ws: Path, kind: str) -> Path:
+    """``ws/renders/<kind>-<time stamp>``, suffixed ``-2``, ``-3``... when a render in the same second took it
+    (a second render there would mix its frames with the first one's)."""
+    base = ws / "renders" / time.strftime(f"{kind}-%Y%m%d-%H%M%S")
+    out, n = base, 1
+    while out.exists():
+        n += 1
+        out = base.with_name(f"{base.name}-{n}")
+    return out
+
+
 def edit_args(props) -> list:
     """``--edit NAME`` when the Render panel uses the selected, baked edit."""
     if not props.render_edit:
@@ -81,7 +92,7 @@ class IGS_OT_render_view(BackendOperator, bpy.types.Operator):
         scene = context.scene
         ws = existing_workspace(scene.igs.workspace)
         view = sfm_view_from_object(scene, scene.camera, name="view")
-        self._out = ws / "renders" / time.strftime("view-%Y%m%d-%H%M%S")
+        self._out = fresh_output_dir(ws, "view")
         cam_file = write_cameras(self._out / "cameras.json", [view])
         return _render_job(context, cam_file, self._out, "Render view")
 
@@ -130,7 +141,7 @@ class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
-        self._out = ws / "renders" / time.strftime(f"{self.mode.lower()}-%Y%m%d-%H%M%S")
+        self._out = fresh_output_dir(ws, self.mode.lower())
         if self.mode == "TURNTABLE" and props.turntable_target == "CAPTURE":
             self._count = props.turntable_frames
             w, h = render_size(context.scene)
