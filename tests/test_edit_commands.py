@@ -99,6 +99,11 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
     after, _ = read_ply(out / "albedo.ply", kind="albedo")
     assert summary["spawned"] > 0 and summary["removed"] > 0  # the face's own Gaussians gave way to new ones
     assert len(after) == len(before) - summary["removed"] + summary["spawned"] + summary["densified"]
+    # the spawned Gaussians (and their densified children) carry the edit's sharper low-pass, the rest 3DGS's
+    assert before.eps2d is None and after.eps2d is not None
+    sharp = int((after.eps2d == cfg.edit_filter).sum())
+    assert summary["spawned"] <= sharp <= summary["spawned"] + summary["densified"]
+    assert int((after.eps2d == 0.3).sum()) == len(after) - sharp
     capture = load_capture(ws)
     # A held-out view (frame_0000 looks straight at the +x face) and the edit view.
     for name in ("frame_0000.png", EDIT_VIEW):

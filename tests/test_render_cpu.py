@@ -239,3 +239,46 @@ def test_depth_argsort_is_the_stable_order_with_and_without_ties():
     d[::7] = d[3]  # exact ties keep index order
     np.testing.assert_array_equal(depth_argsort(d), np.argsort(d, kind="stable"))
     assert depth_argsort(np.zeros(0, np.float32)).dtype == np.int64
+
+
+def _run_filtered(s: Splats, eps2d, cam, backend: str):
+    leaf = with_grad(s)
+    out = render(leaf.means, leaf.quats, leaf.scales, leaf.opacities, leaf.colors, cam, backend=backend,
+                 eps2d=eps2d)
+    weighted_loss([out]).backward()
+    return out, {p: getattr(leaf, p).grad for p in PARAMS}
+
+
+def test_per_gaussian_low_pass_matches_reference_and_sharpens():
+    cam = make_camera(41, 31)
+    s = random_splats(90, seed=5)
+    eps = torch.where(torch.arange(90) % 3 == 0, 0.05, 0.3).float()  # a third of them sharp, the rest 3DGS's
+    out_c, g_c = _run_filtered(s, eps, cam, "cpu")
+    out_r, g_r = _run_filtered(s, eps, cam, "reference")
+    np.testing.assert_allclose(out_c.color.detach(), out_r.color.detach(), atol=2e-5)
+    assert torch.equal(out_c.radii, out_r.radii)
+    assert_close_grads(g_c, g_r)
+    # a uniform tensor is the scalar, and 0.3 is the default
+    default = _render(s, cam, "cpu").color
+    torch.testing.assert_close(render(s.means, s.quats, s.scales, s.opacities, s.colors, cam, backend="cpu",
+                                      eps2d=torch.full((90,), 0.3)).color, default)
+    assert not torch.allclose(out_c.color, default)
+    # one tiny Gaussian: a smaller low-pass concentrates it on fewer pixels (higher peak, smaller footprint)
+    one = Splats(torch.tensor([[0.0, 0.0, 2.0]]), torch.tensor([[1.0, 0, 0, 0]]), torch.full((1, 3), 1e-4),
+                 torch.tensor([0.9]), torch.ones(1, 3))
+    cam0 = make_camera(21, 21, off_centre=False)
+    peaks = {}
+    for e in (0.1, 0.3):
+        for backend in ("cpu", "reference"):
+            a = render(one.means, one.quats, one.scales, one.opacities, one.colors, cam0, backend=backend, eps2d=e).alpha
+            peaks[(e, backend)] = (float(a.max()), int((a > 0.05).sum()))
+    assert peaks[(0.1, "cpu")] == pytest.approx(peaks[(0.1, "reference")], abs=1e-5)
+    assert peaks[(0.1, "cpu")][0] > peaks[(0.3, "cpu")][0] or peaks[(0.1, "cpu")][1] < peaks[(0.3, "cpu")][1]
+
+
+@pytest.mark.parametrize("eps,msg", [(-0.1, ">= 0"), (torch.full((3,), 0.3), "must be a scalar or"),
+                                     (torch.tensor([0.3, float("nan")] * 5), "finite")])
+def test_bad_low_pass_is_named(eps, msg):
+    s = random_splats(10, seed=1, special=False)
+    with pytest.raises(Exception, match=msg):
+        render(s.means, s.quats, s.scales, s.opacities, s.colors, make_camera(), backend="cpu", eps2d=eps)

@@ -133,3 +133,18 @@ def test_unknown_kind_comment_is_rejected(tmp_path):
     path.write_bytes(path.read_bytes().replace(b"igs_layer albedo", b"igs_layer diffuse", 1))
     with pytest.raises(IGSError, match="unknown layer kind 'diffuse'"):
         read_ply(path)
+
+
+def test_per_gaussian_low_pass_round_trips_and_plain_sets_stay_standard(tmp_path):
+    g = make("albedo")
+    plain = write_ply(tmp_path / "plain.ply", g)
+    assert "eps2d" not in PlyData.read(str(plain))["vertex"].data.dtype.names  # standard 3DGS layout
+    sharp = g.with_filter(0.3)
+    sharp.params["eps2d"].data[:3] = 0.1
+    assert not sharp.params["eps2d"].requires_grad  # fixed, never trained
+    path = write_ply(tmp_path / "sharp.ply", sharp)
+    h, _ = read_ply(path)
+    torch.testing.assert_close(h.eps2d, sharp.eps2d.detach())
+    assert h.render_args()["eps2d"] is not None and g.render_args()["eps2d"] is None
+    both = GaussianSet.concat([g, h])  # a set without values gets the renderer's default
+    assert torch.equal(both.eps2d[: len(g)], torch.full((len(g),), 0.3)) and torch.equal(both.eps2d[len(g):], h.eps2d)

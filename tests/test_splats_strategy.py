@@ -111,3 +111,18 @@ def test_screen_size_pruning_sees_radii_through_densification():
     assert s.prune(g, opt, step=20) == {"pruned": 1}
     kept = g.params["means"].detach()
     assert not any(torch.equal(row, torch.tensor([6.0, 7.0, 8.0])) for row in kept)  # row 2's mean is gone
+
+
+def test_clones_and_split_children_inherit_the_parents_low_pass():
+    torch.manual_seed(0)
+    g = make_set(4).with_filter(0.3)
+    g.params["eps2d"].data[:] = torch.tensor([0.1, 0.05, 0.3, 0.3])
+    g.params["log_scales"].data[1] = math.log(0.2)
+    opt = make_opt(g)
+    s = DensifyStrategy(DensifyConfig(grad_threshold=1e-3), scene_extent=1.0)
+    fake_view(s, g, [[1e-4, 0], [1e-4, 0], [1e-6, 0], [1.0, 0]], [3, 3, 3, 0])
+    assert s.densify(g, opt) == {"cloned": 1, "split": 1}
+    # rows: 0, 2, 3 kept; the clone of 0; two children of 1
+    torch.testing.assert_close(g.eps2d.detach(), torch.tensor([0.1, 0.3, 0.3, 0.1, 0.05, 0.05]))
+    s.prune(g, opt, step=50)
+    assert g.eps2d is not None and len(g.eps2d) == len(g)

@@ -205,7 +205,8 @@ def run_bake(args: argparse.Namespace) -> None:
                      iterations=args.iterations, anchor_views=args.anchor_views, capture_views=args.capture_views,
                      restrict=not args.no_restrict,
                      base=args.base, downscale=args.downscale, backend=args.backend, device=args.device,
-                     seed=args.seed, surface=args.surface, supersample=args.supersample)
+                     seed=args.seed, surface=args.surface, supersample=args.supersample,
+                     edit_filter=args.edit_filter)
     summary = bake_edit(args.workspace, proxy, name, cfg)
     print(json.dumps({k: v for k, v in summary.items() if k not in ("config",)} | {
         "held_out": {k: v for k, v in summary["held_out"].items() if k != "views"}}, indent=2))
@@ -302,6 +303,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "keep them painted with the edit's colour")
     p.add_argument("--supersample", type=int, default=d.supersample,
                    help=f"proxy texture samples per pixel side (anti-aliasing; default {d.supersample})")
+    p.add_argument("--edit-filter", type=float, default=d.edit_filter, metavar="PX2",
+                   help=f"screen-space low-pass of the new Gaussians, pixels^2 (default {d.edit_filter}; "
+                        "3DGS's 0.3 blurs textures with 1-2 px detail)")
     p.add_argument("--no-restrict", action="store_true",
                    help="let every albedo Gaussian change (default: only those under the edit and the new ones)")
     p.add_argument("--downscale", type=float, default=1.0, help="divide image sizes by this factor (default 1)")

@@ -272,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--anchor-views", type=int, default=BakeConfig.anchor_views)
     ap.add_argument("--capture-views", type=int, default=BakeConfig.capture_views,
                     help="training views that see the edit, added to the multi-view bake")
+    ap.add_argument("--edit-filter", type=float, default=BakeConfig.edit_filter,
+                    help="screen-space low-pass of the baked Gaussians, pixels^2 (0.3: 3DGS's)")
     ap.add_argument("--margin", type=int, default=2, help="pixels around the mask left out of 'outside' (default 2)")
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--out", default=None, help="JSON output (default <ws>/bench_edit.json)")
@@ -280,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     ws_root = Path(args.workspace)
     cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
-                     capture_views=args.capture_views,
+                     capture_views=args.capture_views, edit_filter=args.edit_filter,
                      backend=args.backend)
     try:
         results = run(ws_root, [e for e in args.edits.split(",") if e], cfg, args.margin,

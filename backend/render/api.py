@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import torch
@@ -23,7 +23,7 @@ from backend.capture.cameras import Camera
 from backend.errors import IGSError
 from backend.render import cpu as cpu_backend
 from backend.render import cpu_sh, reference
-from backend.render.projection import CameraTensors, check_gaussians, project
+from backend.render.projection import EPS2D, CameraTensors, check_gaussians, project
 from backend.render.sh import sh_to_color
 
 Backend = Literal["auto", "reference", "cpu", "gsplat"]
@@ -48,6 +48,10 @@ class Splats:
     """SH bands to evaluate (0..3, the first (d+1)^2 of K coefficients); None: ``colors`` are features."""
     log_scales: bool = False
     """``scales`` hold log-scales (the raw 3DGS parameters)."""
+    eps2d: Tensor | float | None = None
+    """Screen-space low-pass: the variance (pixels^2) added to each projected covariance, one value or
+    (N,) per Gaussian; None: :data:`EPS2D` (0.3, as 3DGS and gsplat). Gaussians fitted to sharp detail
+    (an edit's texture) carry a smaller one."""
 
     def __len__(self) -> int:
         return self.means.shape[0]
@@ -108,13 +112,15 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 def render(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor, camera: Camera,
            *, sh_degree: int | None = None, log_scales: bool = False,
            background: Tensor | float | Sequence[float] | None = None, near: float = 0.01, far: float = 1e10,
-           backend: Backend = "auto", return_ids: bool = False) -> RenderOutput:
+           backend: Backend = "auto", return_ids: bool = False,
+           eps2d: Tensor | float | None = None) -> RenderOutput:
     """Render one set of Gaussians for ``camera``.
 
     means: (N, 3); quats: (N, 4) wxyz; scales: (N, 3) (log-scales if ``log_scales``); opacities: (N,);
-    colors: (N, C) features or (N, K, C) SH with ``sh_degree``; background: (C,), a scalar or None (0).
+    colors: (N, C) features or (N, K, C) SH with ``sh_degree``; background: (C,), a scalar or None (0);
+    eps2d: the screen-space low-pass, a scalar or (N,) (see :attr:`Splats.eps2d`).
     """
-    splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales)
+    splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales, eps2d)
     return render_layers([splats], camera, backgrounds=[background], near=near, far=far, backend=backend,
                          return_ids=return_ids)[0]
 
@@ -144,12 +150,38 @@ def render_layers(layers: Sequence[Splats], camera: Camera, *,
         raise IGSError(f"near/far planes must satisfy 0 < near < far, got near={near} far={far}")
     device = layers[0].means.device
     name = resolve_backend(backend, device)
+    filters = [_filter(s, i) for i, s in enumerate(layers)]
     if name == "gsplat":
         from backend.render import gsplat_backend
 
-        return [gsplat_backend.render_splats(s, camera, bg, near, far, return_ids)
-                for s, bg in zip(layers, backgrounds)]
-    return _render_fused(layers, camera, backgrounds, near, far, name, return_ids)
+        if backend == "auto" and any(not isinstance(f, float) for f in filters):
+            name = "reference"  # gsplat takes one low-pass per call; per-Gaussian values need ours
+        else:
+            return [gsplat_backend.render_splats(s, camera, bg, near, far, return_ids, f)
+                    for s, bg, f in zip(layers, backgrounds, filters)]
+    return _render_fused(layers, camera, backgrounds, near, far, name, return_ids, filters)
+
+
+def _filter(s: Splats, i: int) -> Tensor | float:
+    """The low-pass of one set: a float when every Gaussian has the same value, else (N,)."""
+    e = s.eps2d
+    if e is None:
+        return EPS2D
+    if not torch.is_tensor(e):
+        e = float(e)
+        if not e >= 0.0:
+            raise IGSError(f"layer {i}: eps2d must be >= 0, got {e}")
+        return e
+    if e.dim() == 0 or e.numel() == 1:
+        return _filter(replace(s, eps2d=float(e.reshape(-1)[0])), i)
+    if tuple(e.shape) != (len(s),):
+        raise IGSError(f"layer {i}: eps2d must be a scalar or ({len(s)},) to match means, got {tuple(e.shape)}")
+    e = e.detach()
+    if bool((e < 0).any()) or not bool(torch.isfinite(e).all()):
+        raise IGSError(f"layer {i}: eps2d must be finite and >= 0")
+    if len(s) == 0 or bool((e == e[0]).all()):
+        return float(e[0]) if len(s) else EPS2D
+    return e
 
 
 def _scales(s: Splats) -> Tensor:
@@ -166,14 +198,22 @@ def _background(bg, n_channels: int, device: torch.device, dtype: torch.dtype, i
 
 
 def _render_fused(layers: Sequence[Splats], camera: Camera, backgrounds, near: float, far: float,
-                  backend: str, return_ids: bool) -> list[RenderOutput]:
+                  backend: str, return_ids: bool, filters: Sequence[Tensor | float] | None = None
+                  ) -> list[RenderOutput]:
     device, dtype = layers[0].means.device, layers[0].means.dtype
     cam = CameraTensors.of(camera, device, dtype)
     sizes = [len(s) for s in layers]
     cat = (lambda ts: ts[0]) if len(layers) == 1 else (lambda ts: torch.cat(ts))  # noqa: E731
     means = cat([s.means.to(dtype) for s in layers])
-    proj = (cpu_backend.project if backend == "cpu" else project)(means, cat([s.quats.to(dtype) for s in layers]), cat([_scales(s).to(dtype) for s in layers]),
-                   cat([s.opacities.to(dtype) for s in layers]), cam, near=near, far=far)
+    filters = [_filter(s, i) for i, s in enumerate(layers)] if filters is None else filters
+    if len({f for f in filters if isinstance(f, float)}) == 1 and all(isinstance(f, float) for f in filters):
+        eps2d: Tensor | float = filters[0]
+    else:
+        eps2d = cat([f.to(device, dtype) if torch.is_tensor(f) else torch.full((n,), f, device=device, dtype=dtype)
+                     for f, n in zip(filters, sizes)])
+    proj = (cpu_backend.project if backend == "cpu" else project)(
+        means, cat([s.quats.to(dtype) for s in layers]), cat([_scales(s).to(dtype) for s in layers]),
+        cat([s.opacities.to(dtype) for s in layers]), cam, near=near, far=far, eps2d=eps2d)
 
     # Per-set views of means2d that stay in the graph, so each set's screen-space gradient is kept.
     parts = list(proj.means2d.split(sizes)) if len(layers) > 1 else [proj.means2d]

@@ -78,16 +78,16 @@ def _camera_args(cam: CameraTensors) -> tuple:
 
 class _Project(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, cam, near, far):
+    def forward(ctx, means, quats, scales, opacities, eps2d, cam, near, far):
         t0 = _now()
         args = (_np32(means), _np32(quats), _np32(scales))
         cam_args = _camera_args(cam)
         n = args[0].shape[0]
         bufs = P.forward_buffers(n)
-        fixed = (*args, _np32(opacities), *cam_args, near, far, EPS2D, BOX_MARGIN, *bufs)
+        fixed = (*args, _np32(opacities), *cam_args, near, far, eps2d, BOX_MARGIN, *bufs)
         run_chunks(P.project_forward_range, [(a, b, *fixed) for a, b in _range_chunks(n, GAUSSIANS_PER_CHUNK)])
         m2d, con, dep, bbox, radii = bufs
-        ctx.saved = (args, cam_args, near, far)
+        ctx.saved = (args, cam_args, near, far, eps2d)
         ctx.dtypes = (means.dtype, quats.dtype, scales.dtype)
         dev, dt = means.device, means.dtype
         out = (torch.from_numpy(m2d).to(dev, dt), torch.from_numpy(con).to(dev, dt), torch.from_numpy(dep).to(dev, dt),
@@ -99,27 +99,31 @@ class _Project(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_m2d, g_con, g_dep, _g_bbox, _g_radii):
         t0 = _now()
-        args, cam_args, near, far = ctx.saved
+        args, cam_args, near, far, eps2d = ctx.saved
         n = args[0].shape[0]
         z = lambda shape: np.zeros(shape, np.float32)  # noqa: E731
         gm = z((n, 2)) if g_m2d is None else _np32(g_m2d)
         gc = z((n, 3)) if g_con is None else _np32(g_con)
         gd = z(n) if g_dep is None else _np32(g_dep)
         bufs = P.backward_buffers(n)
-        fixed = (*args, *cam_args, near, far, EPS2D, gm, gc, gd, *bufs)
+        fixed = (*args, *cam_args, near, far, eps2d, gm, gc, gd, *bufs)
         run_chunks(P.project_backward_range, [(a, b, *fixed) for a, b in _range_chunks(n, GAUSSIANS_PER_CHUNK)])
         d_means, d_quats, d_scales = bufs
         dm, dq, ds = ctx.dtypes
         dev = g_m2d.device if g_m2d is not None else torch.device("cpu")
         _tick("project backward", t0)
         return (torch.from_numpy(d_means).to(dev, dm), torch.from_numpy(d_quats).to(dev, dq),
-                torch.from_numpy(d_scales).to(dev, ds), None, None, None, None)
+                torch.from_numpy(d_scales).to(dev, ds), None, None, None, None, None)
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam: CameraTensors,
-            near: float = 0.01, far: float = 1e10) -> Projected:
+            near: float = 0.01, far: float = 1e10, eps2d: float | Tensor = EPS2D) -> Projected:
     """See :func:`backend.render.projection.project` (same arguments and results)."""
-    m2d, con, dep, bbox, radii = _Project.apply(means, quats, scales, opacities, cam, near, far)
+    if torch.is_tensor(eps2d):
+        filt = _np32(eps2d.reshape(-1).expand(means.shape[0]))
+    else:
+        filt = np.full(means.shape[0], eps2d, np.float32)
+    m2d, con, dep, bbox, radii = _Project.apply(means, quats, scales, opacities, filt, cam, near, far)
     return Projected(m2d, con, dep, opacities, bbox, radii)
 
 

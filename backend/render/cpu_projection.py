@@ -55,8 +55,8 @@ def project_forward_range(start, end, means, quats, scales, opac, Rw, tw, fx, fy
                           eps2d, box_margin, means2d, conics, depths, bbox, radii):
     """Project Gaussians ``start..end-1`` into the output arrays (see :func:`forward_buffers`).
 
-    means (N, 3), quats (N, 4) wxyz, scales (N, 3) activated, opac (N,); Rw (3, 3), tw (3,)
-    world-to-camera. The outputs are exactly :func:`backend.render.projection.project`'s.
+    means (N, 3), quats (N, 4) wxyz, scales (N, 3) activated, opac (N,), eps2d (N,) each Gaussian's
+    low-pass variance in pixels^2; Rw (3, 3), tw (3,) world-to-camera. The outputs are exactly :func:`backend.render.projection.project`'s.
     """
     tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
     lo_u, hi_u = -(cx / fx + 0.3 * tan_x), (width - cx) / fx + 0.3 * tan_x
@@ -87,9 +87,10 @@ def project_forward_range(start, end, means, quats, scales, opac, Rw, tw, fx, fy
         pc2 = _matvec(Rw, r[2] * s2, r[5] * s2, r[8] * s2)
         t00, t01, t02 = j00 * pc0[0] + j02 * pc0[2], j00 * pc1[0] + j02 * pc1[2], j00 * pc2[0] + j02 * pc2[2]
         t10, t11, t12 = j11 * pc0[1] + j12 * pc0[2], j11 * pc1[1] + j12 * pc1[2], j11 * pc2[1] + j12 * pc2[2]
-        a = t00 * t00 + t01 * t01 + t02 * t02 + eps2d
+        e2 = np.float64(eps2d[i])
+        a = t00 * t00 + t01 * t01 + t02 * t02 + e2
         b = t00 * t10 + t01 * t11 + t02 * t12
-        c = t10 * t10 + t11 * t11 + t12 * t12 + eps2d
+        c = t10 * t10 + t11 * t11 + t12 * t12 + e2
         det = max(a * c - b * b, 1e-12)
         conics[i, 0] = c / det
         conics[i, 1] = -b / det
@@ -153,9 +154,10 @@ def project_backward_range(start, end, means, quats, scales, Rw, tw, fx, fy, cx,
         pc2 = _matvec(Rw, r[2] * s2, r[5] * s2, r[8] * s2)
         t00, t01, t02 = j00 * pc0[0] + j02 * pc0[2], j00 * pc1[0] + j02 * pc1[2], j00 * pc2[0] + j02 * pc2[2]
         t10, t11, t12 = j11 * pc0[1] + j12 * pc0[2], j11 * pc1[1] + j12 * pc1[2], j11 * pc2[1] + j12 * pc2[2]
-        a = t00 * t00 + t01 * t01 + t02 * t02 + eps2d
+        e2 = np.float64(eps2d[i])
+        a = t00 * t00 + t01 * t01 + t02 * t02 + e2
         b = t00 * t10 + t01 * t11 + t02 * t12
-        c = t10 * t10 + t11 * t11 + t12 * t12 + eps2d
+        c = t10 * t10 + t11 * t11 + t12 * t12 + e2
         det_raw = a * c - b * b
         det = max(det_raw, 1e-12)
 

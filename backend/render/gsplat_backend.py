@@ -31,14 +31,21 @@ def _require_gsplat():
     return gsplat
 
 
-def render_splats(splats, camera: Camera, background, near: float, far: float, return_ids: bool):
-    """Render one :class:`backend.render.api.Splats` with gsplat. Returns a RenderOutput."""
+def render_splats(splats, camera: Camera, background, near: float, far: float, return_ids: bool,
+                  eps2d=0.3):
+    """Render one :class:`backend.render.api.Splats` with gsplat. Returns a RenderOutput.
+
+    eps2d: the low-pass variance of every Gaussian (gsplat takes one per call); a (N,) tensor of
+    different values is refused (``auto`` renders those with the reference backend instead)."""
     from backend.render.api import RenderOutput, _background  # noqa: PLC0415 (api imports this module lazily)
 
     gsplat = _require_gsplat()
     means = splats.means
     if means.device.type != "cuda":
         raise IGSError(f"backend 'gsplat' needs the Gaussians on a CUDA device, they are on {means.device}")
+    if torch.is_tensor(eps2d):
+        raise IGSError("backend 'gsplat' takes one screen-space low-pass per render; these Gaussians carry "
+                       "several (an edit's sharp Gaussians): use backend 'auto' or 'reference'")
     dtype = torch.float32
     scales = torch.exp(splats.scales) if splats.log_scales else splats.scales
     viewmats = torch.as_tensor(camera.world_to_cam, device=means.device, dtype=dtype)[None]
@@ -47,7 +54,7 @@ def render_splats(splats, camera: Camera, background, near: float, far: float, r
     render_colors, render_alphas, meta = gsplat.rasterization(
         means.to(dtype), splats.quats.to(dtype), scales.to(dtype), splats.opacities.to(dtype), colors,
         viewmats, Ks, int(camera.width), int(camera.height), near_plane=near, far_plane=far,
-        eps2d=0.3, sh_degree=splats.sh_degree, packed=False, tile_size=16, backgrounds=None,
+        eps2d=float(eps2d), sh_degree=splats.sh_degree, packed=False, tile_size=16, backgrounds=None,
         render_mode="RGB+ED", rasterize_mode="classic")
     n_ch = colors.shape[-1]
     color = render_colors[0, ..., :n_ch]
@@ -72,5 +79,5 @@ def _reference_ids(splats, camera: Camera, near: float, far: float) -> torch.Ten
 
     plain = type(splats)(splats.means, splats.quats, splats.scales, splats.opacities,
                          splats.colors[..., :1] if splats.sh_degree is None else splats.colors[:, :1, :1],
-                         0 if splats.sh_degree is not None else None, splats.log_scales)
+                         0 if splats.sh_degree is not None else None, splats.log_scales, splats.eps2d)
     return _render_fused([plain], camera, [None], near, far, "reference", True)[0].ids

@@ -95,10 +95,11 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam: CameraTensors,
-            near: float = 0.01, far: float = 1e10, eps2d: float = EPS2D) -> Projected:
+            near: float = 0.01, far: float = 1e10, eps2d: float | Tensor = EPS2D) -> Projected:
     """Project Gaussians (EWA splatting with the 3DGS low-pass dilation).
 
-    means: (N, 3) world; quats: (N, 4) wxyz; scales: (N, 3) activated (not log); opacities: (N,).
+    means: (N, 3) world; quats: (N, 4) wxyz; scales: (N, 3) activated (not log); opacities: (N,);
+    eps2d: the dilation in pixels^2, one value or (N,) per Gaussian.
     Differentiable in every input except through the discrete ``bbox`` / ``radii``.
     """
     W, H = cam.width, cam.height

@@ -16,6 +16,8 @@ Raw parameters live in a :class:`torch.nn.ParameterDict` (as gsplat's trainers k
 - ``opacity_logits``: (N,) logit of the opacity
 - ``colors``: (N, 3) for albedo/shading; ``sh0``: (N, 1, 3) and ``shN``: (N, K-1, 3),
   K = (sh_degree + 1)^2, for SH kinds.
+- optional ``eps2d``: (N,) each Gaussian's screen-space low-pass (pixels^2, not trained). Absent: the
+  renderer's 0.3 for all. An edit bake gives the Gaussians that carry a texture a smaller one.
 
 Every activation is applied here and nowhere else. The in-place helpers (:meth:`prune_`,
 :meth:`append_`, :meth:`replace_`) keep an Adam optimizer's per-parameter state aligned with
@@ -33,6 +35,8 @@ KINDS = ("albedo", "shading", "residual", "radiance")
 SH_KINDS = ("residual", "radiance")
 C0 = 0.28209479177387814  # SH band-0 constant: rgb = C0 * f_dc + 0.5
 GEOMETRY = ("means", "quats", "log_scales", "opacity_logits")
+FILTER = "eps2d"
+EPS2D_DEFAULT = 0.3  # the renderer's default low-pass (backend.render.projection.EPS2D)
 
 
 def sh_coeffs(degree: int) -> int:
@@ -70,13 +74,16 @@ class GaussianSet(nn.Module):
             raise ValueError(f"GaussianSet({kind}): missing tensors {missing}")
         n = tensors["means"].shape[0]
         shapes = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
-                  "colors": (n, 3), "sh0": (n, 1, 3), "shN": (n, sh_coeffs(sh_degree) - 1, 3)}
+                  "colors": (n, 3), "sh0": (n, 1, 3), "shN": (n, sh_coeffs(sh_degree) - 1, 3), FILTER: (n,)}
+        if FILTER in tensors:
+            names = names + (FILTER,)
         for name in names:
             if tuple(tensors[name].shape) != shapes[name]:
                 raise ValueError(f"GaussianSet({kind}): {name} has shape {tuple(tensors[name].shape)}, "
                                  f"expected {shapes[name]}")
         self.params = nn.ParameterDict({
-            name: nn.Parameter(tensors[name].detach().to(torch.float32).clone().contiguous())
+            name: nn.Parameter(tensors[name].detach().to(torch.float32).clone().contiguous(),
+                               requires_grad=name != FILTER)
             for name in names
         })
 
@@ -123,8 +130,22 @@ class GaussianSet(nn.Module):
         if len(kinds) != 1:
             raise ValueError(f"cannot concatenate Gaussian sets of different kinds/degrees: {sorted(kinds)}")
         first = sets[0]
-        return GaussianSet(first.kind, {k: torch.cat([s.params[k].detach() for s in sets]) for k in first.params},
+        if any(FILTER in s.params for s in sets):  # sets without per-Gaussian filters have the default
+            sets = [s if FILTER in s.params else s.with_filter(EPS2D_DEFAULT) for s in sets]
+        return GaussianSet(first.kind, {k: torch.cat([s.params[k].detach() for s in sets]) for k in sets[0].params},
                            first.sh_degree, max(s.active_sh_degree for s in sets))
+
+    def with_filter(self, value: float) -> GaussianSet:
+        """A detached copy that carries per-Gaussian low-pass values, ``value`` where it had none."""
+        t = self.tensors()
+        if FILTER not in t:
+            t[FILTER] = torch.full((len(self),), float(value), device=self.device)
+        return GaussianSet(self.kind, t, self.sh_degree, self.active_sh_degree)
+
+    @property
+    def eps2d(self) -> torch.Tensor | None:
+        """(N,) per-Gaussian screen-space low-pass in pixels^2, or None (the renderer's default)."""
+        return self.params[FILTER] if FILTER in self.params else None
 
     # --- activations --------------------------------------------------------------------------
 
@@ -185,6 +206,7 @@ class GaussianSet(nn.Module):
             "opacities": self.opacities,
             "colors": self.colors,
             "sh_degree": self.active_sh_degree if self.kind in SH_KINDS else None,
+            "eps2d": self.eps2d.detach() if FILTER in self.params else None,
         }
 
     def scene_bounds(self) -> tuple[torch.Tensor, torch.Tensor]:

@@ -17,6 +17,10 @@ Colour encodings (recorded as ``comment igs_color <encoding>``, the kind as ``co
 A PLY without the igs comments (written by another 3DGS tool) reads as a ``radiance`` layer
 with the SH degree given by its number of ``f_rest`` properties. ``comment igs_space <space>``
 records whether colours are ``linear`` or ``srgb``.
+
+A set with per-Gaussian screen-space low-pass values (an edit's sharp Gaussians) appends one more
+float property, ``eps2d`` (pixels^2); viewers that do not know it ignore it and draw those Gaussians
+with their own (usually 3DGS's 0.3), a little softer.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from plyfile import PlyData, PlyElement
 
 from backend.errors import IGSError
 from backend.io_utils import atomic_path
-from backend.splats.gaussians import C0, KINDS, SH_KINDS, GaussianSet, sh_coeffs
+from backend.splats.gaussians import C0, FILTER, KINDS, SH_KINDS, GaussianSet, sh_coeffs
 
 ENCODINGS = {"albedo": "rgb01", "shading": "rgb", "residual": "sh", "radiance": "sh"}
 SPACES = ("linear", "srgb")
@@ -71,8 +75,11 @@ def write_ply(path: str | Path, gaussians: GaussianSet, space: str = "linear") -
         f_dc = (c - 0.5) / C0
         f_rest = torch.zeros(n, 0)
     cols = [t["means"], torch.zeros(n, 3), f_dc, f_rest, t["opacity_logits"][:, None], t["log_scales"], t["quats"]]
-    data = torch.cat(cols, dim=1).numpy()
     names = _names(f_rest.shape[1])
+    if FILTER in t:
+        cols.append(t[FILTER][:, None])
+        names.append(FILTER)
+    data = torch.cat(cols, dim=1).numpy()
     rec = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         rec[name] = data[:, i]
@@ -152,6 +159,10 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
         "scales": col(["scale_0", "scale_1", "scale_2"]),
         "rot": col(["rot_0", "rot_1", "rot_2", "rot_3"]),
     }
+    if FILTER in present:
+        arrays[FILTER] = col([FILTER])[:, 0]
+        if (arrays[FILTER] < 0).any():
+            raise IGSError(f"{path}: negative '{FILTER}' (screen-space low-pass) values")
     for name, arr in arrays.items():
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -168,6 +179,8 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
     tensors = {"means": torch.from_numpy(arrays["means"]), "quats": torch.from_numpy(arrays["rot"]),
                "log_scales": torch.from_numpy(arrays["scales"]),
                "opacity_logits": torch.from_numpy(arrays["opacity"])}
+    if FILTER in arrays:
+        tensors[FILTER] = torch.from_numpy(arrays[FILTER])
     if kind in SH_KINDS:
         tensors["sh0"] = f_dc[:, None, :]
         tensors["shN"] = torch.from_numpy(arrays["f_rest"]).reshape(n, 3, -1).transpose(1, 2).contiguous()

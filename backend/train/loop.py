@@ -192,7 +192,8 @@ class Stage:
         (floater removal renders depth statistics this way)."""
         g = self.gaussians
         return render(g.means.detach(), g.params["quats"].detach(), g.params["log_scales"].detach(),
-                      g.opacities.detach(), colors, camera, log_scales=True, backend=self.config.backend)
+                      g.opacities.detach(), colors, camera, log_scales=True, backend=self.config.backend,
+                      eps2d=g.eps2d)
 
 
 @dataclass
@@ -219,7 +220,8 @@ def make_optimizer(gaussians: GaussianSet, config: TrainConfig, scene_extent: fl
              "opacity_logits": lr.opacity, "colors": lr.colors, "sh0": lr.colors,
              "shN": lr.colors * lr.sh_rest_factor}
     # extra per-Gaussian colour parameters (e.g. the single-set baseline's albedo and shading) learn as colours
-    groups = [{"params": [p], "name": name, "lr": rates.get(name, lr.colors)} for name, p in gaussians.params.items()]
+    groups = [{"params": [p], "name": name, "lr": rates.get(name, lr.colors)} for name, p in gaussians.params.items()
+              if p.requires_grad]  # not the fixed per-Gaussian low-pass
     # fused: one kernel per parameter instead of ~10 elementwise passes (over 10x faster on CPU)
     return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
