@@ -282,3 +282,24 @@ def test_bad_low_pass_is_named(eps, msg):
     s = random_splats(10, seed=1, special=False)
     with pytest.raises(Exception, match=msg):
         render(s.means, s.quats, s.scales, s.opacities, s.colors, make_camera(), backend="cpu", eps2d=eps)
+
+
+def test_auto_on_gsplat_hands_one_low_pass_to_gsplat_and_mixed_ones_to_the_reference(monkeypatch):
+    import backend.render.api as api
+    from backend.render import gsplat_backend
+
+    s = random_splats(40, seed=3, special=False)
+    cam = make_camera()
+    sent = []
+    monkeypatch.setattr(api, "resolve_backend", lambda backend, device: "gsplat")
+    monkeypatch.setattr(gsplat_backend, "render_splats",
+                        lambda splats, camera, bg, near, far, ids, eps2d: sent.append(eps2d) or "gsplat")
+    uniform = Splats(s.means, s.quats, s.scales, s.opacities, s.colors, eps2d=torch.full((40,), 0.1))
+    assert render_layers([uniform], cam) == ["gsplat"] and sent == [pytest.approx(0.1)]
+    mixed = Splats(s.means, s.quats, s.scales, s.opacities, s.colors,
+                   eps2d=torch.where(torch.arange(40) < 20, 0.1, 0.3))
+    out = render_layers([mixed], cam)[0]  # not gsplat: one value per call is all it takes
+    monkeypatch.undo()
+    ref = render(s.means, s.quats, s.scales, s.opacities, s.colors, cam, backend="reference", eps2d=mixed.eps2d)
+    torch.testing.assert_close(out.color, ref.color)
+    assert len(sent) == 1
