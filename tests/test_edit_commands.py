@@ -247,3 +247,32 @@ def test_render_and_layer_evaluation_hold_torch_at_one_thread(ws, tmp_path, monk
     finally:
         torch.set_num_threads(saved)
     assert seen == [1, 1, 1, 1] and "full" in ev["layers"]
+
+
+def test_edit_scales_scores_a_baked_albedo_at_several_distances(ws, tmp_path, capsys):
+    """The edit_scales benchmark on a ground truth made from the box's own albedo: the box itself scores
+    high at 1x, a recoloured box low, and bad inputs are named."""
+    from backend.capture.imageio import write_image, write_linear_as_srgb
+    from backend.capture.workspace import load_capture
+    from backend.eval import edit_scales
+
+    face = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
+                       color=[0.5, 0.5, 0.5], name="face")
+    box, _ = read_ply(ws / "layers" / "albedo.ply", kind="albedo")
+    folder = ws / "gt_edit" / "face"
+    for f in load_capture(ws).frames:
+        cam = f.camera
+        write_image(folder / "mask" / f.name, np.repeat(rasterize_proxy(face, cam).mask[..., None], 3, -1).astype(np.float32))
+        write_linear_as_srgb(folder / "albedo" / f.name, render_albedo(box, cam, "auto").color.clamp(0, 1).numpy())
+    other = box.clone()
+    other.params["colors"].data[:] = torch.logit(torch.tensor(0.2))
+    write_ply(tmp_path / "other.ply", other)
+    out = tmp_path / "scales.json"
+    assert edit_scales.main([str(ws), "face", str(ws / "layers" / "albedo.ply"), str(tmp_path / "other.ply"),
+                             "--downscales", "1,2", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())["results"]
+    same, diff = res[str(ws / "layers" / "albedo.ply")], res[str(tmp_path / "other.ply")]
+    assert same["1/1"] > 40.0 and same["1/2"] > diff["1/2"] + 5.0 and diff["1/1"] < 20.0, res
+    assert edit_scales.main([str(ws), "nope", str(tmp_path / "other.ply")]) == 2
+    assert "gt_edit/nope" in capsys.readouterr().err
+    assert edit_scales.main([str(ws), "face", str(tmp_path / "other.ply"), "--downscales", "0"]) == 2

@@ -1,0 +1,84 @@
+"""Baked edits seen from further away: ``python -m backend.eval.edit_scales <ws> <edit> ALBEDO.ply...``.
+
+A smaller screen-space low-pass makes an edit's Gaussians sharper but could make them alias when the
+camera moves away and they shrink below a pixel. For each baked albedo PLY this renders the held-out
+views of a synthetic capture at 1x, 1/2 and 1/4 of their resolution (the same camera with a shorter
+focal length in pixels, as a camera further away sees the edit) and compares them, inside the edit's
+mask, with the Cycles edited albedo (``gt_edit/<edit>/albedo``) area-downsampled to that size.
+PSNR is over the sRGB-encoded albedo, all views' pixels together. Writes ``--out`` (JSON).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from backend.capture.imageio import linear_to_srgb, read_image, srgb_to_linear
+from backend.capture.workspace import load_capture, split_frames
+from backend.edit.bake import render_albedo
+from backend.errors import IGSError
+from backend.io_utils import write_json
+from backend.splats.ply import read_ply
+from backend.train.views import view_camera
+
+
+def region_psnr(ws: Path, edit: str, ply: Path, downscales: list[int], backend: str = "auto") -> dict[str, float]:
+    """{"1/d": PSNR in the edit region} of one baked albedo at each downscale d."""
+    folder = ws / "gt_edit" / edit
+    if not (folder / "mask").is_dir():
+        raise IGSError(f"{folder / 'mask'}: not found (a synthetic capture with gt_edit/{edit} is needed)")
+    capture = load_capture(ws)
+    _, test = split_frames(capture.frames)
+    g, _ = read_ply(ply, kind="albedo")
+    out = {}
+    for d in downscales:
+        se, n = 0.0, 0
+        for f in test:
+            m = read_image(folder / "mask" / f.name)[..., 0].astype(np.float32)
+            if not (m > 0.5).any():
+                continue
+            gt = srgb_to_linear(read_image(folder / "albedo" / f.name)).astype(np.float32)
+            cam = view_camera(f.camera, d)
+            if d > 1:
+                gt = cv2.resize(gt, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+                m = cv2.resize(m, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+            mask = m > 0.5
+            a = render_albedo(g, cam, backend).color.clamp(0, 1).cpu().numpy()
+            e = linear_to_srgb(a) - linear_to_srgb(np.clip(gt, 0.0, 1.0))
+            se += float((e[mask] ** 2).sum())
+            n += int(mask.sum()) * 3
+        if n == 0:
+            raise IGSError(f"edit '{edit}' is not seen in any held-out view")
+        out[f"1/{d}"] = float(10 * np.log10(n / max(se, 1e-20)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m backend.eval.edit_scales", description=__doc__.split("\n\n")[0])
+    ap.add_argument("workspace")
+    ap.add_argument("edit", help="gt_edit edit name (e.g. wall_decal)")
+    ap.add_argument("plys", nargs="+", help="baked albedo PLYs (e.g. <ws>/edits/NAME/albedo.ply)")
+    ap.add_argument("--downscales", default="1,2,4", help="comma list of image size divisors (default 1,2,4)")
+    ap.add_argument("--backend", default="auto")
+    ap.add_argument("--out", default="edit_scales.json", help="JSON output (default edit_scales.json)")
+    args = ap.parse_args(argv)
+    try:
+        downs = [int(x) for x in args.downscales.split(",") if x]
+        if not downs or min(downs) < 1:
+            raise IGSError(f"--downscales must be integers >= 1, got {args.downscales!r}")
+        results = {p: region_psnr(Path(args.workspace), args.edit, Path(p), downs, args.backend) for p in args.plys}
+    except (IGSError, ValueError) as e:
+        print(f"edit_scales: error: {e}", file=sys.stderr)
+        return 2
+    for p, r in results.items():
+        print(p + ": " + "  ".join(f"{k} {v:.2f} dB" for k, v in r.items()))
+    write_json(Path(args.out), {"edit": args.edit, "results": results})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
