@@ -55,7 +55,8 @@ from backend.edit.views import (
 from backend.errors import IGSError
 from backend.io_utils import write_json
 from backend.render import RenderOutput, render
-from backend.splats.gaussians import EPS2D_DEFAULT, FILTER, GaussianSet
+from backend.render.projection import EPS2D
+from backend.splats.gaussians import FILTER, GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyConfig, DensifyStrategy, scene_extent
 from backend.train.device import describe, resolve_device
@@ -491,8 +492,8 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     # 3. New Gaussians on the proxy.
     pts = spawn_points_on_proxy(cam, pr_edit, cfg.spawn_fraction, cfg.seed, mask & pr_edit.mask)
     flat = flattened_gaussians(pts, cam, cfg.spawn_fraction)
-    sharp = FILTER in original.params or cfg.edit_filter != EPS2D_DEFAULT
-    g = original.with_filter(EPS2D_DEFAULT) if sharp else original.clone()
+    sharp = FILTER in original.params or cfg.edit_filter != EPS2D
+    g = original.with_filter(EPS2D) if sharp else original.clone()
     n_old = len(g)
     painted = removed = 0
     if cfg.surface == "paint":

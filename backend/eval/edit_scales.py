@@ -26,35 +26,36 @@ from backend.splats.ply import read_ply
 from backend.train.views import view_camera
 
 
-def region_psnr(ws: Path, edit: str, ply: Path, downscales: list[int], backend: str = "auto") -> dict[str, float]:
-    """{"1/d": PSNR in the edit region} of one baked albedo at each downscale d."""
+def region_psnr(ws: Path, edit: str, plys: list[Path], downscales: list[int], backend: str = "auto"
+                ) -> dict[str, dict[str, float]]:
+    """{ply: {"1/d": PSNR in the edit region}} of baked albedos at each downscale d."""
     folder = ws / "gt_edit" / edit
     if not (folder / "mask").is_dir():
         raise IGSError(f"{folder / 'mask'}: not found (a synthetic capture with gt_edit/{edit} is needed)")
-    capture = load_capture(ws)
-    _, test = split_frames(capture.frames)
-    g, _ = read_ply(ply, kind="albedo")
-    out = {}
-    for d in downscales:
-        se, n = 0.0, 0
-        for f in test:
-            m = read_image(folder / "mask" / f.name)[..., 0].astype(np.float32)
-            if not (m > 0.5).any():
-                continue
-            gt = srgb_to_linear(read_image(folder / "albedo" / f.name)).astype(np.float32)
+    _, test = split_frames(load_capture(ws).frames)
+    sets = {str(p): read_ply(p, kind="albedo")[0] for p in plys}
+    se = {(p, d): 0.0 for p in sets for d in downscales}
+    n = dict.fromkeys(downscales, 0)
+    for f in test:
+        mask_full = read_image(folder / "mask" / f.name)[..., 0].astype(np.float32)
+        if not (mask_full > 0.5).any():
+            continue
+        gt_full = srgb_to_linear(read_image(folder / "albedo" / f.name)).astype(np.float32)
+        for d in downscales:
             cam = view_camera(f.camera, d)
+            gt, m = gt_full, mask_full
             if d > 1:
                 gt = cv2.resize(gt, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
                 m = cv2.resize(m, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
             mask = m > 0.5
-            a = render_albedo(g, cam, backend).color.clamp(0, 1).cpu().numpy()
-            e = linear_to_srgb(a) - linear_to_srgb(np.clip(gt, 0.0, 1.0))
-            se += float((e[mask] ** 2).sum())
-            n += int(mask.sum()) * 3
-        if n == 0:
-            raise IGSError(f"edit '{edit}' is not seen in any held-out view")
-        out[f"1/{d}"] = float(10 * np.log10(n / max(se, 1e-20)))
-    return out
+            target = linear_to_srgb(np.clip(gt, 0.0, 1.0))[mask]
+            for p, g in sets.items():
+                a = render_albedo(g, cam, backend).color.clamp(0, 1).cpu().numpy()
+                se[p, d] += float(((linear_to_srgb(a)[mask] - target) ** 2).sum())
+            n[d] += int(mask.sum()) * 3
+    if not all(n.values()):
+        raise IGSError(f"edit '{edit}' is not seen in any held-out view")
+    return {p: {f"1/{d}": float(10 * np.log10(n[d] / max(se[p, d], 1e-20))) for d in downscales} for p in sets}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         downs = [int(x) for x in args.downscales.split(",") if x]
         if not downs or min(downs) < 1:
             raise IGSError(f"--downscales must be integers >= 1, got {args.downscales!r}")
-        results = {p: region_psnr(Path(args.workspace), args.edit, Path(p), downs, args.backend) for p in args.plys}
+        results = region_psnr(Path(args.workspace), args.edit, [Path(p) for p in args.plys], downs, args.backend)
     except (IGSError, ValueError) as e:
         print(f"edit_scales: error: {e}", file=sys.stderr)
         return 2

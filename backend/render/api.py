@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import torch
@@ -167,13 +167,13 @@ def _filter(s: Splats, i: int) -> Tensor | float:
     e = s.eps2d
     if e is None:
         return EPS2D
+    if torch.is_tensor(e) and e.numel() == 1:
+        e = e.reshape(-1)[0].item()
     if not torch.is_tensor(e):
         e = float(e)
         if not e >= 0.0:
             raise IGSError(f"layer {i}: eps2d must be >= 0, got {e}")
         return e
-    if e.dim() == 0 or e.numel() == 1:
-        return _filter(replace(s, eps2d=float(e.reshape(-1)[0])), i)
     if tuple(e.shape) != (len(s),):
         raise IGSError(f"layer {i}: eps2d must be a scalar or ({len(s)},) to match means, got {tuple(e.shape)}")
     e = e.detach()
@@ -206,7 +206,7 @@ def _render_fused(layers: Sequence[Splats], camera: Camera, backgrounds, near: f
     cat = (lambda ts: ts[0]) if len(layers) == 1 else (lambda ts: torch.cat(ts))  # noqa: E731
     means = cat([s.means.to(dtype) for s in layers])
     filters = [_filter(s, i) for i, s in enumerate(layers)] if filters is None else filters
-    if len({f for f in filters if isinstance(f, float)}) == 1 and all(isinstance(f, float) for f in filters):
+    if all(isinstance(f, float) for f in filters) and len(set(filters)) == 1:
         eps2d: Tensor | float = filters[0]
     else:
         eps2d = cat([f.to(device, dtype) if torch.is_tensor(f) else torch.full((n,), f, device=device, dtype=dtype)

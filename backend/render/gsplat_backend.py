@@ -17,6 +17,7 @@ import torch
 
 from backend.capture.cameras import Camera
 from backend.errors import IGSError
+from backend.render.projection import EPS2D
 
 
 def _require_gsplat():
@@ -32,7 +33,7 @@ def _require_gsplat():
 
 
 def render_splats(splats, camera: Camera, background, near: float, far: float, return_ids: bool,
-                  eps2d=0.3):
+                  eps2d: float | torch.Tensor = EPS2D):
     """Render one :class:`backend.render.api.Splats` with gsplat. Returns a RenderOutput.
 
     eps2d: the low-pass variance of every Gaussian (gsplat takes one per call); a (N,) tensor of

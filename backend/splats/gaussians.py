@@ -31,12 +31,13 @@ from collections.abc import Iterable, Mapping
 import torch
 from torch import nn
 
+from backend.render.projection import EPS2D
+
 KINDS = ("albedo", "shading", "residual", "radiance")
 SH_KINDS = ("residual", "radiance")
 C0 = 0.28209479177387814  # SH band-0 constant: rgb = C0 * f_dc + 0.5
 GEOMETRY = ("means", "quats", "log_scales", "opacity_logits")
 FILTER = "eps2d"
-EPS2D_DEFAULT = 0.3  # the renderer's default low-pass (backend.render.projection.EPS2D)
 
 
 def sh_coeffs(degree: int) -> int:
@@ -131,7 +132,7 @@ class GaussianSet(nn.Module):
             raise ValueError(f"cannot concatenate Gaussian sets of different kinds/degrees: {sorted(kinds)}")
         first = sets[0]
         if any(FILTER in s.params for s in sets):  # sets without per-Gaussian filters have the default
-            sets = [s if FILTER in s.params else s.with_filter(EPS2D_DEFAULT) for s in sets]
+            sets = [s if FILTER in s.params else s.with_filter(EPS2D) for s in sets]
         return GaussianSet(first.kind, {k: torch.cat([s.params[k].detach() for s in sets]) for k in sets[0].params},
                            first.sh_degree, max(s.active_sh_degree for s in sets))
 
