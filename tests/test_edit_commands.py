@@ -276,3 +276,63 @@ def test_edit_scales_scores_a_baked_albedo_at_several_distances(ws, tmp_path, ca
     assert edit_scales.main([str(ws), "nope", str(tmp_path / "other.ply")]) == 2
     assert "gt_edit/nope" in capsys.readouterr().err
     assert edit_scales.main([str(ws), "face", str(tmp_path / "other.ply"), "--downscales", "0"]) == 2
+
+
+def _box_depth(cam) -> np.ndarray:
+    """(H, W) exact camera-z depth of the box's five faces (|x|, |y| = 1, z = -1; no top), 0 = none."""
+    jj, ii = np.mgrid[0:cam.height, 0:cam.width]
+    rays = np.stack([(ii + 0.5 - cam.cx) / cam.fx, (jj + 0.5 - cam.cy) / cam.fy, np.ones(ii.shape)], -1)
+    world = rays @ cam.R  # camera z = 1 along each ray
+    best = np.full(ii.shape, np.inf)
+    for axis, side in ((0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0), (2, -1.0)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (side - cam.center[axis]) / world[..., axis]
+        hit = cam.center + t[..., None] * world
+        inside = (np.abs(np.delete(hit, axis, axis=-1)) <= 1.0).all(-1) & (t > 0)
+        best = np.where(inside & (t < best), t, best)
+    return np.where(np.isfinite(best), best, 0.0)
+
+
+def test_fits_grow_on_the_depth_priors_of_the_training_views(ws, tmp_path, capsys):
+    import shutil
+
+    from backend.capture.imageio import write_depth
+    from backend.capture.workspace import load_capture
+    from backend.edit.surface_points import depth_prior_points, grow_points
+    from backend.errors import IGSError
+
+    copy = tmp_path / "exact"
+    shutil.copytree(ws, copy)
+    capture = load_capture(copy)
+    for f in capture.frames:
+        write_depth(f.depth, _box_depth(f.camera))
+    sp = depth_prior_points(capture)
+    assert sp.views == 10  # 12 views, 0 and 8 held out
+    p = sp.points
+    off_face = np.minimum(np.abs(np.abs(p[:, :2]) - 1.0).min(axis=1), np.abs(p[:, 2] + 1.0))
+    assert len(p) > 3000 and off_face.max() < 1e-4
+    pts, what = grow_points(capture, "auto", np.zeros((5, 3)))
+    assert len(pts) == len(p) and what.startswith("depth priors (10 training views")
+    assert grow_points(capture, "centres", np.zeros((5, 3)))[1] == "albedo centres (5)"
+    with pytest.raises(IGSError, match="--grow-on must be"):
+        grow_points(capture, "normals", np.zeros((5, 3)))
+    # fit-plane grows on them by default and says so; the face comes out exact
+    _, rect = face_rect(copy, EDIT_VIEW)
+    args = ["edit", "fit-plane", str(copy), "--view", EDIT_VIEW, "--rect", *map(str, rect), "--name", "face",
+            "--no-sweep"]
+    assert main(args) == 0
+    meta = json.loads((copy / "edits" / "face" / "edit.json").read_text())
+    assert meta["grown_on"].startswith("depth priors (10 training views") and meta["grown_points"] > 500
+    assert abs(meta["plane"]["center"][0] - 1.0) < 1e-3 and abs(abs(meta["plane"]["normal"][0]) - 1) < 1e-5
+    assert main(args + ["--grow-on", "centres"]) == 0
+    meta = json.loads((copy / "edits" / "face" / "edit.json").read_text())
+    assert meta["grown_on"].startswith("albedo centres")
+    # a training view without its depth map: auto grows on the centres, --grow-on depth names the view
+    (copy / "depth" / "frame_0003.npy").unlink()
+    capture = load_capture(copy)
+    assert grow_points(capture, "auto", np.zeros((5, 3)))[1].startswith("albedo centres")
+    with pytest.raises(IGSError, match="frame_0003.png.*no depth prior"):
+        grow_points(capture, "depth", np.zeros((5, 3)))
+    capsys.readouterr()
+    assert main(args + ["--grow-on", "depth"]) == 2
+    assert "frame_0003.png" in capsys.readouterr().err

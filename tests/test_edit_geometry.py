@@ -741,15 +741,18 @@ def test_fit_plane_from_rect_rejects_small_selections_and_edge_on_views():
         fit_plane_from_rect(side, ids_side, centres, [0, 0, 80, 60])
 
 
-def test_fit_cylinder_from_rect_unwraps_around_the_axis():
-    cam = Camera.look_at("edit", [0.3, -2.5, 0.8], [0.0, 0.0, 0.6], [0, 0, 1], 80, 60, 55)
-    radius, p0, axis = 0.4, np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+def column_view(cam, radius=0.4, squash=0.0, seed=4):
+    """(ids (H, W) of ``cam``, centres (N, 3)) for a column of ``radius`` about the z axis, seen by ``cam``:
+    a grid of centres (noise 2 mm) plus 300 floaters, 20 % of the pixels picking a floater.
+    ``squash`` pulls the centres in by ``squash * sin(a)^2``, ``a`` the angle around the axis from the
+    camera's side: the flanks sit inside the surface, as in a field that saw them at a slant."""
     na, nh = 180, 60
     ang = np.radians(np.arange(na) * 360.0 / na)
     hh = np.arange(nh) * 0.025
     A, Hh = np.meshgrid(ang, hh, indexing="ij")
-    rng = np.random.default_rng(4)
-    r = radius + rng.normal(0, 0.002, A.size)
+    rng = np.random.default_rng(seed)
+    view = np.arctan2(cam.center[1], cam.center[0])
+    r = radius - squash * np.sin(A.ravel() - view) ** 2 + rng.normal(0, 0.002, A.size)
     grid = np.stack([r * np.cos(A.ravel()), r * np.sin(A.ravel()), Hh.ravel()], 1)
     floaters = rng.uniform([-0.6, -0.9, 0.0], [0.6, -0.4, 1.5], (300, 3))
     centres = np.concatenate([grid, floaters])
@@ -767,6 +770,13 @@ def test_fit_cylinder_from_rect_unwraps_around_the_axis():
     ids = np.where((disc > 0) & (hi >= 0) & (hi < nh), ai * nh + np.clip(hi, 0, nh - 1), -1)
     noisy = (rng.random(ids.shape) < 0.2) & (ids >= 0)
     ids[noisy] = len(grid) + rng.integers(0, 300, noisy.sum())
+    return ids, centres
+
+
+def test_fit_cylinder_from_rect_unwraps_around_the_axis():
+    cam = Camera.look_at("edit", [0.3, -2.5, 0.8], [0.0, 0.0, 0.6], [0, 0, 1], 80, 60, 55)
+    radius, p0, axis = 0.4, np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    ids, centres = column_view(cam, radius)
     rect = [32, 12, 48, 48]
     res = fit_cylinder_from_rect(cam, ids, centres, rect, config=FitConfig(threshold=0.01))
     assert angle_deg(res.fit.axis, axis) < 2.0
@@ -781,6 +791,28 @@ def test_fit_cylinder_from_rect_unwraps_around_the_axis():
     col = uv[:, uv.shape[1] // 2, 1][covered[:, uv.shape[1] // 2]]
     assert (np.diff(row) > 0).all() and (np.diff(col) < 0).all()  # u to the right, v upwards
     assert res.proxy.primitive["type"] == "cylinder" and "mirror_u" not in res.proxy.primitive
+
+
+def test_cylinder_fit_grows_on_measured_surface_points_when_the_centres_are_squashed():
+    """Centres 4 cm inside the surface at the flanks bias the grown fit; depth-map points of the true
+    surface (half a turn, with a wall behind) passed as ``surface_points`` bring it back."""
+    cam = Camera.look_at("edit", [0.3, -2.5, 0.8], [0.0, 0.0, 0.6], [0, 0, 1], 80, 60, 55)
+    ids, centres = column_view(cam, 0.4, squash=0.04)
+    rect, cfg = [32, 12, 48, 48], FitConfig(threshold=0.01)
+    on_centres = fit_cylinder_from_rect(cam, ids, centres, rect, config=cfg)
+    assert abs(on_centres.fit.radius - 0.4) > 0.01
+    rng = np.random.default_rng(7)
+    a = rng.uniform(-np.pi, 0.0, 20_000)  # the half facing the cameras (y < 0)
+    r = 0.4 + rng.normal(0, 0.001, a.shape)
+    surface = np.stack([r * np.cos(a), r * np.sin(a), rng.uniform(0.0, 1.5, a.shape)], 1)
+    wall = np.stack([rng.uniform(-1, 1, 5000), np.full(5000, 0.9), rng.uniform(0, 1.5, 5000)], 1)
+    grown = fit_cylinder_from_rect(cam, ids, centres, rect, config=cfg,
+                                   surface_points=np.concatenate([surface, wall]))
+    assert abs(grown.fit.radius - 0.4) < 0.002
+    assert np.linalg.norm(grown.fit.point[:2]) < 0.003 and angle_deg(grown.fit.axis, [0, 0, 1]) < 0.5
+    assert grown.grown_points > 10_000
+    with pytest.raises(ValueError, match="surface points"):
+        fit_cylinder_from_rect(cam, ids, centres, rect, config=cfg, surface_points=np.zeros((10, 2)))
 
 
 def test_cylinder_proxy_uvs_and_winding():

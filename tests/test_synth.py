@@ -315,8 +315,12 @@ def test_resume_after_cancel_and_refuse_other_settings(tmp_path, monkeypatch):
     assert summary["rendered_views"] == 1 and summary["skipped_views"] == 1
     assert (ws / "capture.json").exists() and len(_names(ws)) == 2
 
+    # what later stages add to capture.json (the decomposition's layers) survives a resumed render
+    meta = json.loads((ws / "capture.json").read_text())
+    (ws / "capture.json").write_text(json.dumps(meta | {"layers": {"three-set": {"note": "kept"}}}))
     (ws / "gt" / "shading" / "frame_0001.exr").unlink()
     assert synthesize(ws, preset="test", views=2)["rendered_views"] == 1
+    assert json.loads((ws / "capture.json").read_text())["layers"] == {"three-set": {"note": "kept"}}
 
     with pytest.raises(IGSError, match="samples=16"):
         synthesize(ws, preset="test", views=2, samples=4)

@@ -60,7 +60,8 @@ from backend.io_utils import atomic_path, write_json
 
 SETTINGS_FILE = "gt/synth_settings.json"
 POINTS_DIR = "gt/synth_points"
-HOLD_EVERY = 8  # views with index % 8 == 0 are held out (as in load_capture's split); edit views avoid them
+HOLD_EVERY = 8
+SYNTH_KEYS = ("schema", "source", "frames", "size", "priors", "gt", "edits", "render_seconds", "cpu_seconds", "threads")  # views with index % 8 == 0 are held out (as in load_capture's split); edit views avoid them
 
 
 @dataclass(frozen=True)
@@ -291,7 +292,9 @@ def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Ca
                         scene: synth_scene.SynthScene, summary: dict[str, Any]) -> None:
     import bpy
 
-    ws.write_capture_json({
+    # Keys written by later stages (the decomposition's "layers") survive a resumed synth.
+    kept = {k: v for k, v in ws.read_capture_json().items() if k not in SYNTH_KEYS} if ws.capture_json.exists() else {}
+    ws.write_capture_json(kept | {
         "source": {"kind": "synthetic", "preset": settings.preset, "seed": settings.seed,
                    "blender": bpy.app.version_string, "settings": settings.as_dict()},
         "frames": [c.name for c in cameras],

@@ -38,6 +38,7 @@ from backend.edit.bake import (
 )
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, load_proxy, plane_proxy, save_proxy
+from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.texture import textured_from_view
 from backend.errors import IGSError
@@ -137,7 +138,12 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
                     grow=getattr(args, "grow", True))
     color = parse_color(args.color) if args.color else (0.5, 0.5, 0.5)
     fit_fn = fit_plane_from_rect if kind == "plane" else fit_cylinder_from_rect
-    fit = fit_fn(cam, out.ids, albedo.means.detach(), args.rect, config=cfg, name=args.name, color=color)
+    centres = albedo.means.detach()
+    if cfg.grow:
+        fit, grown_on = fit_grown(fit_fn, capture, getattr(args, "grow_on", "auto"), centres.numpy(),
+                                  cam, out.ids, centres, args.rect, config=cfg, name=args.name, color=color)
+    else:
+        fit, grown_on = fit_fn(cam, out.ids, centres, args.rect, config=cfg, name=args.name, color=color), "not grown"
     proxy = fit.proxy
     sweep = None
     if getattr(args, "sweep", True):
@@ -155,6 +161,7 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
             "selected_gaussians": len(fit.gaussian_ids), "inliers": int(np.sum(fit.fit.inliers)),
             "extent_source": fit.extent_source, "albedo": str(source), "proxy": str(path)}
     meta["grown_points"] = fit.grown_points
+    meta["grown_on"] = grown_on
     if sweep is not None:
         meta["offset_sweep"] = {"offset": sweep.offset, "accepted": sweep.accepted, "reason": sweep.reason}
     if fit.ransac_fit is not None:
@@ -165,7 +172,7 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
             meta["rectangle_fit_tilt_deg"] = float(np.degrees(np.arccos(min(1.0, cos))))
     write_json(path.parent / EDIT_JSON, meta)
     events.output("proxy", path)
-    grown = f", refined on {fit.grown_points} centres on the surface" if fit.grown_points else ""
+    grown = f", refined on {fit.grown_points} points of the {grown_on.split(' (')[0]}" if fit.grown_points else ""
     events.log(f"fit-{kind}: {len(fit.gaussian_ids)} Gaussians selected, {meta['inliers']} inliers{grown}; "
                f"wrote {path}")
     print(json.dumps(meta, indent=2))
@@ -240,11 +247,15 @@ def _add_fit(sub, kind: str) -> None:
                    help="RANSAC inlier distance in world units (default: 2%% of the selection's robust size)")
     p.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
                    help=f"fewest distinct Gaussians the rectangle must select (default {FitConfig.min_selected})")
-    where = ("all the albedo centres lying on the cylinder (the rest of the column seen from other views)"
-             if kind == "cylinder" else "the albedo centres lying on the plane around the rectangle (the "
+    where = ("all the surface points (--grow-on) lying on the cylinder (the rest of the column seen from other views)"
+             if kind == "cylinder" else "the surface points (--grow-on) lying on the plane around the rectangle (the "
              "rectangle widened by half its size on every side)")
     p.add_argument("--no-grow", dest="grow", action="store_false",
                    help=f"keep the rectangle's RANSAC fit; by default it is refined by least squares on {where}")
+    p.add_argument("--grow-on", default="auto", choices=GROW_ON,
+                   help="what the fit grows on: 'depth' = the training views' depth priors back-projected "
+                   "(measured surface points), 'centres' = the albedo Gaussians' centres, 'auto' (default) = "
+                   "depth when every training view has a depth prior")
     how = "moved along its normal to" if kind == "plane" else "resized about its fitted axis to"
     p.add_argument("--no-sweep", dest="sweep", action="store_false",
                    help=f"keep the {kind} at its fitted centres; by default it is {how} where the edit view's "

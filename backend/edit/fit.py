@@ -104,6 +104,14 @@ def _np(x) -> np.ndarray:
     return np.asarray(x)
 
 
+def _candidates(centres, surface_points) -> np.ndarray:
+    """(P, 3) float64 points a fit grows on: ``surface_points`` when given, else the centres."""
+    pts = _np(centres if surface_points is None else surface_points).astype(np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"surface points must be (P, 3), got {pts.shape}")
+    return pts
+
+
 def select_centres(camera: Camera, ids, centres, rect, min_selected: int = MIN_SELECTED
                    ) -> tuple[PixelRect, np.ndarray, np.ndarray]:
     """(rect, distinct ids (M,), centres (M, 3)) of the max-contributors inside ``rect``.
@@ -150,12 +158,14 @@ def _view_oriented_plane(camera: Camera, fit: PlaneFit) -> tuple[np.ndarray, np.
 
 
 def fit_plane_from_rect(camera: Camera, ids, centres, rect, *, config: FitConfig = FitConfig(), name: str = "plane",
-                        color=DEFAULT_COLOR, texture: np.ndarray | None = None) -> ProxyFit:
+                        color=DEFAULT_COLOR, texture: np.ndarray | None = None,
+                        surface_points: np.ndarray | None = None) -> ProxyFit:
     """RANSAC plane over the max-contributor centres of ``rect``; a plane proxy covering the rectangle.
 
     ``ids``: (H, W) max-contributor ids of the edit view; ``centres``: (N, 3). ``texture`` (linear
-    (Ht, Wt, 3)) replaces the flat ``color``. Raises IGSError for a bad rectangle, too few
-    Gaussians, no plane, or a plane seen edge-on.
+    (Ht, Wt, 3)) replaces the flat ``color``. ``surface_points`` (P, 3), optional, are what the fit
+    grows on instead of the centres (:mod:`backend.edit.surface_points`). Raises IGSError for a bad
+    rectangle, too few Gaussians, no plane, or a plane seen edge-on.
     """
     pr, sel, pts = select_centres(camera, ids, centres, rect, config.min_selected)
     fit = fit_plane_ransac(pts, config.threshold, config.iterations, config.seed,
@@ -163,7 +173,7 @@ def fit_plane_from_rect(camera: Camera, ids, centres, rect, *, config: FitConfig
     ransac_fit, grown = None, 0
     if config.grow:
         ransac_fit = fit
-        fit, grown = _grown_plane(camera, pr, fit, pts, _np(centres).astype(np.float64), config)
+        fit, grown = _grown_plane(camera, pr, fit, pts, _candidates(centres, surface_points), config)
         if not grown:
             ransac_fit = None
     n, u, v = _view_oriented_plane(camera, fit)
@@ -224,10 +234,12 @@ def _ray_cylinder_front_hits(origin: np.ndarray, dirs: np.ndarray, point: np.nda
 
 
 def fit_cylinder_from_rect(camera: Camera, ids, centres, rect, *, normals=None, config: FitConfig = FitConfig(),
-                           name: str = "cylinder", color=DEFAULT_COLOR, texture: np.ndarray | None = None) -> ProxyFit:
+                           name: str = "cylinder", color=DEFAULT_COLOR, texture: np.ndarray | None = None,
+                           surface_points: np.ndarray | None = None) -> ProxyFit:
     """RANSAC cylinder over the max-contributor centres of ``rect``; a UV-unwrapped cylinder patch proxy.
 
     ``normals`` (N, 3), optional, per Gaussian (e.g. shortest axes); estimated by local PCA otherwise.
+    ``surface_points`` (P, 3), optional, are what the fit grows on instead of the centres.
     """
     pr, sel, pts = select_centres(camera, ids, centres, rect, config.min_selected)
     nrm = None if normals is None else _np(normals).astype(np.float64)[sel]
@@ -236,7 +248,7 @@ def fit_cylinder_from_rect(camera: Camera, ids, centres, rect, *, normals=None, 
     ransac_fit, grown = None, 0
     if config.grow:
         ransac_fit = fit
-        fit, grown = _grown_fit(fit, pts, _np(centres).astype(np.float64), config)
+        fit, grown = _grown_fit(fit, pts, _candidates(centres, surface_points), config)
         if not grown:
             ransac_fit = None
     axis = fit.axis if np.dot(fit.axis, -camera.R[1]) >= 0 else -fit.axis  # up in the image
@@ -273,7 +285,12 @@ def _grown_fit(fit: CylinderFit, pts: np.ndarray, centres: np.ndarray, config: F
     The grown cylinder must still carry the rectangle's points (at least ``min_inlier_ratio`` of them
     within twice the threshold): growing must not wander onto a neighbouring surface.
     """
-    point, axis, radius, used = grow_cylinder(centres, fit)
+    # Only points near the rectangle's cylinder can join (millions when they come from depth maps).
+    h = (centres - fit.point) @ fit.axis
+    r = abs(fit.radius)
+    near = ((np.abs(cylinder_residuals(centres, fit.point, fit.axis, fit.radius)) < r)
+            & (h > fit.height_range[0] - r) & (h < fit.height_range[1] + r))
+    point, axis, radius, used = grow_cylinder(centres[near], fit)
     res = np.abs(cylinder_residuals(pts, point, axis, radius))
     if used < int(fit.inliers.sum()) or not np.isfinite(radius) or (res < 2.0 * fit.threshold).mean() < config.min_inlier_ratio:
         return fit, 0

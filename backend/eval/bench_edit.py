@@ -43,6 +43,7 @@ from backend.capture.workspace import load_capture, split_frames
 from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load_albedo, render_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
+from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.errors import IGSError
 from backend.io_utils import write_json
@@ -61,11 +62,11 @@ def _look(edit: dict, folder: Path) -> tuple[np.ndarray | None, np.ndarray | Non
     return tex, col
 
 
-def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig):
+def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig, capture=None, grow_on: str = "centres"):
     """``fn`` with the default inlier threshold, and once more with twice the threshold it reports when
     too few centres are inliers (what an artist does after the error message); returns (fit, threshold note)."""
     try:
-        return fn(cam, ids, centres, rect, config=fit_cfg), "default"
+        return _grown(fn, cam, ids, centres, rect, fit_cfg, capture, grow_on), "default"
     except IGSError as e:
         if fit_cfg.threshold is not None or "raise --threshold" not in str(e):
             raise
@@ -73,11 +74,21 @@ def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig):
         if not found:
             raise
         t = 2.0 * float(found.group(1))
-        return fn(cam, ids, centres, rect, config=replace(fit_cfg, threshold=t)), f"{t:.4g} (default failed: {e})"
+        return (_grown(fn, cam, ids, centres, rect, replace(fit_cfg, threshold=t), capture, grow_on),
+                f"{t:.4g} (default failed: {e})")
+
+
+def _grown(fn, cam, ids, centres, rect, fit_cfg: FitConfig, capture, grow_on: str):
+    """(fit, what it grew on): ``fn`` grown as ``igs edit fit-*`` grows it (``--grow-on``; no capture:
+    the centres)."""
+    if capture is None or not fit_cfg.grow:
+        fit = fn(cam, ids, centres, rect, config=fit_cfg)
+        return fit, ("albedo centres" if fit.grown_points else "not grown")
+    return fit_grown(fn, capture, grow_on, np.asarray(centres), cam, ids, centres, rect, config=fit_cfg)
 
 
 def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plane: bool = False,
-                 fit_cfg: FitConfig = FitConfig(), capture=None) -> tuple[ProxyMesh, dict]:
+                 fit_cfg: FitConfig = FitConfig(), capture=None, grow_on: str = "auto") -> tuple[ProxyMesh, dict]:
     """The fitted surface with the decal placed as in the ground truth (module docstring). A plane is
     or cylinder is placed by ``igs edit fit-plane/fit-cylinder``'s offset sweep over ``capture``'s views
     (none without a capture)."""
@@ -86,7 +97,8 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
     tex, col = _look(edit, folder)
     ids, centres = out.ids, albedo.means.detach()
     if surf["type"] == "plane" or force_plane:
-        fit, threshold = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
+        (fit, grown_on), threshold = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg, capture,
+                                          grow_on)
         plane, sweep = (sweep_fitted(capture, albedo, fit.proxy, cam, backend) if capture is not None
                         else (fit.proxy, None))
         m = plane.matrix_world
@@ -108,7 +120,7 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
         v = _unit(gv - np.dot(gv, n) * n - np.dot(gv, u) * u)
         proxy = plane_proxy(center, n, u, v, size, name=edit["name"], texture=tex, color=col)
         info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers)),
-                "threshold": threshold, "grown_points": fit.grown_points,
+                "threshold": threshold, "grown_points": fit.grown_points, "grown_on": grown_on,
                 "offset_sweep": None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted,
                                                             "reason": sweep.reason}}
         if surf["type"] == "plane":
@@ -116,7 +128,8 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
             info["normal_error_deg"] = float(np.degrees(np.arccos(min(1.0, cosang))))
             info["offset_error"] = float(abs(np.dot(gc - c0, n)))
         return proxy, info
-    fit, threshold = _fit(fit_cylinder_from_rect, cam, ids, centres, edit["rect"], fit_cfg)
+    (fit, grown_on), threshold = _fit(fit_cylinder_from_rect, cam, ids, centres, edit["rect"], fit_cfg, capture,
+                                      grow_on)
     f = fit.fit
     sweep = sweep_fitted(capture, albedo, fit.proxy, cam, backend)[1] if capture is not None else None
     radius = f.radius + (sweep.offset if sweep is not None else 0.0)
@@ -141,6 +154,7 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
     info = {"fit": "cylinder", "radius": float(radius), "radius_gt": surf["radius"], "fitted_radius": float(f.radius),
             "axis_error_deg": float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(f.axis, axis_gt))))))),
             "inliers": int(np.sum(f.inliers)), "threshold": threshold, "grown_points": fit.grown_points,
+            "grown_on": grown_on,
             "offset_sweep": None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted,
                                                         "reason": sweep.reason}}
     q = np.asarray(surf["base_center"], np.float64) - f.point
@@ -220,8 +234,8 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
     return acc.psnr()
 
 
-def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: FitConfig = FitConfig()
-        ) -> dict[str, Any]:
+def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: FitConfig = FitConfig(),
+        grow_on: str = "auto") -> dict[str, Any]:
     capture = load_capture(ws_root)
     original, _ = load_albedo(capture.workspace, None)
     results: dict[str, Any] = {}
@@ -232,9 +246,11 @@ def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: 
         edit = json.loads((folder / "edit.json").read_text())
         cam = capture.frame(edit["edit_view"]).camera
         t0 = time.perf_counter()
-        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg, capture=capture)}
+        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg, capture=capture,
+                                          grow_on=grow_on)}
         if edit["surface"]["type"] == "cylinder":
-            proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture)
+            proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture,
+                                                   grow_on)
             proxies["true_cylinder"] = true_cylinder(edit, folder)
         variants, bakes = {}, {}
         for pname, (proxy, _) in proxies.items():
@@ -279,6 +295,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="JSON output (default <ws>/bench_edit.json)")
     ap.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
                     help="fewest Gaussians the rectangle must select (lower it for tiny test captures)")
+    ap.add_argument("--grow-on", default="auto", choices=GROW_ON,
+                    help="what the fits grow on: the capture's depth priors, the albedo centres, or auto (depth "
+                    "priors when every training view has one; default)")
     args = ap.parse_args(argv)
     ws_root = Path(args.workspace)
     cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
@@ -286,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
                      backend=args.backend)
     try:
         results = run(ws_root, [e for e in args.edits.split(",") if e], cfg, args.margin,
-                      FitConfig(min_selected=args.min_selected))
+                      FitConfig(min_selected=args.min_selected), args.grow_on)
     except IGSError as e:
         print(f"bench_edit: error: {e}", file=sys.stderr)
         return 2
