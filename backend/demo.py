@@ -21,6 +21,8 @@ DEMO_EDIT = "wall_decal"
 # Per-stage iteration budget (albedo N, shading N, residual N/2) per preset: sized so the whole
 # demo runs in minutes on a 2-core CPU.
 ITERATIONS = {"test": 300, "demo": 2000, "paper": 7000}
+# Bake re-optimisation steps per preset: the test preset's tiny field needs fewer than the default.
+BAKE_ITERATIONS = {"test": 1000, "demo": 2000, "paper": 2000}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> dict:
     timed("bake the decal into the albedo field",
           lambda: _step(["edit", "bake", str(ws), "--plane", str(plane["file"]),
                          "--texture", str(edit_json.parent / edit["texture"]), "--view", edit["edit_view"],
-                         "--name", DEMO_EDIT]))
+                         "--iterations", str(BAKE_ITERATIONS[args.preset]), "--name", DEMO_EDIT]))
     turntable = ws / "renders" / f"{DEMO_EDIT}-turntable"
     center, radius, height = turntable_orbit(load_capture(ws))
     # "--center=x,y,z" in one word: a centre starting with "-" would read as an option

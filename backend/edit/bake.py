@@ -74,15 +74,15 @@ class BakeConfig:
 
     view: str | None = None
     """Edit view name; None: the one recorded by the fit (``edit.json``), else the view seeing the proxy best."""
-    views: int = 8
+    views: int = 16
     """Virtual views on the cap around the edit view (0: single-view bake, the edit view only)."""
     max_angle: float = 30.0
     """Half-angle of the cap of virtual views, degrees."""
     spawn_fraction: float = 0.2
     """New albedo Gaussians at this fraction of the edit view's edit pixels."""
-    iterations: int = 1000
+    iterations: int = 2000
     """Re-optimisation steps of G_A (one view per step)."""
-    capture_views: int = 8
+    capture_views: int = 16
     """Training views of the capture that see the edit, composited like the virtual views (0: none).
     They add the capture's own viewpoints, which the cap around the edit view may not reach."""
     anchor_views: int = 8

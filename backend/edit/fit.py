@@ -67,10 +67,11 @@ class FitConfig:
     segments: int = 64
     """Cylinder: quads per full turn."""
     grow: bool = True
-    """Refine the rectangle's fit on the field's other centres lying on the surface: for a cylinder all
-    of them (:func:`backend.edit.ransac.grow_cylinder`; a narrow arc alone gives a poorly conditioned
-    radius), for a plane those seen near the rectangle (:func:`backend.edit.ransac.grow_plane`; a small
-    patch of fuzzy centres gives a tilted normal)."""
+    """Refine the rectangle's fit on the other surface points lying on the surface (the field's centres,
+    or the ``surface_points`` given, e.g. the capture's depth priors): for a cylinder all of them
+    (:func:`backend.edit.ransac.grow_cylinder`; a narrow arc alone gives a poorly conditioned radius),
+    for a plane those seen near the rectangle (:func:`backend.edit.ransac.grow_plane`; a small patch of
+    fuzzy centres gives a tilted normal)."""
     grow_margin: float = 0.5
     """Plane growth: candidates are the centres seen in the edit view within the rectangle widened by
     this fraction of its width and height on every side."""
