@@ -336,3 +336,33 @@ def test_fits_grow_on_the_depth_priors_of_the_training_views(ws, tmp_path, capsy
     capsys.readouterr()
     assert main(args + ["--grow-on", "depth"]) == 2
     assert "frame_0003.png" in capsys.readouterr().err
+
+
+def test_bake_stage_skips_frozen_gaussians_outside_each_window_without_changing_the_render(ws):
+    from backend.capture.workspace import load_capture
+    from backend.edit.bake import BakeStage
+    from backend.train.loop import TrainConfig
+    from backend.train.views import View
+
+    g, _ = read_ply(ws / "layers" / "albedo.ply", kind="albedo")
+    cam = load_capture(ws).frame(EDIT_VIEW).camera
+    window = cam.cropped(20, 12, 44, 36)  # a window on the +x face
+    trained_rows = torch.zeros(len(g), dtype=torch.bool)
+    trained_rows[::7] = True
+    view = View(-1, window, torch.zeros(window.height, window.width, 3))
+
+    def stage():
+        return BakeStage("t", g.index(trained_rows).clone(), [view], [], TrainConfig(iterations=1), 1.0,
+                         frozen=g.index(~trained_rows))
+
+    full, culled = stage(), stage()
+    culled.prepare()
+    seen = culled.seen[view.index]
+    assert 0 < len(seen) < int((~trained_rows).sum())  # the box's far side misses the window
+    a, b = full.render(view), culled.render(view)
+    assert torch.allclose(a.color, b.color, atol=1e-6) and torch.allclose(a.alpha, b.alpha, atol=1e-6)
+    assert torch.equal(a.radii, b.radii)  # the trained rows' outputs, as the densification reads them
+    a.color.sum().backward()
+    b.color.sum().backward()
+    for k in full.gaussians.params:
+        assert torch.allclose(full.gaussians.params[k].grad, culled.gaussians.params[k].grad, atol=1e-5), k

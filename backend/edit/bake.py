@@ -345,20 +345,38 @@ class BakeStage(Stage):
 
     def __init__(self, *args, frozen: GaussianSet, **kw):
         super().__init__(*args, **kw)
-        self.frozen = {k: v.detach() for k, v in frozen.render_args().items() if isinstance(v, torch.Tensor)}
+        self.frozen_args = {k: v.detach() if isinstance(v, torch.Tensor) else v for k, v in frozen.render_args().items()}
         self.n_frozen = len(frozen)
+        self.seen: dict[int, torch.Tensor] = {}
+        """Per view (by index): the frozen Gaussians whose footprint reaches its window (prepare())."""
 
     def to(self, device: torch.device | str) -> BakeStage:
         super().to(device)
-        self.frozen = {k: v.to(self.device) for k, v in self.frozen.items()}
+        self.frozen_args = {k: v.to(self.device) if isinstance(v, torch.Tensor) else v
+                            for k, v in self.frozen_args.items()}
+        self.seen = {k: v.to(self.device) for k, v in self.seen.items()}
         return self
 
+    def prepare(self) -> None:
+        # The frozen Gaussians never move, so the ones whose footprint misses a view's window (radius
+        # 0) can never touch its pixels, whatever the trained ones do: each step projects only the
+        # rest (the windows are small, so most of the frozen set is skipped).
+        for v in self.train_views:
+            if v.index not in self.seen:
+                with torch.no_grad():
+                    out = render(**self.frozen_args, camera=v.camera, backend=self.config.backend)
+                self.seen[v.index] = torch.nonzero(out.radii > 0).squeeze(1)
+
     def render(self, view: View) -> RenderOutput:
+        seen = self.seen.get(view.index)
+        frozen = {k: (v if seen is None else v[seen]) if isinstance(v, torch.Tensor) else v
+                  for k, v in self.frozen_args.items()}
+        n = len(frozen["means"])
         args = self.gaussians.render_args()
-        joint = {k: torch.cat([self.frozen[k], v]) if isinstance(v, torch.Tensor) else v for k, v in args.items()}
+        joint = {k: torch.cat([frozen[k], v]) if isinstance(v, torch.Tensor) else v for k, v in args.items()}
         out = render(**joint, camera=view.camera, backend=self.config.backend)
-        return _TrainedPart(out.color, out.depth, out.alpha, None, out.means2d, out.radii[self.n_frozen:],
-                            out._means2d_node, start=self.n_frozen)
+        return _TrainedPart(out.color, out.depth, out.alpha, None, out.means2d, out.radii[n:],
+                            out._means2d_node, start=n)
 
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         target = view.image
