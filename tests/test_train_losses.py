@@ -82,3 +82,13 @@ def test_closed_form_ssim_gradient_matches_autograd_and_finite_differences():
     torch.testing.assert_close(g_fast, g_ref, rtol=1e-9, atol=1e-12)
     assert torch.autograd.gradcheck(lambda t: ssim(t, b), (a,))
     torch.testing.assert_close(ssim(a, b), ssim_map(a, b).mean())
+
+
+def test_blur_is_the_zero_padded_gaussian_window_at_every_pixel_borders_included():
+    from backend.train.losses import _blur, _gauss_1d
+
+    x = torch.rand(4, 13, 17, dtype=torch.float64)
+    g = _gauss_1d(11, 1.5).double()
+    window = (g[:, None] * g[None, :]).view(1, 1, 11, 11)
+    ref = torch.nn.functional.conv2d(x[:, None], window, padding=5)[:, 0]
+    torch.testing.assert_close(_blur(x, 11, 1.5), ref)
