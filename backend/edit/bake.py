@@ -346,7 +346,6 @@ class BakeStage(Stage):
     def __init__(self, *args, frozen: GaussianSet, **kw):
         super().__init__(*args, **kw)
         self.frozen_args = {k: v.detach() if isinstance(v, torch.Tensor) else v for k, v in frozen.render_args().items()}
-        self.n_frozen = len(frozen)
         self.seen: dict[int, torch.Tensor] = {}
         """Per view (by index): the frozen Gaussians whose footprint reaches its window (prepare())."""
 
