@@ -20,7 +20,7 @@ from backend.train.intrinsic import inverse_photometric
 from backend.train.loop import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
-ARGS = ["--albedo-iterations", "50", "--shading-iterations", "24", "--residual-iterations", "16",
+ARGS = ["--albedo-iterations", "50", "--shading-iterations", "24", "--residual-iterations", "48",
         "--checkpoint-every", "8", "--max-gaussians", "3000", "--residual-points", "300", "--backend", "cpu"]
 
 
@@ -60,7 +60,7 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     m = json.loads((ws / "metrics.json").read_text())["decompose"]
     st = m["stages"]
     assert st["albedo"]["resumed_from"] == 0 and st["shading"]["resumed_from"] == killed_at
-    assert [st[s]["iterations"] for s in ("albedo", "shading", "residual")] == [50, 24, 16]
+    assert [st[s]["iterations"] for s in ("albedo", "shading", "residual")] == [50, 24, 48]
 
     # each stage learned: held-out albedo vs its first iteration, held-out A*S vs the initial shading
     assert st["albedo"]["held_out"]["psnr"] > st["albedo"]["held_out_initial"]["psnr"] + 3.0
@@ -123,6 +123,17 @@ def test_single_set_baseline_writes_its_own_layers(capture, tmp_path):
     assert len({len(g) for g in sets}) == 1 == len({g.means.detach().sum().item() for g in sets})
     assert torch.equal(sets[0].means, sets[2].means) and m["gaussians"]["total"] == len(sets[0])
     assert (ws / "report_single_set.png").exists() and not (ws / "layers" / "albedo.ply").exists()
+    # the sequential schedule writes beside the joint one, which it leaves as it was
+    joint_bytes = (ws / "layers" / "single_set" / "albedo.ply").read_bytes()
+    assert main(["decompose", str(ws), "--single-set", "--single-set-schedule", "sequential", *short]) == 0
+    metrics = json.loads((ws / "metrics.json").read_text())
+    seq = metrics["decompose_single_set_sequential"]
+    assert seq["mode"] == "single-set-sequential" and seq["stages"]["single_set_sequential"]["schedule"] == "sequential"
+    assert metrics["decompose_single_set"]["layers"] == m["layers"]
+    assert (ws / "layers" / "single_set" / "albedo.ply").read_bytes() == joint_bytes
+    assert (ws / "layers" / "single_set_sequential" / "albedo.ply").exists()
+    assert (ws / "report_single_set_sequential.png").exists()
+    assert main(["decompose", str(ws), "--single-set-schedule", "sequential", *short]) == 2
 
 
 def test_decompose_input_errors_name_the_problem(capture, tmp_path, capsys):

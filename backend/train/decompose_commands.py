@@ -35,6 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the baseline the paper argues against: one set of Gaussians carrying albedo, shading "
                         "and residual colours, same losses and iterations (writes <ws>/layers/single_set/ and "
                         "the key 'decompose_single_set')")
+    p.add_argument("--single-set-schedule", choices=("joint", "sequential"), default=None,
+                   help="with --single-set: 'joint' (default) keeps the albedo loss on in every phase; "
+                        "'sequential' runs each loss as long as the three sets do and freezes the albedo colours "
+                        "after the albedo phase (writes layers/single_set_sequential/ and "
+                        "'decompose_single_set_sequential')")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--resume", dest="resume", action="store_true", default=True,
                        help="continue from checkpoints and skip finished stages (default)")
@@ -92,8 +97,11 @@ def run_decompose(args: argparse.Namespace) -> dict:
 
         if args.stage:
             raise IGSError("--stage does not apply to --single-set (one set is trained in one run)")
-        summary = decompose_single_set(args.workspace, cfg, resume=args.resume)
+        summary = decompose_single_set(args.workspace, cfg, resume=args.resume,
+                                       schedule=args.single_set_schedule or "joint")
     else:
+        if args.single_set_schedule is not None:
+            raise IGSError("--single-set-schedule applies only with --single-set")
         summary = decompose(args.workspace, cfg, stages=args.stage or STAGES, resume=args.resume)
     short = {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips")} for k, v in summary["layers"].items()}
     print(json.dumps({"mode": summary["mode"], "layers": short, "gaussians": summary["gaussians"],

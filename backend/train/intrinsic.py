@@ -96,8 +96,10 @@ class DecomposeConfig:
     """Shading stage."""
     residual: TrainConfig = field(default_factory=_residual_train)
     """Residual stage."""
-    lambda_gray: float = 0.1
-    """Weight of the gray regulariser max(c) - min(c) on shading colours (paper eq. 6)."""
+    lambda_gray: float = 0.03
+    """Weight of the gray regulariser max(c) - min(c) on shading colours (paper eq. 6; the paper
+    gives no value). 0.03 rather than 0.1: on the demo capture the full image gains ~0.06-0.1 dB and
+    A*S ~0.5 dB for ~0.17 dB of shading PSNR (bench_decompose --gray-weight, README)."""
     residual_sh_degree: int = 3
     """Highest SH degree of the residual (bands switched on progressively)."""
     spawn: SpawnConfig = field(default_factory=SpawnConfig)

@@ -9,9 +9,15 @@ budget (N_A + N_S + N_R iterations, in three phases that add the losses in the s
 densification and floater removal, and a Gaussian budget equal to the three fields' together
 (albedo and shading caps + the residual's spawned count).
 
-Phases (``stage.iteration`` from the loop): [0, N_A) albedo loss only; [N_A, N_A + N_S) + the
-diffuse model A * S; [N_A + N_S, end) + the full model A * S + R. The albedo loss stays on
-throughout: without it the shared geometry would drift away from the albedo.
+Phases (``stage.iteration`` from the loop): [0, N_A) albedo loss only; [N_A, N_A + N_S) the
+diffuse model A * S; [N_A + N_S, end) the full model A * S + R. Two schedules:
+
+- ``joint`` (the default): the albedo loss stays on in every phase, so the shared geometry is held
+  to the albedo maps throughout. The strongest single set, but it is supervised by the albedo maps
+  for N_A + N_S + N_R iterations where the three-set albedo field sees them for N_A.
+- ``sequential``: each loss runs exactly as long as in the three sets. After phase 0 the albedo loss
+  is off and the albedo colours are frozen (the three sets freeze G_A), but the geometry they ride
+  on keeps moving with the shading and residual losses, which is the paper's argument against one set.
 
 All three colours are rendered in one pass as a 9-channel feature (the residual's SH evaluated per
 Gaussian first). Outputs: ``<ws>/layers/single_set/{albedo,shading,residual}.ply`` (same geometry),
@@ -56,6 +62,14 @@ from backend.train.views import View
 
 NAME = "single_set"
 METRICS_KEY = "decompose_single_set"
+SCHEDULES = ("joint", "sequential")
+
+
+def run_name(schedule: str) -> str:
+    """Folder, checkpoint and stage name of a schedule's run (``joint`` keeps the plain name)."""
+    if schedule not in SCHEDULES:
+        raise IGSError(f"single-set schedule must be one of {', '.join(SCHEDULES)}, got {schedule!r}")
+    return NAME if schedule == "joint" else f"{NAME}_{schedule}"
 
 
 class LayeredGaussians(GaussianSet):
@@ -96,10 +110,12 @@ class LayeredGaussians(GaussianSet):
         """(N, 3) raw shading."""
         return self.params["shading_colors"] * self.shading_gain
 
-    def features(self, cam_center: torch.Tensor) -> torch.Tensor:
-        """(N, 9): albedo | shading | residual RGB seen from ``cam_center`` (3,)."""
+    def features(self, cam_center: torch.Tensor, freeze_albedo: bool = False) -> torch.Tensor:
+        """(N, 9): albedo | shading | residual RGB seen from ``cam_center`` (3,). ``freeze_albedo``
+        keeps the albedo logits out of the graph (their grad stays None, so Adam leaves them alone)."""
         residual = sh_to_color(self.active_sh_degree, self.colors, self.means, cam_center)
-        return torch.cat([self.albedo, self.shading, residual], dim=1)
+        albedo = torch.sigmoid(self.params["albedo_logits"].detach()) if freeze_albedo else self.albedo
+        return torch.cat([albedo, self.shading, residual], dim=1)
 
     def layer(self, kind: str) -> GaussianSet:
         """A detached set of one layer kind with this geometry (for PLY files and evaluation)."""
@@ -117,9 +133,11 @@ class LayeredGaussians(GaussianSet):
 class SingleSetStage(Stage):
     """The three losses on one :class:`LayeredGaussians`, added phase by phase (module docstring)."""
 
-    def __init__(self, *args, phases: tuple[int, int], lambda_gray: float, shading_gain: float, **kw):
+    def __init__(self, *args, phases: tuple[int, int], lambda_gray: float, shading_gain: float,
+                 sequential: bool = False, **kw):
         super().__init__(*args, **kw)
         self.phases = phases
+        self.sequential = sequential
         self.lambda_gray = lambda_gray
         self.shading_gain = shading_gain
 
@@ -129,10 +147,14 @@ class SingleSetStage(Stage):
     def phase(self) -> int:
         return 0 if self.iteration < self.phases[0] else 1 if self.iteration < self.phases[1] else 2
 
+    def albedo_frozen(self) -> bool:
+        return self.sequential and self.phase() >= 1
+
     def render(self, view: View) -> RenderOutput:
         g = self.gaussians
         center = torch.as_tensor(view.camera.center, dtype=torch.float32, device=self.device)
-        return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, g.features(center),
+        features = g.features(center, freeze_albedo=self.albedo_frozen())
+        return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, features,
                       view.camera, log_scales=True, backend=self.config.backend)
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
@@ -142,7 +164,9 @@ class SingleSetStage(Stage):
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         cfg, g, phase = self.config, self.gaussians, self.phase()
         c = out.color
-        terms = {"albedo": photometric(c[..., 0:3], view.extras["albedo"], cfg.lambda_dssim)}
+        terms = {}
+        if not self.albedo_frozen():
+            terms["albedo"] = photometric(c[..., 0:3], view.extras["albedo"], cfg.lambda_dssim)
         if phase >= 1:
             model = c[..., 0:3] * c[..., 3:6] + (c[..., 6:9] if phase == 2 else 0.0)
             terms["photo"] = inverse_photometric(model, view.image, cfg.lambda_dssim)
@@ -166,13 +190,17 @@ def single_set_config(cfg: DecomposeConfig) -> TrainConfig:
 
 
 def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None = None, *,
-                         resume: bool = True) -> dict[str, Any]:
-    """Train the single-set baseline on a workspace; returns the summary written to metrics.json."""
+                         resume: bool = True, schedule: str = "joint") -> dict[str, Any]:
+    """Train the single-set baseline on a workspace with a loss ``schedule`` (module docstring);
+    returns the summary written to metrics.json. ``joint`` writes ``layers/single_set/``, the key
+    ``decompose_single_set`` and ``report_single_set.png``; ``sequential`` the same names with
+    ``_sequential`` appended."""
+    name = run_name(schedule)
     cfg = config or DecomposeConfig()
     t_start = time.perf_counter()
     probe = prepare_setup(workspace, cfg)
     ws = probe.capture.workspace
-    setup = replace(probe, layers_dir=ws.layers / NAME)
+    setup = replace(probe, layers_dir=ws.layers / name)
     tcfg = single_set_config(cfg)
     if cfg.albedo.lr.colors <= 0:
         raise IGSError("the colour learning rate must be > 0")
@@ -184,8 +212,8 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
                        "lambda_gray": cfg.lambda_gray, "shading_init": cfg.shading_init, "downscale": cfg.downscale,
                        "hold_every": cfg.hold_every, "sh_degree": cfg.residual_sh_degree, "gain": gain,
                        "init": asdict(cfg.init)})
-    stale = bool(state.get(NAME)) and state.get(NAME).get("extra") != extra
-    state.set(NAME, {"done": False, "extra": extra})
+    stale = bool(state.get(name)) and state.get(name).get("extra") != extra
+    state.set(name, {"done": False, "extra": extra})
 
     t0 = time.perf_counter()
     with_depth = tcfg.lambda_depth > 0
@@ -199,27 +227,31 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
         raise IGSError("single set: albedo and shading initialisations differ in size")
     init = LayeredGaussians.from_layers(albedo0, shading0.colors.detach(), cfg.residual_sh_degree, gain)
     phases = (cfg.albedo.iterations, cfg.albedo.iterations + cfg.shading.iterations)
-    stage = SingleSetStage(NAME, init, train_views, test_views, tcfg, setup.extent,
+    stage = SingleSetStage(name, init, train_views, test_views, tcfg, setup.extent,
                            DensifyStrategy(tcfg.resolved_densify(), setup.extent), color_space="linear",
-                           phases=phases, lambda_gray=cfg.lambda_gray, shading_gain=gain)
-    events.log(f"{NAME}: {len(train_views)} training / {len(test_views)} held-out views, {len(init)} initial "
-               f"Gaussians ({how}); phases albedo {phases[0]}, + diffuse {cfg.shading.iterations}, "
-               f"+ residual {cfg.residual.iterations} iterations")
+                           phases=phases, lambda_gray=cfg.lambda_gray, shading_gain=gain,
+                           sequential=schedule == "sequential")
+    events.log(f"{name}: {len(train_views)} training / {len(test_views)} held-out views, {len(init)} initial "
+               f"Gaussians ({how}); {schedule} schedule: albedo {phases[0]}, diffuse {cfg.shading.iterations}, "
+               f"residual {cfg.residual.iterations} iterations")
     setup_seconds = time.perf_counter() - t0
     initial_n = len(init)  # densification edits the set in place
-    result = train(stage, setup.ckpt_root / f"decompose_{NAME}", resume=resume and not stale, device=setup.device)
+    result = train(stage, setup.ckpt_root / f"decompose_{name}", resume=resume and not stale, device=setup.device)
     g: LayeredGaussians = result.gaussians
     layers = {k: g.layer(k) for k in STAGES}
     for k, layer in layers.items():
         ply = write_ply(setup.layers_dir / f"{k}.ply", layer, space="linear")
         events.output("layer", ply)
-    entry = stage_entry(result, tcfg, setup_seconds, 0.0, how, initial_n, {"phases": list(phases)})
-    state.set(NAME, {"done": True, "extra": extra, "summary": entry})
+    entry = stage_entry(result, tcfg, setup_seconds, 0.0, how, initial_n,
+                        {"phases": list(phases), "schedule": schedule})
+    state.set(name, {"done": True, "extra": extra, "summary": entry})
     # one set: the three layer files hold the same Gaussians
-    summary = finish(setup, cfg, layers, {NAME: entry}, mode="single-set",
-                     report_path=ws.root / "report_single_set.png", metrics_key=METRICS_KEY,
-                     wall=time.perf_counter() - t_start, counts={"single_set": len(g)})
-    record_layers(setup, layers, "single-set")
+    suffix = name[len(NAME):]
+    mode = "single-set" + suffix.replace("_", "-")
+    summary = finish(setup, cfg, layers, {name: entry}, mode=mode,
+                     report_path=ws.root / f"report_{name}.png", metrics_key=METRICS_KEY + suffix,
+                     wall=time.perf_counter() - t_start, counts={name: len(g)})
+    record_layers(setup, layers, mode)
     return summary
 
 
