@@ -38,7 +38,7 @@ from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
 from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
 from backend.train.loop import TrainConfig
-from backend.train.single_set import decompose_single_set
+from backend.train.single_set import SCHEDULES, decompose_single_set
 
 DEFAULT_WS = "demo"
 
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--single-set-fraction", type=float, default=1.0,
                    help="run the single set's phases at this fraction of the iterations (default 1: the same "
                         "budget, which the albedo target is judged at; e.g. 0.3 for about the three sets' time)")
-    p.add_argument("--single-set-schedule", default="joint", choices=("joint", "sequential", "both"),
+    p.add_argument("--single-set-schedule", default="joint", choices=(*SCHEDULES, "both"),
                    help="the single set's loss schedule: joint (default; the albedo loss in every phase, the "
                         "target is judged against it), sequential (each loss as long as in the three sets) or both")
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"))
@@ -251,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = run(args.ws, args.iterations, args.downscale, args.max_gaussians, args.backend, args.residual_points,
                      args.single_set, args.device, args.single_set_fraction, args.gray_weight,
-                     ("joint", "sequential") if args.single_set_schedule == "both" else (args.single_set_schedule,))
+                     SCHEDULES if args.single_set_schedule == "both" else (args.single_set_schedule,))
     except IGSError as e:
         print(f"bench_decompose: error: {e}", file=sys.stderr)
         return 2

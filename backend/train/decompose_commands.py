@@ -10,6 +10,7 @@ from dataclasses import replace
 from backend.errors import IGSError
 from backend.train.device import add_device_argument
 from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
+from backend.train.single_set import SCHEDULES, decompose_single_set
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the baseline the paper argues against: one set of Gaussians carrying albedo, shading "
                         "and residual colours, same losses and iterations (writes <ws>/layers/single_set/ and "
                         "the key 'decompose_single_set')")
-    p.add_argument("--single-set-schedule", choices=("joint", "sequential"), default=None,
+    p.add_argument("--single-set-schedule", choices=SCHEDULES, default=None,
                    help="with --single-set: 'joint' (default) keeps the albedo loss on in every phase; "
                         "'sequential' runs each loss as long as the three sets do and freezes the albedo colours "
                         "after the albedo phase (writes layers/single_set_sequential/ and "
@@ -93,8 +94,6 @@ def config_from_args(args: argparse.Namespace) -> DecomposeConfig:
 def run_decompose(args: argparse.Namespace) -> dict:
     cfg = config_from_args(args)
     if args.single_set:
-        from backend.train.single_set import decompose_single_set
-
         if args.stage:
             raise IGSError("--stage does not apply to --single-set (one set is trained in one run)")
         summary = decompose_single_set(args.workspace, cfg, resume=args.resume,

@@ -61,7 +61,7 @@ from backend.train.losses import gray_reg, photometric, scale_reg
 from backend.train.views import View
 
 NAME = "single_set"
-METRICS_KEY = "decompose_single_set"
+METRICS_KEY = f"decompose_{NAME}"
 SCHEDULES = ("joint", "sequential")
 
 
@@ -114,7 +114,7 @@ class LayeredGaussians(GaussianSet):
         """(N, 9): albedo | shading | residual RGB seen from ``cam_center`` (3,). ``freeze_albedo``
         keeps the albedo logits out of the graph (their grad stays None, so Adam leaves them alone)."""
         residual = sh_to_color(self.active_sh_degree, self.colors, self.means, cam_center)
-        albedo = torch.sigmoid(self.params["albedo_logits"].detach()) if freeze_albedo else self.albedo
+        albedo = self.albedo.detach() if freeze_albedo else self.albedo
         return torch.cat([albedo, self.shading, residual], dim=1)
 
     def layer(self, kind: str) -> GaussianSet:
@@ -246,10 +246,9 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
                         {"phases": list(phases), "schedule": schedule})
     state.set(name, {"done": True, "extra": extra, "summary": entry})
     # one set: the three layer files hold the same Gaussians
-    suffix = name[len(NAME):]
-    mode = "single-set" + suffix.replace("_", "-")
+    mode = name.replace("_", "-")
     summary = finish(setup, cfg, layers, {name: entry}, mode=mode,
-                     report_path=ws.root / f"report_{name}.png", metrics_key=METRICS_KEY + suffix,
+                     report_path=ws.root / f"report_{name}.png", metrics_key=f"decompose_{name}",
                      wall=time.perf_counter() - t_start, counts={name: len(g)})
     record_layers(setup, layers, mode)
     return summary
