@@ -3,9 +3,11 @@ frozen-layer caching, residual spawning, the single set's extra colours through 
 checkpoints, the per-channel alignment, and the contact sheet."""
 
 import numpy as np
+import pytest
 import torch
 
 from backend.capture.cameras import Camera
+from backend.errors import IGSError
 from backend.eval import report
 from backend.eval.layer_metrics import channel_scale
 from backend.splats.init import from_points
@@ -65,6 +67,33 @@ def test_residual_spawns_at_high_error_pixels_at_the_prior_depth():
     assert np.all((uv[:, 0] >= 20) & (uv[:, 0] < 28) & (uv[:, 1] >= 4) & (uv[:, 1] < 10))
     # colour starts at the missing radiance (I - A*S = 0.4), as the SH DC term
     assert torch.allclose(g.base_rgb(), torch.full((30, 3), 0.4), atol=1e-5)
+
+
+def test_shading_starts_on_an_opacity_weighted_subset_of_the_albedo_field_at_the_luminance_ratio():
+    pts, cols, cams = wall_scene(n=200)
+    opac = torch.where(torch.arange(200) < 100, 0.9, 1e-4)  # only the first half is really there
+    albedo = from_points(pts, cols, "albedo")
+    with torch.no_grad():
+        albedo.params["opacity_logits"].copy_(torch.logit(opac))
+        albedo.params["log_scales"].add_(torch.linspace(-0.5, 0.5, 200)[:, None])
+    views = []
+    for i, c in enumerate(cams):
+        v = View(i, c, torch.full((c.height, c.width, 3), 0.6))
+        v.extras["A"] = torch.full((c.height, c.width, 3), 0.3)
+        views.append(v)
+    cfg = DecomposeConfig(shading_from_albedo=0.25)
+    g, how = intrinsic.shading_from_albedo(albedo, views, cfg)
+    assert g.kind == "shading" and len(g) == 50 and "50 of the albedo's 200" in how
+    rows = [int(np.argmin(np.linalg.norm(pts - m, axis=1))) for m in g.means.detach().numpy()]
+    assert max(rows) < 100  # drawn by opacity: the near-transparent half is (almost surely) never taken
+    src = albedo.tensors()
+    assert torch.allclose(g.params["log_scales"].detach(), src["log_scales"][rows])
+    assert torch.allclose(g.opacities.detach(), albedo.opacities.detach()[rows], atol=1e-5)
+    seen = g.means.detach().abs().max(dim=1).values < 0.5  # well inside every view
+    assert torch.allclose(g.colors.detach()[seen], torch.full((int(seen.sum()), 3), 2.0), atol=1e-4)
+    for bad in (0.0, 1.5):
+        with pytest.raises(IGSError, match="shading_from_albedo"):
+            intrinsic.shading_from_albedo(albedo, views, DecomposeConfig(shading_from_albedo=bad))
 
 
 def test_single_set_colours_follow_densification_and_checkpoints(tmp_path):
@@ -144,10 +173,11 @@ def test_bench_targets_without_the_single_set_report_its_target_as_not_measured(
     assert t["albedo_vs_single_set"]["met"] is False and "single-seq" in table({**r, "targets": t})
 
 
-def test_budget_split_gives_the_shading_the_albedo_budget():
-    assert intrinsic.split_iterations(3000) == {"albedo": 3000, "shading": 3000, "residual": 1500}
+def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_quarters():
+    assert intrinsic.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
+    assert intrinsic.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
     cfg = DecomposeConfig()
-    assert cfg.shading.iterations == cfg.albedo.iterations == 2 * cfg.residual.iterations
+    assert {s: cfg.stage(s).iterations for s in intrinsic.STAGES} == intrinsic.split_iterations(cfg.albedo.iterations)
     assert cfg.shading.densify.grad_threshold < cfg.albedo.densify.grad_threshold
 
 
@@ -159,8 +189,8 @@ def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
     half = scaled_iterations(dec, 0.3)
-    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 300, 150]
-    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 1000, 500]
+    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 225, 150]
+    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 750, 500]
     assert scaled_iterations(dec, 1.0) is dec
     # --gray-weight reaches the decomposition config only when given
     from backend.train.intrinsic import DecomposeConfig

@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
     p.add_argument("--iterations", type=int, default=None,
-                   help=f"iterations per stage: albedo N, shading N, residual N/2 (default "
+                   help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
                         f"{d.albedo.iterations}/{d.shading.iterations}/{d.residual.iterations})")
     for s in STAGES:
         p.add_argument(f"--{s}-iterations", type=int, default=None, help=f"iterations of the {s} stage")
@@ -62,6 +62,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"λ_s of the mean-scale term (default {d.albedo.lambda_scale}; 0 = off)")
     p.add_argument("--gray-weight", type=float, default=d.lambda_gray,
                    help=f"weight of the gray regulariser on shading colours (default {d.lambda_gray}; 0 = off)")
+    p.add_argument("--shading-geometry", choices=("albedo", "points"), default=d.shading_geometry,
+                   help="where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's "
+                        "Gaussians, default) or 'points' (the SfM points, as in the paper)")
     p.add_argument("--residual-points", type=int, default=d.spawn.points,
                    help=f"residual Gaussians spawned at high-error pixels (default {d.spawn.points})")
     p.set_defaults(func=run_decompose)
@@ -70,7 +73,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def config_from_args(args: argparse.Namespace) -> DecomposeConfig:
     if args.checkpoint_every < 1:
         raise IGSError(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
-    cfg = DecomposeConfig(downscale=args.downscale, lambda_gray=args.gray_weight, device=args.device)
+    cfg = DecomposeConfig(downscale=args.downscale, lambda_gray=args.gray_weight, device=args.device,
+                          shading_geometry=args.shading_geometry)
     cfg.spawn = replace(cfg.spawn, points=args.residual_points)
     cfg = cfg.set_all(seed=args.seed, backend=args.backend, checkpoint_every=args.checkpoint_every)
     if args.iterations is not None:
