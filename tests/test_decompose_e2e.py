@@ -107,6 +107,15 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     again = json.loads((ws / "metrics.json").read_text())["decompose"]
     assert again["layers"]["full"]["psnr"] == pytest.approx(m["layers"]["full"]["psnr"], abs=1e-4)
     assert time.perf_counter() - t0 < 30
+    # the shading started on the albedo field; from the SfM points instead, shading and residual are
+    # redone (their settings / inputs changed) and the albedo is kept
+    assert st["shading"]["initial_gaussians"] == round(0.4 * m["gaussians"]["albedo"])
+    assert "of the albedo's" in st["shading"]["init"]
+    assert main(["decompose", str(ws), *ARGS, "--shading-geometry", "points"]) == 0
+    assert (ws / "layers" / "albedo.ply").read_bytes() == albedo_bytes
+    pts = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
+    assert pts["shading"]["initial_gaussians"] == len(load_capture(ws).points)
+    assert pts["shading"]["resumed_from"] == 0 and pts["residual"]["resumed_from"] == 0
 
 
 def test_single_set_baseline_writes_its_own_layers(capture, tmp_path):

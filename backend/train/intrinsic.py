@@ -4,8 +4,8 @@ Three separate Gaussian sets composited per pixel as ``I = A * S + R`` in (pseud
 
 1. **albedo** G_A: 3DGS on the albedo maps (inverse gamma, sigmoid colours), loss
    ``(1-λ) L1 + λ D-SSIM + λ_d depth L1 + λ_s mean scale``, densification and floater removal;
-2. **shading** G_S: G_A frozen and rendered *once* per view into a cache; raw RGB colours initialised
-   from the SfM points at the image / albedo luminance ratio; diffuse model ``I = A * S`` with the
+2. **shading** G_S: G_A frozen and rendered *once* per view into a cache; starts on a subset of G_A's
+   Gaussians (or the SfM points), raw RGB gray at the image / albedo luminance ratio; diffuse model ``I = A * S`` with the
    photometric loss on ``1 / (1 + x)`` of both sides, the gray regulariser ``max(c) - min(c)``, depth
    and scale terms;
 3. **residual** G_R: G_A and G_S frozen and cached as ``A * S`` per view; G_R spawned at the pixels
@@ -632,8 +632,7 @@ def _extra(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
     common = {"downscale": cfg.downscale, "hold_every": cfg.hold_every, "init": asdict(cfg.init)}
     if name == "shading":
         return jsonable({**common, "lambda_gray": cfg.lambda_gray, "shading_init": cfg.shading_init,
-                                 "shading_geometry": cfg.shading_geometry,
-                                 "shading_from_albedo": cfg.shading_from_albedo})
+                         "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo})
     if name == "residual":
         return jsonable({**common, "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn)})
     return jsonable(common)
