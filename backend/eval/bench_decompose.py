@@ -36,7 +36,7 @@ from backend.errors import IGSError
 from backend.io_utils import write_json
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
-from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
+from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations
 from backend.train.loop import TrainConfig
 from backend.train.single_set import SCHEDULES, decompose_single_set
 
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gray-weight", type=float, default=None,
                    help=f"weight of the shading gray regulariser (default {DecomposeConfig().lambda_gray}, as igs "
                         "decompose)")
-    p.add_argument("--shading-geometry", default=None, choices=("albedo", "points"),
+    p.add_argument("--shading-geometry", default=None, choices=SHADING_GEOMETRIES,
                    help=f"where the shading Gaussians start (default {DecomposeConfig().shading_geometry}, as igs "
                         "decompose; 'points': the SfM points, as in the paper)")
     p.add_argument("--no-single-set", dest="single_set", action="store_false",

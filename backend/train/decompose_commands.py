@@ -9,7 +9,7 @@ from dataclasses import replace
 
 from backend.errors import IGSError
 from backend.train.device import add_device_argument
-from backend.train.intrinsic import STAGES, DecomposeConfig, decompose, split_iterations
+from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations
 from backend.train.single_set import SCHEDULES, decompose_single_set
 
 
@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"λ_s of the mean-scale term (default {d.albedo.lambda_scale}; 0 = off)")
     p.add_argument("--gray-weight", type=float, default=d.lambda_gray,
                    help=f"weight of the gray regulariser on shading colours (default {d.lambda_gray}; 0 = off)")
-    p.add_argument("--shading-geometry", choices=("albedo", "points"), default=d.shading_geometry,
+    p.add_argument("--shading-geometry", choices=SHADING_GEOMETRIES, default=d.shading_geometry,
                    help="where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's "
                         "Gaussians, default) or 'points' (the SfM points, as in the paper)")
     p.add_argument("--residual-points", type=int, default=d.spawn.points,

@@ -5,8 +5,8 @@ Three separate Gaussian sets composited per pixel as ``I = A * S + R`` in (pseud
 1. **albedo** G_A: 3DGS on the albedo maps (inverse gamma, sigmoid colours), loss
    ``(1-λ) L1 + λ D-SSIM + λ_d depth L1 + λ_s mean scale``, densification and floater removal;
 2. **shading** G_S: G_A frozen and rendered *once* per view into a cache; starts on a subset of G_A's
-   Gaussians (or the SfM points), raw RGB gray at the image / albedo luminance ratio; diffuse model ``I = A * S`` with the
-   photometric loss on ``1 / (1 + x)`` of both sides, the gray regulariser ``max(c) - min(c)``, depth
+   Gaussians (or the SfM points), raw RGB gray at the image / albedo luminance ratio; diffuse model
+   ``I = A * S`` with the photometric loss on ``1 / (1 + x)`` of both sides, the gray regulariser ``max(c) - min(c)``, depth
    and scale terms;
 3. **residual** G_R: G_A and G_S frozen and cached as ``A * S`` per view; G_R spawned at the pixels
    where ``|I - A * S|`` is largest, placed with the depth prior; SH up to degree 3 with progressive
@@ -54,6 +54,8 @@ STATE_DIR = "decompose"
 METRICS_KEY = "decompose"
 # what each stage is trained on: the layers before it
 UPSTREAM = {"albedo": (), "shading": ("albedo",), "residual": ("albedo", "shading")}
+# where the shading Gaussians start (DecomposeConfig.shading_geometry)
+SHADING_GEOMETRIES = ("albedo", "points")
 
 
 def _albedo_train() -> TrainConfig:
@@ -359,7 +361,7 @@ def shading_from_albedo(albedo: GaussianSet, views: Sequence[View], cfg: Decompo
     src = albedo.tensors()
     s, how = shading_colours(src["means"].cpu().numpy(), views, cfg, albedo_of)
     g = GaussianSet.from_activated("shading", src["means"].cpu(), torch.from_numpy(s), src["log_scales"].cpu(),
-                                   torch.sigmoid(src["opacity_logits"].cpu()), quats=src["quats"].cpu())
+                                   albedo.opacities.detach().cpu(), quats=src["quats"].cpu())
     return g, f"{k} of the albedo's {n} Gaussians, {how}"
 
 
@@ -539,16 +541,17 @@ def run_stage(name: str, setup: Setup, cfg: DecomposeConfig, layers: dict[str, G
         stage = Stage("albedo", init, train_views, test_views,
                       strategy=DensifyStrategy(tcfg.resolved_densify(), extent), **common)
     elif name == "shading":
+        if cfg.shading_geometry not in SHADING_GEOMETRIES:  # before the albedo cache is built
+            raise IGSError(f"shading_geometry must be one of {', '.join(SHADING_GEOMETRIES)}, "
+                           f"got {cfg.shading_geometry!r}")
         stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
                              strategy=DensifyStrategy(tcfg.resolved_densify(), extent), albedo=layers["albedo"],
                              lambda_gray=cfg.lambda_gray, **common).to(setup.device)
         stage.prepare()  # the albedo cache feeds the ratio initialisation too
         if cfg.shading_geometry == "albedo":
             init, how = shading_from_albedo(layers["albedo"], train_views, cfg)
-        elif cfg.shading_geometry == "points":
-            init, how = initial_shading(setup.capture, train_views, cfg)
         else:
-            raise IGSError(f"shading_geometry must be 'albedo' or 'points', got {cfg.shading_geometry!r}")
+            init, how = initial_shading(setup.capture, train_views, cfg)
         stage.gaussians = init
     else:
         stage = ResidualStage("residual", GaussianSet.empty("residual", cfg.residual_sh_degree), train_views,
