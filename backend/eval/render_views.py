@@ -20,7 +20,7 @@ Cameras come from one of:
 
 Writes ``OUT/<layer>/<name>.png`` (8-bit sRGB; layers ``A``, ``S``, ``R``, ``full``; shading and the
 composite are linear values clipped to [0, 1] before the sRGB curve) and with ``--mp4``
-``OUT/<layer>.mp4`` (OpenCV ``mp4v``). ``--edit N`` replaces the albedo by ``<ws>/edits/N/albedo.ply``.
+``OUT/<layer>.mp4`` (H.264, yuv420p: browsers play it; :mod:`backend.eval.video`). ``--edit N`` replaces the albedo by ``<ws>/edits/N/albedo.ply``.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 
@@ -39,6 +38,7 @@ from backend.capture.cameras import Camera, from_blender_matrix_world
 from backend.capture.imageio import linear_to_srgb, write_image
 from backend.capture.workspace import load_capture
 from backend.errors import IGSError
+from backend.eval.video import Mp4Writer
 from backend.render import render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
@@ -243,8 +243,7 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
     kinds = [k for k in ("albedo", "shading", "residual") if k in layers]
     splats = [layers[k] for k in kinds]
     written: dict[str, list[str]] = {w: [] for w in wanted}
-    writers: dict[str, cv2.VideoWriter] = {}
-    sizes: dict[str, tuple[int, int]] = {}
+    writers: dict[str, Mp4Writer] = {}
     for w in wanted:
         (out / w).mkdir(parents=True, exist_ok=True)
     # torch held at one thread as in training: its spinning workers would take the cpu kernels' cores
@@ -265,19 +264,12 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
                     written[w].append(str(p))
                     if mp4:
                         if w not in writers:
-                            writers[w] = cv2.VideoWriter(str(out / f"{w}.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                                         fps, (cam.width, cam.height))
-                            sizes[w] = (cam.height, cam.width)
-                            if not writers[w].isOpened():
-                                raise IGSError(f"{out / f'{w}.mp4'}: OpenCV cannot write an mp4v video here")
-                        frame = (srgb[..., ::-1] * 255 + 0.5).astype(np.uint8)
-                        if frame.shape[:2] != sizes[w]:  # a video has one size: the first frame's
-                            frame = cv2.resize(frame, sizes[w][::-1])
-                        writers[w].write(np.ascontiguousarray(frame))
+                            writers[w] = Mp4Writer(out / f"{w}.mp4", fps)
+                        writers[w].write(srgb)  # a video has one size: the first frame's
                 bar.update(1)
     finally:
         for v in writers.values():
-            v.release()
+            v.close()
     videos = {w: str(out / f"{w}.mp4") for w in writers}
     for w, files in written.items():
         if files:
