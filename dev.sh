@@ -2,33 +2,51 @@
 # The project's two commands (see README):
 #   ./dev.sh demo   set up .venv from the project's own files, then run the main job on the synthetic demo
 #   ./dev.sh test   set up .venv if needed, then run the test suite
+#   ./dev.sh test-blender   the add-on in a real Blender 5.2 window (root; builds a cached Debian root)
 # Other verbs: setup (only create/update .venv), lint, igs ARGS... (run the CLI inside .venv).
 set -euo pipefail
 cd "$(dirname "$0")"
 
 VENV=${IGS_VENV:-.venv}
+# The Python for a new .venv: $PYTHON, else the first that runs of 3.11 (the only one with the bpy
+# module), 3.13, 3.14. pyproject.toml's requires-python decides what is allowed (checked in setup).
 PY=${PYTHON:-}
 if [ -z "$PY" ]; then
-  for cand in python3.11 python3; do
-    if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+  for cand in python3.11 python3.13 python3.14; do
+    # `command -v` alone is not enough: pyenv shims exist for versions that are not installed.
+    if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys' >/dev/null 2>&1; then
       PY=$cand; break
     fi
   done
 fi
-[ -n "$PY" ] || { echo "dev.sh: Python 3.11 is required (bpy 5.0.1 exists only for 3.11); set PYTHON=/path/to/python3.11" >&2; exit 2; }
+[ -n "$PY" ] || { echo "dev.sh: none of python3.11, python3.13, python3.14 runs here; set PYTHON=/path/to/python (3.11 preferred: only it has the bpy module)" >&2; exit 2; }
+PY_MINOR=$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null) \
+  || { echo "dev.sh: PYTHON=$PY does not run" >&2; exit 2; }
+[ "$PY_MINOR" = 3.11 ] || [ -x "$VENV/bin/python" ] \
+  || echo "dev.sh: using Python $PY_MINOR ($PY): no bpy module for it, so the Blender background tests will skip (set PYTHON=python3.11 to run them)" >&2
+# Optional: where torch alone comes from, e.g. https://download.pytorch.org/whl/cpu for the 192 MB
+# CPU-only build (default: the configured index, PyPI, whose Linux torch is the ~2.7 GB CUDA build).
+TORCH_INDEX=${IGS_TORCH_INDEX:-}
 
 setup() {
   # Re-install only when the pinned dependencies changed since the last successful install.
-  local stamp="$VENV/.igs-installed" want
+  local stamp="$VENV/.igs-installed" want torch
   want=$(sha256sum pyproject.toml | cut -d' ' -f1)
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x "$VENV/bin/python" ]; then
     return 0
   fi
-  echo "== setting up $VENV (first run downloads ~1 GB: bpy, torch, pycolmap, opencv) =="
-  [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+  if [ ! -x "$VENV/bin/python" ]; then
+    # One line saying which Pythons requires-python allows, instead of a pip resolver error later.
+    "$PY" igs_blender/check_env.py --pyproject pyproject.toml --python-only || exit 2
+    "$PY" -m venv "$VENV"
+  fi
+  echo "== setting up $VENV with Python $("$VENV/bin/python" -c 'import sys; print(sys.version.split()[0])') (first run downloads 0.5-3 GB: torch, pycolmap, opencv, numba, and bpy on 3.11) =="
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  # torch first and on its own: the pin resolves to the CPU build where one is offered.
-  "$VENV/bin/python" -m pip install -q "torch==2.13.0"
+  # torch first and on its own (its pin as it applies to this Python), so that the rest cannot
+  # pull another build; then the project with the pins pip picks by their python_version markers.
+  torch=$("$VENV/bin/python" igs_blender/check_env.py --pyproject pyproject.toml --list | grep -E '^torch([=<>!~]|$)') \
+    || { echo "dev.sh: pyproject.toml pins no torch for Python $("$VENV/bin/python" -V)" >&2; exit 2; }
+  "$VENV/bin/python" -m pip install -q ${TORCH_INDEX:+--index-url "$TORCH_INDEX"} "$torch"
   "$VENV/bin/python" -m pip install -q -e ".[dev]"
   echo "$want" > "$stamp"
 }
@@ -39,7 +57,14 @@ case "$cmd" in
   setup) setup ;;
   demo)  setup; exec "$VENV/bin/igs" demo "$@" ;;
   test)  setup; exec "$VENV/bin/python" -m pytest -q "$@" ;;
+  test-blender)
+    # The add-on in a real Blender 5.2 window (Debian's, in a cached sid root, under Xvfb): needs root.
+    setup
+    if [ "$(id -u)" = 0 ] && ! command -v debootstrap >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+      apt-get install -y -qq debootstrap >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq debootstrap >/dev/null; } || true
+    fi
+    exec "$VENV/bin/python" -m pytest -q -p no:cacheprovider tests_blender "$@" ;;
   lint)  setup; exec "$VENV/bin/ruff" check . ;;
   igs)   setup; exec "$VENV/bin/igs" "$@" ;;
-  *) echo "usage: ./dev.sh demo|test|setup|lint|igs ARGS..." >&2; exit 2 ;;
+  *) echo "usage: ./dev.sh demo|test|test-blender|setup|lint|igs ARGS..." >&2; exit 2 ;;
 esac

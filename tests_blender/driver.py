@@ -1,0 +1,387 @@
+"""Drives the installed add-on in a running Blender window (run by Blender: ``blender --python driver.py``).
+
+Started by ``test_blender_window.py`` inside the Debian root under Xvfb. Everything happens from a
+``bpy.app.timers`` callback, so Blender's event loop, its modal operators and their timers run as
+they do for a user: each long operator is invoked with ``INVOKE_DEFAULT`` in the 3D view's context
+(the modal path a button click takes) and followed through ``Scene.igs``, the state the panel
+draws. Real X input (xdotool) clicks the splash away and draws the Ctrl+B edit rectangle. After
+every step a screenshot of the whole screen is taken with ImageMagick's ``import -window root``
+(Blender's own screenshot operator gives a black image under Xvfb).
+
+Configuration comes from ``IGS_DRIVER_CONFIG`` (a JSON file); the outcome of every step goes to
+``<out>/results.json``, rewritten after each step so a crash still leaves what happened before it.
+Standard library and bpy only (this is Blender's Python).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import time
+import traceback
+from pathlib import Path
+
+import bpy
+
+CONFIG = json.loads(Path(os.environ["IGS_DRIVER_CONFIG"]).read_text())
+OUT = Path(CONFIG["out"])
+MOD = "bl_ext.user_default.intrinsic_splats"
+RESULTS: dict = {"blender": bpy.app.version_string, "python": None, "steps": [], "done": False}
+
+
+# -- plumbing ---------------------------------------------------------------------------------------
+
+
+def save_results() -> None:
+    tmp = OUT / "results.json.tmp"
+    tmp.write_text(json.dumps(RESULTS, indent=1, default=str))
+    tmp.replace(OUT / "results.json")
+
+
+def shot(name: str) -> str:
+    """Screenshot of the whole X screen (every Blender window) as OUT/NAME.png."""
+    path = OUT / f"{name}.png"
+    subprocess.run(["import", "-window", "root", str(path)], check=False, timeout=60,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return path.name
+
+
+def xdo(*args: str) -> None:
+    subprocess.run(["xdotool", *args], check=True, timeout=30)
+
+
+def main_window():
+    # Preferences and render windows have temporary screens; the main window is the one that does not.
+    return next(w for w in bpy.context.window_manager.windows if not w.screen.is_temporary)
+
+
+def view3d(area_type: str = "VIEW_3D"):
+    win = main_window()
+    area = next(a for a in win.screen.areas if a.type == area_type)
+    region = next(r for r in area.regions if r.type == "WINDOW")
+    return win, area, region
+
+
+def override(area_type: str = "VIEW_3D"):
+    win, area, region = view3d(area_type)
+    return bpy.context.temp_override(window=win, screen=win.screen, area=area, region=region)
+
+
+def redraw() -> None:
+    for win in bpy.context.window_manager.windows:
+        for area in win.screen.areas:
+            area.tag_redraw()
+
+
+def props():
+    return bpy.context.scene.igs
+
+
+def prefs():
+    return bpy.context.preferences.addons[MOD].preferences
+
+
+def invoke(op: str, area: str = "VIEW_3D", **kw) -> set:
+    """Call ``bpy.ops.<op>('INVOKE_DEFAULT', **kw)`` in an area of the main window, as a click on its button does."""
+    fn = bpy.ops
+    for part in op.split("."):
+        fn = getattr(fn, part)
+    with override(area):
+        return fn("INVOKE_DEFAULT", **kw)
+
+
+def wait_job(limit_s: float, mid_shot: str | None = None, mid_after_s: float = 4.0):
+    """Yield until the add-on's running job ends (its modal operator has finished)."""
+    t0 = time.time()
+    shot_taken = mid_shot is None
+    while True:
+        job_running = props().job_running
+        if not job_running and time.time() - t0 > 0.5:
+            return
+        if not shot_taken and time.time() - t0 > mid_after_s:
+            redraw()
+            yield 0.3
+            shot(mid_shot)
+            shot_taken = True
+        if time.time() - t0 > limit_s:
+            raise TimeoutError(f"the job '{props().job_label}' still runs after {limit_s:.0f} s")
+        yield 0.5
+
+
+class Step:
+    """One recorded step: ``with Step('name') as s: ...; s.data[...] = ...``."""
+
+    def __init__(self, name: str, soft: bool = False):
+        # soft: a failure is recorded and the flow goes on (the later steps do not depend on it)
+        self.name, self.data, self.soft = name, {}, soft
+
+    def __enter__(self):
+        self.t0 = time.time()
+        return self
+
+    def __exit__(self, etype, e, tb):
+        rec = {"name": self.name, "ok": etype is None, "seconds": round(time.time() - self.t0, 2), **self.data}
+        if etype is not None:
+            rec["error"] = "".join(traceback.format_exception(etype, e, tb))[-3000:]
+        try:
+            rec["report"] = props().last_report
+        except Exception:  # the add-on may not be registered yet
+            pass
+        RESULTS["steps"].append(rec)
+        save_results()
+        return self.soft
+
+
+def sidebar_on_our_tab() -> None:
+    _, area, _ = view3d()
+    area.spaces.active.show_region_ui = True
+    ui = next(r for r in area.regions if r.type == "UI")
+    try:
+        ui.active_panel_category = "Intrinsic Splats"
+    except (TypeError, AttributeError):  # read-only until the sidebar has drawn its tabs once
+        pass
+    area.tag_redraw()
+
+
+def scene_objects() -> dict:
+    return {o.name: o.type for o in bpy.data.objects}
+
+
+# -- the flow ---------------------------------------------------------------------------------------
+
+
+def flow():
+    import sys
+
+    RESULTS["python"] = sys.version.split()[0]
+    yield 2.0
+    with Step("splash") as s:
+        # A real click on the splash's Continue button (fixed place in a 1600x1000 window).
+        shot("00-splash")
+        xdo("mousemove", str(CONFIG["splash_continue"][0]), str(CONFIG["splash_continue"][1]))
+        yield 0.5  # Blender must see the pointer over the button before the press
+        xdo("click", "1")
+        yield 1.5
+        shot("00-splash-2")
+        # Then the regular splash (New File, Getting Started): Escape with the pointer over it.
+        xdo("key", "Escape")
+    yield 1.0
+
+    with Step("install") as s:
+        with override():
+            bpy.ops.extensions.package_install_files(filepath=CONFIG["zip"], repo="user_default",
+                                                     enable_on_install=True)
+        s.data["enabled"] = MOD in bpy.context.preferences.addons
+        s.data["panel_registered"] = hasattr(bpy.types, "IGS_PT_main")
+        assert s.data["enabled"] and s.data["panel_registered"], "the extension did not install and enable"
+        _, area, _ = view3d()
+        for _ in range(20):  # the sidebar knows its tabs only once it has drawn
+            sidebar_on_our_tab()
+            if next(r for r in area.regions if r.type == "UI").active_panel_category == "Intrinsic Splats":
+                break
+            yield 0.25
+        s.data["sidebar_tab"] = next(r for r in area.regions if r.type == "UI").active_panel_category
+        assert s.data["sidebar_tab"] == "Intrinsic Splats", s.data["sidebar_tab"]
+    yield 1.0
+    shot("01-installed")
+
+    # -- the backend environment, made by the add-on from Blender's own Python ---------------------
+    # The Preferences editor opens in the main window's 3D-view area (a separate Preferences window
+    # has a temporary screen, which Python may not override into), then the area turns back.
+    with Step("preferences") as s:
+        p = prefs()
+        p.env_dir = CONFIG["env_dir"]
+        for name, value in CONFIG.get("prefs", {}).items():
+            setattr(p, name, value)
+        bpy.context.preferences.active_section = "ADDONS"
+        bpy.context.window_manager.addon_search = "Intrinsic"
+        with override():
+            bpy.ops.preferences.addon_expand(module=MOD)
+        _, area, _ = view3d()
+        area.type = "PREFERENCES"
+        s.data["prefs"] = {k: getattr(p, k) for k in p.bl_rna.properties.keys() if k != "rna_type"}
+    yield 1.0
+    shot("02-preferences")
+    with Step("create_backend_env") as s:
+        assert invoke("igs.create_backend_env", area="PREFERENCES") == {"RUNNING_MODAL"}
+        yield from wait_job(CONFIG["env_timeout_s"], mid_shot="03-create-env-running", mid_after_s=3)
+        s.data["backend_python"] = prefs().backend_python
+        assert prefs().backend_python, "no interpreter was set"
+        assert "ready" in props().last_report, props().last_report
+    with Step("check_backend", soft=True) as s:
+        assert invoke("igs.check_backend", area="PREFERENCES") == {"RUNNING_MODAL"}
+        yield from wait_job(300)
+        redraw()
+        s.data["check_ok"] = prefs().check_ok
+        s.data["check_report"] = prefs().check_report
+        assert prefs().check_ok, prefs().check_report
+    yield 0.5
+    shot("04-preferences-checked")
+    with Step("close_preferences"):
+        area = next(a for a in main_window().screen.areas if a.type == "PREFERENCES")
+        area.type = "VIEW_3D"
+        sidebar_on_our_tab()
+    yield 0.5
+
+    # -- capture ------------------------------------------------------------------------------------
+    with Step("import_synthetic") as s:
+        pr = props()
+        pr.workspace = CONFIG["workspace"]
+        pr.source_kind = "SYNTHETIC"
+        pr.synth_preset = "test"
+        redraw()
+        assert invoke("igs.import_capture") == {"RUNNING_MODAL"}
+        yield from wait_job(CONFIG["step_timeout_s"], mid_shot="05-import-running", mid_after_s=2)
+        cams = [o for o in bpy.data.objects if o.type == "CAMERA" and "igs_frame" in o]
+        s.data["cameras"] = len(cams)
+        s.data["capture_info"] = pr.capture_info
+        assert len(cams) == 16, f"{len(cams)} SfM cameras in the scene"
+    yield 0.5
+    shot("06-imported")
+
+    # -- decompose ----------------------------------------------------------------------------------
+    with Step("decompose") as s:
+        pr = props()
+        pr.iterations = CONFIG["iterations"]
+        assert invoke("igs.decompose") == {"RUNNING_MODAL"}
+        yield from wait_job(CONFIG["step_timeout_s"], mid_shot="07-decompose-running", mid_after_s=8)
+        ws = Path(CONFIG["workspace"])
+        s.data["layers"] = sorted(p.name for p in (ws / "layers").glob("*.ply"))
+        s.data["metrics_info"] = pr.metrics_info
+        assert s.data["layers"] == ["albedo.ply", "residual.ply", "shading.ply"], s.data["layers"]
+        assert pr.metrics_info, "no metrics shown"
+    yield 0.5
+    shot("08-decomposed")
+
+    with Step("load_layers") as s:
+        with override():
+            res = bpy.ops.igs.load_layers()
+        s.data["result"] = sorted(res)
+        clouds = {o.name: (len(o.data.points), not o.hide_viewport)
+                  for o in bpy.data.objects if o.type == "POINTCLOUD"}
+        s.data["point_clouds"] = clouds
+        assert len(clouds) >= 3, clouds
+    yield 0.5
+    shot("09-layers")
+
+    # -- edit: look through the edit's camera, a real Ctrl+B rectangle, fit a plane, colour, bake ----
+    edit = json.loads((Path(CONFIG["workspace"]) / "gt_edit" / CONFIG["edit"] / "edit.json").read_text())
+    with Step("look_through") as s:
+        view = Path(edit["view"]).stem
+        cam = bpy.data.objects[f"IGS {view}"]
+        with override():
+            assert bpy.ops.igs.use_frame_camera(camera=cam.name) == {"FINISHED"}
+        _, area, region = view3d()
+        s.data["view"] = view
+        s.data["view_perspective"] = area.spaces.active.region_3d.view_perspective
+        s.data["resolution"] = [bpy.context.scene.render.resolution_x, bpy.context.scene.render.resolution_y]
+        with override():
+            bpy.ops.view3d.view_center_camera()
+        redraw()
+    yield 1.0
+    with Step("ctrl_b_rectangle") as s:
+        x0, y0, x1, y1 = edit["rect"]
+        p0, p1 = camera_pixel_to_screen(x0, y0), camera_pixel_to_screen(x1, y1)
+        s.data["rect"] = edit["rect"]
+        s.data["screen"] = [p0, p1]
+        xdo("mousemove", str(p0[0]), str(p0[1]))
+        xdo("key", "ctrl+b")
+        yield 0.5
+        xdo("mousedown", "1")
+        xdo("mousemove", str((p0[0] + p1[0]) // 2), str((p0[1] + p1[1]) // 2))
+        xdo("mousemove", str(p1[0]), str(p1[1]))
+        xdo("mouseup", "1")
+        yield 0.5
+        r = bpy.context.scene.render
+        s.data["border"] = [r.use_border, r.border_min_x, r.border_min_y, r.border_max_x, r.border_max_y]
+        assert r.use_border, "Ctrl+B drew no render border"
+    shot("10-rectangle")
+    with Step("fit_plane") as s:
+        pr = props()
+        pr.edit_name = CONFIG["edit"]
+        assert invoke("igs.fit_proxy", primitive="plane") == {"RUNNING_MODAL"}
+        yield from wait_job(CONFIG["step_timeout_s"])
+        proxies = [o.name for o in bpy.data.objects if o.name.startswith("IGS proxy")]
+        s.data["proxies"] = proxies
+        s.data["border_after"] = bpy.context.scene.render.use_border
+        assert proxies, "no proxy object"
+    yield 0.5
+    shot("11-fitted")
+    with Step("colour_and_bake") as s:
+        pr = props()
+        pr.texture_mode = "COLOR"
+        pr.edit_color = (0.8, 0.1, 0.05)
+        with override():
+            bpy.ops.igs.set_proxy_color()
+        pr.bake_iterations = CONFIG["bake_iterations"]
+        assert invoke("igs.bake_edit") == {"RUNNING_MODAL"}
+        yield from wait_job(CONFIG["step_timeout_s"], mid_shot="12-bake-running", mid_after_s=4)
+        item = next((e for e in pr.edits if e.name == CONFIG["edit"]), None)
+        s.data["baked"] = bool(item and item.baked)
+        s.data["edited_albedo"] = item.albedo.name if item and item.albedo else None
+        assert s.data["baked"], "the edit is not marked baked"
+    yield 0.5
+    shot("13-baked")
+
+    # -- render ---------------------------------------------------------------------------------------
+    with Step("render_turntable") as s:
+        pr = props()
+        pr.turntable_frames = CONFIG["turntable_frames"]
+        pr.write_mp4 = True
+        before = set(bpy.data.images.keys())
+        assert invoke("igs.render_sequence", mode="TURNTABLE") == {"RUNNING_MODAL"}
+        yield from wait_job(CONFIG["step_timeout_s"])
+        new = sorted(set(bpy.data.images.keys()) - before)
+        s.data["new_images"] = new
+        renders = sorted(str(p.relative_to(CONFIG["workspace"])) for p in Path(CONFIG["workspace"], "renders").rglob("*.mp4"))
+        s.data["mp4s"] = renders
+        assert new, "no render was loaded into Blender"
+        assert renders, "no MP4 was written"
+    yield 1.0
+    shot("14-turntable")
+    RESULTS["done"] = True
+    save_results()
+
+
+def camera_pixel_to_screen(u: float, v: float) -> tuple[int, int]:
+    """X screen position of pixel (u, v) of the scene camera's image in the camera view."""
+    from bpy_extras.view3d_utils import location_3d_to_region_2d
+
+    scene = bpy.context.scene
+    cam = scene.camera
+    win, area, region = view3d()
+    rv3d = area.spaces.active.region_3d
+    frame = [cam.matrix_world @ c for c in cam.data.view_frame(scene=scene)]  # TR, BR, BL, TL
+    pts = [location_3d_to_region_2d(region, rv3d, c) for c in frame]
+    tl, tr, bl = pts[3], pts[0], pts[2]
+    W, H = scene.render.resolution_x, scene.render.resolution_y
+    p = tl + (tr - tl) * (u / W) + (bl - tl) * (v / H)
+    # region coordinates run up from the region's bottom-left; X screen rows run down from the top
+    return int(round(region.x + p.x)), int(round(win.height - (region.y + p.y)))
+
+
+_FLOW = None
+
+
+def tick():
+    global _FLOW
+    try:
+        if _FLOW is None:
+            _FLOW = flow()
+        return next(_FLOW)
+    except StopIteration:
+        pass
+    except Exception:
+        RESULTS["fatal"] = traceback.format_exc()[-4000:]
+        save_results()
+    try:
+        shot("99-final")
+    finally:
+        bpy.ops.wm.quit_blender()
+    return None
+
+
+OUT.mkdir(parents=True, exist_ok=True)
+save_results()
+bpy.app.timers.register(tick, first_interval=3.0)
