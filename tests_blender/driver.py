@@ -226,6 +226,9 @@ def flow():
 
     # -- capture ------------------------------------------------------------------------------------
     with Step("import_synthetic") as s:
+        for name in ("Cube", "Light", "Camera"):  # the factory scene's objects, as a user deletes them
+            if name in bpy.data.objects:
+                bpy.data.objects.remove(bpy.data.objects[name])
         pr = props()
         pr.workspace = CONFIG["workspace"]
         pr.source_kind = "SYNTHETIC"
@@ -268,7 +271,7 @@ def flow():
     # -- edit: look through the edit's camera, a real Ctrl+B rectangle, fit a plane, colour, bake ----
     edit = json.loads((Path(CONFIG["workspace"]) / "gt_edit" / CONFIG["edit"] / "edit.json").read_text())
     with Step("look_through") as s:
-        view = Path(edit["view"]).stem
+        view = Path(edit["edit_view"]).stem
         cam = bpy.data.objects[f"IGS {view}"]
         with override():
             assert bpy.ops.igs.use_frame_camera(camera=cam.name) == {"FINISHED"}
