@@ -14,6 +14,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _register_synth(subparsers: argparse._SubParsersAction) -> None:
     from backend.capture.synth import PRESETS
+    from backend.capture.synth_blender import RENDERERS
 
     p = subparsers.add_parser(
         "synth", help="render the synthetic room with Cycles into a workspace with exact ground truth",
@@ -30,6 +31,12 @@ def _register_synth(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=None, help="render threads (default: all cores)")
     p.add_argument("--force", action="store_true",
                    help="delete a previous synthetic capture in WORKSPACE rendered with other settings")
+    p.add_argument("--renderer", choices=RENDERERS, default="auto",
+                   help="module: Blender's bpy module in this Python; binary: run the Blender of --blender "
+                        "(for a Python without bpy, e.g. 3.13/3.14); auto (default): the module when "
+                        "`import bpy` works, else the binary")
+    p.add_argument("--blender", default=None, metavar="PATH",
+                   help="the Blender binary for --renderer binary/auto (default: $IGS_BLENDER)")
     p.set_defaults(func=_run_synth)
 
 
@@ -37,5 +44,6 @@ def _run_synth(args: argparse.Namespace) -> None:
     from backend.capture.synth import synthesize
 
     summary = synthesize(args.workspace, preset=args.preset, seed=args.seed, views=args.views,
-                         samples=args.samples, force=args.force, threads=args.threads)
+                         samples=args.samples, force=args.force, threads=args.threads,
+                         renderer=args.renderer, blender=args.blender)
     events.output("workspace", summary["workspace"])

@@ -1,5 +1,7 @@
-"""``igs synth``: render the synthetic room with Cycles (CPU, through bpy) into a workspace with exact
-ground truth.
+"""``igs synth``: render the synthetic room with Cycles (CPU) into a workspace with exact ground truth.
+
+Blender is either the bpy module in this process or, for a Python without one, a Blender binary
+driven as one worker process (:mod:`backend.capture.synth_blender`); both write the same EXR.
 
 One Cycles render per view writes every pass into an uncompressed multi-layer EXR; from it:
 
@@ -38,13 +40,13 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from backend import events
-from backend.capture import synth_scene
-from backend.capture.cameras import Camera, blender_matrix_world
+from backend.capture import synth_blender, synth_scene
+from backend.capture.cameras import Camera
 from backend.capture.colmap_io import write_model
 from backend.capture.exr_layers import passes, read_multilayer_exr
 from backend.capture.imageio import (
@@ -54,6 +56,7 @@ from backend.capture.imageio import (
     write_exr,
     write_image,
 )
+from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
 from backend.capture.workspace import Workspace
 from backend.errors import IGSError
 from backend.io_utils import atomic_path, write_json
@@ -149,11 +152,16 @@ class SynthSettings:
 
 
 def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: int | None = None,
-               samples: int | None = None, force: bool = False, threads: int | None = None) -> dict[str, Any]:
+               samples: int | None = None, force: bool = False, threads: int | None = None,
+               renderer: str = "auto", blender: str | None = None) -> dict[str, Any]:
     """Render (or finish rendering) a synthetic capture into ``ws_path``; logs and returns a summary.
 
     The summary (also written to ``gt/synth_summary.json``) holds the views, size, samples, seconds
     per step (scene build, views, edits, points and metadata, total), CPU seconds and file counts.
+
+    ``renderer``: "module" renders in this process with the bpy module, "binary" runs the Blender
+    binary ``blender`` (default ``$IGS_BLENDER``) as one worker process
+    (:mod:`backend.capture.synth_blender`), "auto" the module when this Python has one, else the binary.
 
     Re-running with the same settings resumes: views and edits whose files all exist are skipped.
     Different settings on a partly or fully written workspace raise :class:`IGSError` unless
@@ -162,26 +170,37 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     t_start = time.perf_counter()
     cpu_start = _cpu_seconds()
     settings = SynthSettings.from_preset(preset, seed, views, samples)
+    binary = synth_blender.choose_blender(renderer, blender)
     ws = Workspace(Path(ws_path))
     _prepare_workspace(ws, settings, force)
     threads = threads or os.cpu_count() or 1
 
     timings: dict[str, float] = {}
-    t = time.perf_counter()
-    with _blender_output_captured():
-        scene = synth_scene.build_scene(settings.seed)
-    cameras = settings.cameras()
-    renderer = Renderer(scene, settings, threads)
-    timings["build_scene"] = time.perf_counter() - t
-    _write_edit_definitions(ws, scene)
+    with contextlib.ExitStack() as stack:
+        t = time.perf_counter()
+        if binary is None:
+            import bpy
 
-    with tempfile.TemporaryDirectory(prefix="igs_synth_") as tmp:
-        t = time.perf_counter()
-        n_views = _render_views(ws, scene, renderer, cameras, settings, Path(tmp))
-        timings["render_views"] = time.perf_counter() - t
-        t = time.perf_counter()
-        n_edits = _render_edits(ws, scene, renderer, cameras, Path(tmp))
-        timings["render_edits"] = time.perf_counter() - t
+            with _blender_output_captured():
+                scene = synth_scene.build_scene(settings.seed)
+            render: ViewRenderer = Renderer(scene, settings, threads)
+            blender_version = bpy.app.version_string
+        else:
+            worker = stack.enter_context(synth_blender.BlenderWorker(binary))
+            scene = worker.build_scene(settings.seed)
+            render = worker.renderer(cycles_params(settings, threads))
+            blender_version = worker.version
+        cameras = settings.cameras()
+        timings["build_scene"] = time.perf_counter() - t
+        _write_edit_definitions(ws, scene)
+
+        with tempfile.TemporaryDirectory(prefix="igs_synth_") as tmp:
+            t = time.perf_counter()
+            n_views = _render_views(ws, scene, render, cameras, settings, Path(tmp))
+            timings["render_views"] = time.perf_counter() - t
+            t = time.perf_counter()
+            n_edits = _render_edits(ws, scene, render, cameras, Path(tmp))
+            timings["render_edits"] = time.perf_counter() - t
 
     t = time.perf_counter()
     n_points = _write_sparse(ws, cameras)
@@ -202,7 +221,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
         "cpu_seconds": round(_cpu_seconds() - cpu_start, 3),
         "files": _count_files(ws, scene),
     }
-    _write_capture_json(ws, settings, cameras, scene, summary)
+    _write_capture_json(ws, settings, cameras, scene, summary, blender_version, "module" if binary is None else "binary")
     write_json(ws.root / "gt" / "scene.json", scene.description)
     write_json(ws.root / "gt" / "synth_summary.json", summary)
     events.log(format_summary(summary))
@@ -289,14 +308,12 @@ def _count_files(ws: Workspace, scene: synth_scene.SynthScene) -> dict[str, int]
 
 
 def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Camera],
-                        scene: synth_scene.SynthScene, summary: dict[str, Any]) -> None:
-    import bpy
-
+                        scene: synth_scene.SynthScene, summary: dict[str, Any], blender: str, renderer: str) -> None:
     # Keys written by later stages (the decomposition's "layers") survive a resumed synth.
     kept = {k: v for k, v in ws.read_capture_json().items() if k not in SYNTH_KEYS} if ws.capture_json.exists() else {}
     ws.write_capture_json(kept | {
         "source": {"kind": "synthetic", "preset": settings.preset, "seed": settings.seed,
-                   "blender": bpy.app.version_string, "settings": settings.as_dict()},
+                   "blender": blender, "renderer": renderer, "settings": settings.as_dict()},
         "frames": [c.name for c in cameras],
         "size": [settings.width, settings.height],
         "priors": {"albedo": "gt", "depth": "gt"},
@@ -314,109 +331,35 @@ def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Ca
 # rendering
 
 
+class ViewRenderer(Protocol):
+    """What the render loops need: :class:`Renderer` or :class:`synth_blender.BinaryRenderer`."""
+
+    def render(self, cam: Camera, exr: Path, border: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]: ...
+
+
+def cycles_params(settings: SynthSettings, threads: int) -> CyclesParams:
+    return CyclesParams(settings.width, settings.height, settings.samples, settings.seed, settings.bounces, threads)
+
+
 class Renderer:
-    """Cycles set up once for a built scene; renders one camera into a dict of passes.
+    """Cycles in this process (the bpy module), set up once for a built scene; renders one camera into a
+    dict of passes. :class:`backend.capture.synth_blender.BinaryRenderer` does the same in a Blender binary.
 
     Pass names are Blender's ("Combined", "Diffuse Color", "Depth", "Position", ...) plus one
     ``mask_<edit>`` AOV per edit; each value is (H, W, C) float32, row 0 at the top.
     """
 
-    LIGHT_PASSES = ("diffuse_color", "diffuse_direct", "diffuse_indirect", "glossy_color", "glossy_direct",
-                    "glossy_indirect", "transmission_color", "transmission_direct", "transmission_indirect",
-                    "emit", "environment", "z", "position")
-
     def __init__(self, scene: synth_scene.SynthScene, settings: SynthSettings, threads: int):
-        import bpy
-
-        self.bpy = bpy
-        self.settings = settings
-        sc = bpy.context.scene
-        self.sc = sc
-        r = sc.render
-        r.engine = "CYCLES"
-        c = sc.cycles
-        c.device = "CPU"
-        c.samples = settings.samples
-        c.use_adaptive_sampling = False  # a fixed sample count keeps renders deterministic
-        c.use_denoising = False  # denoising would break albedo * shading + residual = combined
-        c.seed = settings.seed
-        c.use_animated_seed = False
-        c.pixel_filter_type = "BOX"
-        c.filter_width = 1.0  # each sample lands in exactly one pixel
-        c.sample_clamp_direct = 0.0  # no clamping: the passes must add up to Combined
-        c.sample_clamp_indirect = 0.0
-        c.max_bounces = settings.bounces
-        c.diffuse_bounces = settings.bounces
-        c.glossy_bounces = settings.bounces
-        c.transmission_bounces = settings.bounces
-        c.transparent_max_bounces = 2
-        c.volume_bounces = 0
-        c.caustics_reflective = False
-        c.caustics_refractive = False
-        c.use_light_tree = False  # three lights: the tree only costs time here (measured ~30 %)
-        c.film_exposure = 1.0
-        r.film_transparent = False
-        r.threads_mode = "FIXED"
-        r.threads = threads
-        r.use_persistent_data = True  # keep the BVH between views: only the camera moves
-        r.resolution_x = settings.width
-        r.resolution_y = settings.height
-        r.resolution_percentage = 100
-        r.pixel_aspect_x = r.pixel_aspect_y = 1.0
-        r.use_border = False
-        r.use_crop_to_border = False
-        sc.view_settings.view_transform = "Standard"  # only matters for Blender's own display
-        sc.view_settings.look = "None"
-        sc.view_settings.exposure = 0.0
-        sc.view_settings.gamma = 1.0
-        img = r.image_settings
-        img.media_type = "MULTI_LAYER_IMAGE"
-        img.exr_codec = "NONE"  # exr_layers reads uncompressed files only
-        img.color_depth = "32"
-        vl = sc.view_layers[0]
-        self.layer = vl.name
-        vl.use_pass_combined = True
-        for p in self.LIGHT_PASSES:
-            setattr(vl, f"use_pass_{p}", True)
-        for e in scene.edits:
-            aov = vl.aovs.add()
-            aov.name = synth_scene.mask_aov(e.name)
-            aov.type = "VALUE"
-
-        cam_data = bpy.data.cameras.new("synth_camera")
-        cam_data.sensor_fit = "HORIZONTAL"
-        cam_data.sensor_width = 36.0
-        cam_data.clip_start = 0.02
-        cam_data.clip_end = 100.0
-        self.camera = bpy.data.objects.new("synth_camera", cam_data)
-        sc.collection.objects.link(self.camera)
-        sc.camera = self.camera
+        self.view = CyclesView(cycles_params(settings, threads), [synth_scene.mask_aov(e.name) for e in scene.edits])
 
     def render(self, cam: Camera, exr: Path, border: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]:
         """Render ``cam`` (optionally only pixels x0 <= x < x1, y0 <= y < y1) and return its passes."""
-        from mathutils import Matrix
-
-        if (cam.width, cam.height) != (self.settings.width, self.settings.height) or \
-                abs(cam.cx - cam.width / 2) > 1e-9 or abs(cam.cy - cam.height / 2) > 1e-9 or abs(cam.fx - cam.fy) > 1e-9:
-            raise ValueError("the synthetic renderer takes centred, square-pixel cameras of the capture size")
-        self.camera.data.lens = cam.fx * 36.0 / cam.width  # horizontal sensor fit: fx = lens / 36 * width
-        self.camera.matrix_world = Matrix(blender_matrix_world(cam).tolist())
-        r = self.sc.render
-        r.use_border = border is not None
-        if border is not None:
-            x0, y0, x1, y1 = border
-            w, h = cam.width, cam.height
-            r.border_min_x, r.border_max_x = x0 / w, x1 / w
-            r.border_min_y, r.border_max_y = 1.0 - y1 / h, 1.0 - y0 / h  # Blender counts rows from the bottom
-        r.filepath = str(exr)
         with _blender_output_captured() as log:
             try:
-                self.bpy.ops.render.render(write_still=True)
+                self.view.render(cam, exr, border)
             except RuntimeError as e:
                 raise IGSError(f"Cycles failed to render {cam.name}: {e}\n{log.tail()}") from e
-        if not exr.exists():
-            raise IGSError(f"Cycles wrote no image for {cam.name} (expected {exr})\n{log.tail()}")
-        out = passes(read_multilayer_exr(exr), self.layer)
+        out = passes(read_multilayer_exr(exr), self.view.layer)
         exr.unlink()
         return out
 
@@ -454,7 +397,7 @@ def _blender_output_captured():
         Path(name).unlink(missing_ok=True)
 
 
-def _render_views(ws: Workspace, scene: synth_scene.SynthScene, renderer: Renderer, cameras: list[Camera],
+def _render_views(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRenderer, cameras: list[Camera],
                   settings: SynthSettings, tmp: Path) -> int:
     todo = [i for i, c in enumerate(cameras) if not all(p.exists() for p in _view_files(ws, scene, c.name))]
     scene.set_edit(None)
@@ -528,7 +471,7 @@ def _write_edit_definitions(ws: Workspace, scene: synth_scene.SynthScene) -> Non
             write_image(ws.gt_edit / e.name / "texture.png", e.texture.astype(np.float32) / 255.0)
 
 
-def _render_edits(ws: Workspace, scene: synth_scene.SynthScene, renderer: Renderer, cameras: list[Camera],
+def _render_edits(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRenderer, cameras: list[Camera],
                   tmp: Path) -> int:
     jobs = [(e.name, i) for e in scene.edits for i, c in enumerate(cameras)
             if not all(p.exists() for p in _edit_files(ws, e.name, c.name))]
@@ -692,6 +635,7 @@ def _write_transforms(ws: Workspace, cameras: list[Camera]) -> None:
 
 
 def _cpu_seconds() -> float:
-    ru = resource.getrusage(resource.RUSAGE_SELF)
-    return ru.ru_utime + ru.ru_stime
+    """This process's CPU time plus that of its finished children (a Blender worker renders there)."""
+    return sum(ru.ru_utime + ru.ru_stime for ru in (resource.getrusage(resource.RUSAGE_SELF),
+                                                     resource.getrusage(resource.RUSAGE_CHILDREN)))
 
