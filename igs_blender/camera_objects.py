@@ -81,15 +81,55 @@ def import_cameras(scene: bpy.types.Scene, workspace: Path, *, backgrounds: bool
     return objs
 
 
-def use_frame_camera(scene: bpy.types.Scene, obj: bpy.types.Object) -> None:
-    """Make an SfM camera the scene camera with its own image size and pixel aspect."""
+def use_frame_camera(scene: bpy.types.Scene, obj: bpy.types.Object) -> str:
+    """Make an SfM camera the scene camera with its own image size and pixel aspect.
+
+    The output size changes so the camera view frames the photo exactly (a frame of another shape
+    stretches the background photo). Returns the message, also left in the panel's status box, that
+    says so when the size changed."""
     scene.camera = obj
+    msg = f"Looking through '{obj.name}'"
     if "igs_width" in obj:
         r = scene.render
+        before = (r.resolution_x, r.resolution_y, r.resolution_percentage)
         r.resolution_x, r.resolution_y = int(obj["igs_width"]), int(obj["igs_height"])
         r.resolution_percentage = 100
         ax, ay = obj.get("igs_pixel_aspect", (1.0, 1.0))
         r.pixel_aspect_x, r.pixel_aspect_y = float(ax), float(ay)
+        if before != (r.resolution_x, r.resolution_y, 100):
+            was = f"{before[0]}x{before[1]}" + (f" at {before[2]}%" if before[2] != 100 else "")
+            msg += (f": the scene's output size is now its frame's {r.resolution_x}x{r.resolution_y} (was {was}), "
+                    "so the camera view shows the photo undistorted; F12 and Render View use this size")
+    if hasattr(scene, "igs"):
+        scene.igs.last_report = msg
+    return msg
+
+
+def frame_matches_output(scene: bpy.types.Scene, obj: bpy.types.Object) -> bool:
+    """Whether the scene's output frame has the shape of ``obj``'s SfM photo (what Look Through sets)."""
+    if "igs_width" not in obj:
+        return True
+    w, h = render_size(scene)
+    r = scene.render
+    ax, ay = obj.get("igs_pixel_aspect", (1.0, 1.0))
+    output = w * r.pixel_aspect_x / (h * r.pixel_aspect_y)
+    photo = int(obj["igs_width"]) * float(ax) / (int(obj["igs_height"]) * float(ay))
+    return abs(output / photo - 1.0) < 0.01
+
+
+def capture_orbit(target) -> tuple[float, float]:
+    """(radius, height) of a turntable about Blender's Z through ``target`` inside the capture's camera
+    path: 85 % of the SfM cameras' mean horizontal distance from the target, at their mean height
+    above it (the cameras were there, so the orbit runs through free space, as ``igs render``'s own)."""
+    cams = sfm_cameras()
+    if not cams:
+        raise UserError("no capture cameras to fit the orbit to: load the capture's cameras (Capture panel) "
+                        "or set the turntable's Radius")
+    rel = np.array([c.matrix_world.translation for c in cams]) - np.asarray(target, dtype=np.float64)
+    radius = 0.85 * float(np.mean(np.linalg.norm(rel[:, :2], axis=1)))
+    if not radius > 1e-6:
+        raise UserError("the capture's cameras stand right above the target: set the turntable's Radius")
+    return radius, float(np.mean(rel[:, 2]))
 
 
 def sfm_view_from_object(scene: bpy.types.Scene, obj: bpy.types.Object, name: str | None = None,
@@ -113,18 +153,33 @@ def sfm_view_from_object(scene: bpy.types.Scene, obj: bpy.types.Object, name: st
 
 
 def render_region_rect(scene: bpy.types.Scene, obj: bpy.types.Object) -> tuple[int, int, int, int]:
-    """The render region (Ctrl+B in camera view) as a pixel rectangle x0 y0 x1 y1 of the SfM frame."""
+    """The render region (Ctrl+B in camera view) as a pixel rectangle x0 y0 x1 y1 of the SfM frame.
+
+    The region is a fraction of the camera frame at the scene's output size, which need not be the
+    photo's (the View field sets only the camera). Both images see through the same camera, so a
+    region pixel maps to the photo's pixel on the same ray: (x - cx) / fx is shared."""
     r = scene.render
     if not r.use_border:
         raise UserError("draw the edit rectangle first: look through an SfM camera (Numpad 0) and press Ctrl+B")
     if "igs_width" not in obj:
         raise UserError(f"camera '{obj.name}' is not an SfM camera of the capture; pick one in the Edit panel")
     w, h = int(obj["igs_width"]), int(obj["igs_height"])
-    x0, x1 = r.border_min_x * w, r.border_max_x * w
-    y0, y1 = (1.0 - r.border_max_y) * h, (1.0 - r.border_min_y) * h  # Blender's y goes up, pixels' down
-    rect = (int(np.floor(x0)), int(np.floor(y0)), int(np.ceil(x1)), int(np.ceil(y1)))
+    cam = obj.data
+    ow, oh = render_size(scene)
+    fx, fy, cx, cy = intrinsics_from_blender(ow, oh, cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit,
+                                             cam.shift_x, cam.shift_y, r.pixel_aspect_x, r.pixel_aspect_y)
+    ax, ay = obj.get("igs_pixel_aspect", (1.0, 1.0))
+    sfx, sfy, scx, scy = intrinsics_from_blender(w, h, cam.lens, cam.sensor_width, cam.sensor_height,
+                                                 cam.sensor_fit, cam.shift_x, cam.shift_y, float(ax), float(ay))
+    xs = (np.array([r.border_min_x, r.border_max_x]) * ow - cx) / fx * sfx + scx
+    ys = ((1.0 - np.array([r.border_max_y, r.border_min_y])) * oh - cy) / fy * sfy + scy  # Blender's y goes up
+    x0, x1 = np.clip(xs, 0, w)
+    y0, y1 = np.clip(ys, 0, h)
+    eps = 1e-3  # the border is stored in float32: 10/48 must not become pixel 11
+    rect = (int(np.floor(x0 + eps)), int(np.floor(y0 + eps)), int(np.ceil(x1 - eps)), int(np.ceil(y1 - eps)))
     if rect[2] - rect[0] < 2 or rect[3] - rect[1] < 2:
-        raise UserError("the render region is too small; drag a larger rectangle with Ctrl+B")
+        raise UserError("the render region is too small or outside the photo; drag a larger rectangle over the "
+                        "photo with Ctrl+B")
     if rect == (0, 0, w, h):
         raise UserError("the render region covers the whole frame; drag a rectangle around the surface with Ctrl+B")
     return rect

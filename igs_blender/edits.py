@@ -7,8 +7,9 @@ from pathlib import Path
 
 import bpy
 
-from . import scene_objects
-from .layers import object_name
+from . import layers, proxies, scene_objects
+from .errors import UserError
+from .workspace_files import EDIT_NAME
 
 
 def find(props, name: str):
@@ -44,17 +45,17 @@ def _hide(obj, hidden: bool) -> None:
 
 
 def apply_visibility(_item=None) -> None:
-    """Show each visible edit's proxy and edited albedo; the original albedo shows when no baked edit does."""
+    """Show one layer point cloud, the panel's ``layer_display`` (or the first loaded one), and each
+    visible edit's proxy. A visible baked edit's albedo replaces the original albedo when the albedo is shown."""
     props = bpy.context.scene.igs
+    shown = layers.shown_kind(props.layer_display) or "albedo"  # only edits loaded: their albedo shows
     edited_shown = False
     for item in props.edits:
         _hide(item.proxy, not item.visible)
-        _hide(item.albedo, not item.visible)
+        _hide(item.albedo, not (item.visible and shown == "albedo"))
         edited_shown |= item.visible and item.albedo is not None
-    base = bpy.data.objects.get(object_name("albedo"))
-    if base is not None and (edited_shown or base.get("igs_hidden_by_edit")):
-        _hide(base, edited_shown)
-        base["igs_hidden_by_edit"] = edited_shown
+    for kind, obj in layers.loaded_layers().items():
+        _hide(obj, kind != shown or (kind == "albedo" and edited_shown))
 
 
 def show_only(props, name: str) -> None:
@@ -90,3 +91,39 @@ def remove(props, name: str, workspace: Path | None, delete_files: bool) -> None
         if folder.parent == (workspace / "edits").resolve() and folder.is_dir():
             shutil.rmtree(folder)
     apply_visibility()
+
+
+def workspace_edits(workspace: Path) -> list[str]:
+    """Names of the edits the workspace holds (``edits/<name>/proxy.json``, from the panel or ``igs edit``)."""
+    folder = workspace / "edits"
+    if not folder.is_dir():
+        return []
+    return sorted(p.parent.name for p in folder.glob("*/proxy.json") if EDIT_NAME.match(p.parent.name))
+
+
+def load_workspace_edits(props, workspace: Path, *, max_points: int = 0, radius_scale: float = 1.0,
+                         ) -> tuple[list[str], list[str]]:
+    """Bring the workspace's edits into the list: each proxy (with its texture or colour) and, when baked,
+    its edited albedo. An edit already in the list keeps its proxy (it may have been moved since).
+    Returns (loaded edit names, "name: why" for the ones whose files could not be read)."""
+    loaded, failed = [], []
+    for name in workspace_edits(workspace):
+        folder = workspace / "edits" / name
+        _, item = find(props, name)
+        try:
+            proxy = item.proxy if item is not None and item.proxy is not None and \
+                item.proxy.name in bpy.context.scene.objects else None
+            if proxy is None:
+                proxy = proxies.create_proxy_object(folder / "proxy.json", name)
+            ply = folder / "albedo.ply"
+            albedo = layers.load_layer(ply, name=layers.object_name("albedo", name), max_points=max_points,
+                                       radius_scale=radius_scale) if ply.is_file() else None
+        except (UserError, ValueError, OSError) as e:
+            failed.append(f"{name}: {e}")
+            continue
+        item = ensure(props, name)
+        item.proxy = proxy
+        item.albedo = albedo
+        item.baked = albedo is not None
+        loaded.append(name)
+    return loaded, failed

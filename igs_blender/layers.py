@@ -35,8 +35,26 @@ MATERIAL = "IGS Splat Points"
 COLOR_ATTRIBUTE = "Col"
 
 
+DISPLAY_ORDER = ("composite", "albedo", "shading", "residual", "radiance")
+"""The layer point clouds, in the order the Layers panel lists them; one is shown at a time."""
+
+
 def object_name(kind: str, edit: str | None = None) -> str:
     return f"IGS {kind}" + (f" [{edit}]" if edit else "")
+
+
+def loaded_layers() -> dict[str, bpy.types.Object]:
+    """The workspace layers' point clouds in the scene (not the edits'), by kind in DISPLAY_ORDER."""
+    objs = {k: bpy.data.objects.get(object_name(k)) for k in DISPLAY_ORDER}
+    return {k: o for k, o in objs.items() if o is not None and o.type == "POINTCLOUD"}
+
+
+def shown_kind(requested: str) -> str | None:
+    """The layer to show: ``requested`` when loaded, else the first loaded one (None when none is)."""
+    loaded = loaded_layers()
+    if requested in loaded:
+        return requested
+    return next(iter(loaded), None)
 
 
 def layer_paths(workspace: Path) -> dict[str, Path]:

@@ -14,11 +14,23 @@ from bpy.props import (
     StringProperty,
 )
 
+# The backend's defaults, shown in the panel (backend/train/intrinsic.py, baseline.py, edit/bake.py, edit/fit.py).
+DECOMPOSE_DEFAULT = 7000
+TRAIN_3DGS_DEFAULT = 3500
+BAKE_DEFAULT = 2000
+MIN_SELECTED = 20
+
 
 def _edit_visibility(self, context):
     from . import edits
 
     edits.apply_visibility(self)
+
+
+def _layer_display(self, context):
+    from . import edits
+
+    edits.apply_visibility()
 
 
 class IGS_EditItem(bpy.types.PropertyGroup):
@@ -49,8 +61,9 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
                                                      ("paper", "Paper", "288 larger views, long")], default="demo")
     synth_seed: IntProperty(name="Seed", default=0, min=0)
     every: IntProperty(name="Every Nth Frame", default=5, min=1, description="Video: keep one frame in N (the sharpest)")
-    max_frames: IntProperty(name="Max Frames", default=0, min=0, description="0: no limit")
-    max_side: IntProperty(name="Max Side", default=0, min=0, description="Downscale so the longer side is at most this (0: keep)")
+    max_frames: IntProperty(name="Max Frames", default=0, min=0, description="Keep at most this many frames; 0: all")
+    max_side: IntProperty(name="Max Side", default=0, min=0, subtype="PIXEL",
+                          description="Downscale so the longer side is at most this many pixels; 0: keep the full size")
     albedo_prior: EnumProperty(name="Albedo", items=[("NONE", "None", "No albedo prior"),
                                                      ("gt", "Ground Truth", "Synthetic captures"),
                                                      ("FOLDER", "Folder", "Albedo maps computed elsewhere")], default="NONE")
@@ -69,7 +82,11 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     decompose_stage: EnumProperty(name="Stage", items=[("ALL", "All Stages", "albedo, then shading, then residual"),
                                                        ("albedo", "Albedo", ""), ("shading", "Shading", ""),
                                                        ("residual", "Residual", "")], default="ALL")
-    iterations: IntProperty(name="Iterations", default=0, min=0, description="Per stage; 0: the backend's default")
+    iterations: IntProperty(
+        name="Iterations", default=0, min=0,
+        description="N: the albedo stage runs N steps, shading 3N/4, residual N/2 (the 3DGS baseline: N). "
+                    f"0: the backend's defaults, N = {DECOMPOSE_DEFAULT} ({DECOMPOSE_DEFAULT}/"
+                    f"{DECOMPOSE_DEFAULT * 3 // 4}/{DECOMPOSE_DEFAULT // 2}; 3DGS {TRAIN_3DGS_DEFAULT})")
     restart: BoolProperty(name="Start Over", default=False,
                           description="Discard the checkpoints instead of resuming (needed after changing settings)")
     metrics_info: StringProperty(default="")
@@ -77,6 +94,14 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     # -- layers ---------------------------------------------------------------------------------
     max_points: IntProperty(name="Max Points", default=500_000, min=0,
                             description="Show at most this many Gaussians per layer (random subset); 0: all")
+    layer_display: EnumProperty(
+        name="Show", update=_layer_display, default="composite",
+        description="The one layer point cloud shown in the viewport (the others stay loaded, hidden)",
+        items=[("composite", "Composite", "A x S + R preview: the albedo points coloured by the product", "SHADING_RENDERED", 0),
+               ("albedo", "Albedo", "Surface colour (with the selected edit once baked)", "SHADING_TEXTURE", 1),
+               ("shading", "Shading", "Light and shadow", "LIGHT_SUN", 2),
+               ("residual", "Residual", "Highlights and other view-dependent light", "SHADING_SOLID", 3),
+               ("radiance", "3DGS", "The vanilla 3DGS baseline (Train 3DGS Baseline)", "POINTCLOUD_DATA", 4)])
     radius_scale: FloatProperty(name="Point Size", default=1.0, min=0.01, soft_max=5.0,
                                 description="Display radius as a multiple of the Gaussian's footprint")
     build_composite: BoolProperty(name="Composite Preview", default=True,
@@ -89,7 +114,17 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     edit_color: FloatVectorProperty(name="Colour", subtype="COLOR", size=3, min=0.0, max=1.0,
                                     default=(0.8, 0.15, 0.1), description="Linear RGB albedo of the edit")
     bake_iterations: IntProperty(name="Bake Iterations", default=0, min=0,
-                                 description="Re-optimisation steps of the albedo after an edit; 0: the backend's default")
+                                 description="Re-optimisation steps of the albedo after an edit; "
+                                             f"0: the backend's default ({BAKE_DEFAULT})")
+    fit_threshold: FloatProperty(
+        name="Inlier Distance", default=0.0, min=0.0, soft_max=1.0, subtype="DISTANCE", precision=4,
+        description="How far (capture units) a Gaussian centre may lie from the fitted surface and still count "
+                    "on it. 0: automatic, 2% of the selected centres' size. Raise it when the fit says too few "
+                    "points lie on one plane / cylinder (a briefly trained field is fuzzy)")
+    fit_min_selected: IntProperty(
+        name="Min Gaussians", default=MIN_SELECTED, min=3, soft_max=200,
+        description="The fewest distinct Gaussians the rectangle must select. Lower it for a small rectangle "
+                    "on a low-resolution capture or a briefly trained field; a larger rectangle is more reliable")
     edits: CollectionProperty(type=IGS_EditItem)
     edits_index: IntProperty(default=0)
 
@@ -100,16 +135,22 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     render_edit: BoolProperty(name="Use Selected Edit", default=True,
                               description="Render with the baked edit selected in the Edit panel")
     turntable_frames: IntProperty(name="Frames", default=36, min=1, max=3600)
-    turntable_radius: FloatProperty(name="Radius", default=3.0, min=0.001, subtype="DISTANCE")
-    turntable_height: FloatProperty(name="Height", default=1.0, subtype="DISTANCE")
+    turntable_radius: FloatProperty(
+        name="Radius", default=0.0, min=0.0, subtype="DISTANCE",
+        description="Orbit radius about Blender's Z. 0: fit the orbit to the capture's cameras (85% of their mean "
+                    "distance from the target, at their mean height), so it stays in the free space they filmed")
+    turntable_height: FloatProperty(name="Height", default=1.0, subtype="DISTANCE",
+                                    description="Camera height above the target (used with a Radius above 0)")
     turntable_target: EnumProperty(name="Around", items=[
-        ("CURSOR", "3D Cursor", "Circle the 3D cursor about Blender's Z axis at Radius and Height"),
-        ("SELECTION", "Selection", "Circle the centre of the selected objects about Blender's Z axis"),
+        ("CURSOR", "3D Cursor", "Circle the 3D cursor about Blender's Z axis (Radius 0: at the capture "
+                                "cameras' distance and height)"),
+        ("SELECTION", "Selection", "Circle the centre of the selected objects about Blender's Z axis (Radius 0: "
+                                   "at the capture cameras' distance and height)"),
         ("CAPTURE", "Capture", "The orbit the capture suggests, computed by the backend: up from the cameras' "
                                "level axes, around the SfM points' centre, inside the camera path, at the "
                                "capture's field of view (Radius and Height are not used); for an imported "
                                "video whose world is tilted")],
-        default="CURSOR")
+        default="CAPTURE")
     write_mp4: BoolProperty(name="MP4", default=True, description="Also write an MP4 of the sequence")
 
     # -- the running job (written by operators, drawn by panels) -------------------------------------

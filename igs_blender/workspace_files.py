@@ -71,26 +71,76 @@ def capture_summary(ws: Path) -> str:
     return "\n".join(lines)
 
 
+TABLE_HEADER = ("Layer", "PSNR", "SSIM", "Gaussians")
+# (metrics key of a layer, row label), the full image first: the number to compare with 3DGS
+DECOMPOSE_ROWS = (("full", "A×S+R"), ("diffuse", "A×S"), ("albedo", "albedo"), ("shading", "shading"),
+                  ("residual", "residual"))
+
+
+def _num(value: Any, fmt: str) -> str:
+    return format(value, fmt) if isinstance(value, (int, float)) and not isinstance(value, bool) else "–"
+
+
+def _row(label: str, entry: dict[str, Any], gaussians: Any) -> str:
+    return "\t".join((label, _num(entry.get("psnr"), ".2f"), _num(entry.get("ssim"), ".3f"), _num(gaussians, ",d")))
+
+
+def _flatten(prefix: str, obj: Any, lines: list[str], max_lines: int) -> None:
+    if len(lines) >= max_lines:
+        return
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            _flatten(f"{prefix}.{k}" if prefix else str(k), v, lines, max_lines)
+    elif isinstance(obj, bool) or obj is None or isinstance(obj, str):
+        lines.append(f"{prefix}: {obj}")
+    elif isinstance(obj, (int, float)):
+        lines.append(f"{prefix}: {obj:.4g}" if isinstance(obj, float) else f"{prefix}: {obj}")
+
+
 def metrics_summary(ws: Path, max_lines: int = 12) -> str:
-    """metrics.json flattened to 'key: value' lines (numbers to 4 significant digits)."""
+    """metrics.json as the panel shows it: a table of held-out PSNR / SSIM / Gaussians, one tab-separated
+    line per row after a header, full-image rows first (the decomposition's A×S+R, then the 3DGS
+    baseline and single-set runs), then the decomposition's layers, then a line on the views, size and
+    time. Keys of another layout are flattened to 'key: value' lines (at most ``max_lines``)."""
     data = read_json(ws / "metrics.json")
     if not data:
         return ""
-    lines: list[str] = []
-
-    def walk(prefix: str, obj: Any) -> None:
-        if len(lines) >= max_lines:
-            return
-        if isinstance(obj, dict):
-            for k, v in obj.items():
-                walk(f"{prefix}.{k}" if prefix else str(k), v)
-        elif isinstance(obj, bool) or obj is None or isinstance(obj, str):
-            lines.append(f"{prefix}: {obj}")
-        elif isinstance(obj, (int, float)):
-            lines.append(f"{prefix}: {obj:.4g}" if isinstance(obj, float) else f"{prefix}: {obj}")
-
-    walk("", data)
-    return "\n".join(lines)
+    full: list[str] = []
+    parts: list[str] = []
+    notes: list[str] = []
+    other: list[str] = []
+    for key, entry in data.items():
+        if not isinstance(entry, dict):
+            continue
+        layers = entry.get("layers")
+        if isinstance(layers, dict) and isinstance(layers.get("full"), dict):
+            counts = entry.get("gaussians") if isinstance(entry.get("gaussians"), dict) else {}
+            if key == "decompose":
+                full.insert(0, _row("A×S+R", layers["full"], counts.get("total")))
+                diffuse = [counts.get(k) for k in ("albedo", "shading")]
+                for kind, label in DECOMPOSE_ROWS[1:]:
+                    if isinstance(layers.get(kind), dict):
+                        n = sum(diffuse) if kind == "diffuse" and None not in diffuse else counts.get(kind)
+                        parts.append(_row(label, layers[kind], n))
+                size = entry.get("resolution")
+                note = [f"{entry.get('held_out_views', '?')} held-out views"]
+                if isinstance(size, list) and len(size) == 2:
+                    note.append(f"{size[0]}x{size[1]}")
+                if isinstance(entry.get("decompose_seconds"), (int, float)):
+                    note.append(f"{entry['decompose_seconds']:.0f} s")
+                notes.append("Decomposition: " + ", ".join(note))
+            else:  # decompose_single_set[_sequential]: the baseline's full image
+                full.append(_row(key.replace("decompose_", "").replace("_", " "), layers["full"],
+                                 counts.get("total")))
+        elif "psnr" in entry and key == "train_3dgs":
+            full.append(_row("3DGS", entry, entry.get("gaussians")))
+            if isinstance(entry.get("train_seconds"), (int, float)):
+                notes.append(f"3DGS: {entry.get('iterations', '?')} iterations, {entry['train_seconds']:.0f} s")
+        else:
+            _flatten(key, entry, other, max_lines)
+    if not full and not parts:
+        return "\n".join(other)
+    return "\n".join(["\t".join(TABLE_HEADER), *full, *parts, *notes, *other])
 
 
 def output_files(outputs: list[tuple[str, str]], folder: Path, suffixes: tuple[str, ...]) -> list[Path]:

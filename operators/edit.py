@@ -14,19 +14,37 @@ into ``paint.png`` and sends that file, so the painting survives reopening the b
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
-from ..igs_blender import edits, layers, proxies
+from ..igs_blender import edits, layers, proxies, scene_objects
 from ..igs_blender.camera_objects import render_region_rect
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.props import MIN_SELECTED
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
-from .job import BackendOperator, backend_job
-from .modes import leave_mode, mode_set, view3d_override
+from .job import BackendOperator, backend_job, show_job
+from .layers import tell
+from .modes import leave_mode, mode_set, restore_mode, view3d_override
+
+FIT_SETTINGS = "Edit panel > Fit Settings"
+# The backend's fit errors name its command-line flags; the panel has settings for them instead.
+PANEL_WORDS = ((re.compile(r"--rect (\[[^\]]*\])"), r"the rectangle \1"),
+               (re.compile(r"drag a larger rectangle over the surface"),
+                f"drag a larger rectangle over the surface (Ctrl+B) or lower Min Gaussians ({FIT_SETTINGS})"),
+               (re.compile(r"raise --threshold"), f"raise Inlier Distance ({FIT_SETTINGS})"),
+               (re.compile(r"use fit-plane"), "use Fit Plane"))
+
+
+def panel_words(message: str) -> str:
+    """A fit error as the panel's user reads it: the panel's setting where the backend names a flag."""
+    for pattern, words in PANEL_WORDS:
+        message = pattern.sub(words, message)
+    return message
 
 
 def target_proxy(context) -> tuple[str, bpy.types.Object]:
@@ -81,7 +99,22 @@ class IGS_OT_fit_proxy(BackendOperator, bpy.types.Operator):
         self._name = name
         args = ["edit", f"fit-{self.primitive}", ws, "--view", cam["igs_frame"], "--rect", *rect,
                 "--name", name, "--out", self._out]
+        if props.fit_threshold > 0:
+            args += ["--threshold", f"{props.fit_threshold:.6g}"]  # float32: 0.05, not 0.0500000007
+        if props.fit_min_selected != MIN_SELECTED:
+            args += ["--min-selected", props.fit_min_selected]
         return backend_job(context, args, f"Fit {self.primitive}")
+
+    def _tick(self, context) -> set[str]:
+        job = self._job
+        job.poll()
+        if not job.finished:  # as BackendOperator._tick does, without a second poll that could end the job
+            show_job(context.scene.igs, job)
+            scene_objects.tag_redraw(context)
+            return {"RUNNING_MODAL"}
+        if job.state.error:
+            job.state.error = panel_words(job.state.error)
+        return super()._tick(context)
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs
@@ -92,7 +125,10 @@ class IGS_OT_fit_proxy(BackendOperator, bpy.types.Operator):
         item.baked = False
         item.visible = True
         select_only(context, obj)
-        return f"Fitted a {self.primitive} proxy for edit '{self._name}': move it with the gizmos, then Bake"
+        # The rectangle is read: without clearing it a later F12 would render only that region.
+        context.scene.render.use_border = False
+        return (f"Fitted a {self.primitive} proxy for edit '{self._name}': move it with the gizmos, then Bake "
+                "(the Ctrl+B rectangle is cleared)")
 
 
 class IGS_OT_use_selection_as_proxy(bpy.types.Operator):
@@ -111,13 +147,13 @@ class IGS_OT_use_selection_as_proxy(bpy.types.Operator):
             name = check_edit_name(props.edit_name)
             proxies.adopt_mesh_as_proxy(obj, name)
         except UserError as e:
-            self.report({"ERROR"}, str(e))
+            tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
         item = edits.ensure(props, name)
         item.proxy = obj
         item.baked = False
         item.visible = True
-        self.report({"INFO"}, f"'{obj.name}' is the proxy of edit '{name}'")
+        tell(self, context, "INFO", f"'{obj.name}' is the proxy of edit '{name}': Image…, a colour or Paint, then Bake")
         return {"FINISHED"}
 
 
@@ -150,7 +186,7 @@ class IGS_OT_set_proxy_image(bpy.types.Operator):
                 raise UserError(f"cannot read image {path}: {e}") from e
             proxies.set_proxy_image(obj, image, self.extension)
         except UserError as e:
-            self.report({"ERROR"}, str(e))
+            tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
         context.scene.igs.texture_mode = "IMAGE"
         return {"FINISHED"}
@@ -167,7 +203,7 @@ class IGS_OT_set_proxy_color(bpy.types.Operator):
         try:
             _, obj = target_proxy(context)
         except UserError as e:
-            self.report({"ERROR"}, str(e))
+            tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
         proxies.set_proxy_color(obj, context.scene.igs.edit_color)
         context.scene.igs.texture_mode = "COLOR"
@@ -204,6 +240,7 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         _, item = edits.find(props, self._name)
         item.albedo = obj
         item.baked = True
+        props.layer_display = "albedo"  # the edit changed the albedo: show it (the composite preview predates it)
         edits.show_only(props, self._name)
         props.capture_info = capture_summary(ws)
         return f"Baked edit '{self._name}': {len(obj.data.points)} albedo Gaussians shown"
@@ -295,7 +332,7 @@ class IGS_OT_select_edit(bpy.types.Operator):
         props = context.scene.igs
         i, item = edits.find(props, self.name)
         if item is None or item.proxy is None:
-            self.report({"ERROR"}, f"edit '{self.name}' has no proxy")
+            tell(self, context, "ERROR", f"edit '{self.name}' has no proxy")
             return {"CANCELLED"}
         props.edits_index = i
         item.visible = True
@@ -324,11 +361,62 @@ class IGS_OT_remove_edit(bpy.types.Operator):
             try:
                 ws = existing_workspace(props.workspace)
             except UserError as e:
-                self.report({"ERROR"}, str(e))
+                tell(self, context, "ERROR", str(e))
                 return {"CANCELLED"}
         edits.remove(props, self.name, ws, self.delete_files)
+        tell(self, context, "INFO", f"Removed edit '{self.name}'" + (" and its files" if self.delete_files else ""))
         return {"FINISHED"}
 
 
+class IGS_OT_load_edits(bpy.types.Operator):
+    """Bring the workspace's edits into the scene: each edits/<name>/proxy.json (fitted here or with igs edit on the command line) as a proxy mesh with its texture or colour, and each baked edit's albedo"""
+
+    bl_idname = "igs.load_edits"
+    bl_label = "Load Edits"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        props = context.scene.igs
+        obj, mode = leave_mode(context)  # point clouds are made by converting meshes, in Object mode
+        try:
+            ws = existing_workspace(props.workspace)
+            loaded, failed = edits.load_workspace_edits(props, ws, max_points=props.max_points,
+                                                        radius_scale=props.radius_scale)
+        except UserError as e:
+            tell(self, context, "ERROR", str(e))
+            return {"CANCELLED"}
+        finally:
+            restore_mode(context, obj, mode)
+        if not loaded:
+            why = "; ".join(failed) if failed else "none yet (Fit Plane / Fit Cylinder, or igs edit fit-plane)"
+            tell(self, context, "ERROR" if failed else "WARNING", f"{ws / 'edits'}: no edit loaded: {why}")
+            return {"CANCELLED"}
+        for name in loaded:
+            _name_paint_image(ws, name, edits.find(props, name)[1].proxy)
+        baked = [n for n in loaded if edits.find(props, n)[1].baked]
+        shown = baked[0] if baked else loaded[0]
+        if baked:
+            props.layer_display = "albedo"
+        edits.show_only(props, shown)
+        props.edits_index = edits.find(props, shown)[0]
+        props.capture_info = capture_summary(ws)
+        msg = (f"Loaded {len(loaded)} edit(s): {', '.join(loaded)}; {len(baked)} baked; showing '{shown}' "
+               "(the eye in the list shows the others)")
+        if failed:
+            msg += "; could not read " + "; ".join(failed)
+        tell(self, context, "WARNING" if failed else "INFO", msg)
+        return {"FINISHED"}
+
+
+def _name_paint_image(ws: Path, name: str, obj: bpy.types.Object) -> None:
+    """A loaded proxy painted with Paint shows ``paint.png`` of its edit: name the image as Paint does."""
+    image = proxies.proxy_image(obj) if obj is not None else None
+    if image is None or not image.filepath or paint_image_name(name) in bpy.data.images:
+        return
+    path = Path(bpy.path.abspath(image.filepath)).resolve()
+    if path == (ws / "edits" / name / "paint.png").resolve():
+        image.name = paint_image_name(name)
+
+
 CLASSES = (IGS_OT_fit_proxy, IGS_OT_use_selection_as_proxy, IGS_OT_set_proxy_image, IGS_OT_set_proxy_color,
-           IGS_OT_paint_proxy, IGS_OT_bake_edit, IGS_OT_select_edit, IGS_OT_remove_edit)
+           IGS_OT_paint_proxy, IGS_OT_bake_edit, IGS_OT_select_edit, IGS_OT_remove_edit, IGS_OT_load_edits)

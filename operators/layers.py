@@ -7,11 +7,22 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import layers
+from ..igs_blender import edits, layers
 from ..igs_blender.errors import UserError
 from ..igs_blender.ply_io import write_splat_ply
 from ..igs_blender.workspace_files import existing_workspace, metrics_summary
 from .modes import leave_mode, restore_mode
+
+
+def tell(op: bpy.types.Operator, context, level: str, message: str) -> None:
+    """Report ``message`` (status bar, Info log) and leave it in the panel's status box, which would
+    otherwise still show the previous job's outcome."""
+    context.scene.igs.last_report = message
+    op.report({level}, message)
+
+
+def loaded_summary(objs: dict) -> str:
+    return ", ".join(f"{k} {len(o.data.points):,}" for k, o in objs.items())
 
 
 class IGS_OT_load_layers(bpy.types.Operator):
@@ -29,12 +40,17 @@ class IGS_OT_load_layers(bpy.types.Operator):
             objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
                                                 composite=props.build_composite)
         except UserError as e:
-            self.report({"ERROR"}, str(e))
+            tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
         finally:
             restore_mode(context, obj, mode)
         props.metrics_info = metrics_summary(ws)
-        self.report({"INFO"}, "Loaded " + ", ".join(f"{k} ({len(o.data.points)} points)" for k, o in objs.items()))
+        edits.apply_visibility()
+        msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"
+        on_disk = [n for n in edits.workspace_edits(ws) if edits.find(props, n)[1] is None]
+        if on_disk:
+            msg += f"; the workspace has {len(on_disk)} edit(s) not in the scene: Edit panel > Load Edits"
+        tell(self, context, "INFO", msg)
         return {"FINISHED"}
 
 
@@ -65,11 +81,11 @@ class IGS_OT_export_layer(bpy.types.Operator):
                 raise UserError("choose a file to write")
             path = write_splat_ply(Path(bpy.path.abspath(self.filepath)), layer)
         except (UserError, OSError) as e:
-            self.report({"ERROR"}, str(e))
+            tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
         note = "" if len(layer) == int(obj.get("igs_total", len(layer))) else \
             f" (the proxy holds {len(layer)} of {obj['igs_total']} Gaussians: raise Max Points to export all)"
-        self.report({"INFO"}, f"Wrote {len(layer)} Gaussians to {path}{note}")
+        tell(self, context, "INFO", f"Wrote {len(layer)} Gaussians to {path}{note}")
         return {"FINISHED"}
 
 

@@ -1,8 +1,10 @@
 """Render operators: the active camera's view, a turntable, or the scene's animated camera.
 
 Blender computes the cameras (so a turntable circles the 3D cursor in Blender's world, and a camera
-path follows any animation), except for a turntable around the *capture*, whose orbit the backend
-derives from the capture's cameras (``render --turntable --frames N --size W H``). Blender's cameras are
+path follows any animation), except for a turntable around the *capture* (the default), whose orbit
+the backend derives from the capture's cameras (``render --turntable --frames N --size W H``). Around
+the cursor or the selection, Radius 0 (the default) fits the orbit's radius and height to the SfM
+cameras, so it runs through the free space they filmed rather than through a wall. Blender's cameras are
 written as ``{"cameras": [{"name", "width", "height", "fx",
 "fy", "cx", "cy", "R", "t"}, ...]}`` (OpenCV convention in SfM coordinates: ``x_cam = R x + t``);
 ``render --cameras`` writes ``OUT/<layer>/<name>.png`` per camera and ``OUT/<layer>.mp4``.
@@ -20,12 +22,20 @@ from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
 from ..igs_blender import compat, edits, images
-from ..igs_blender.camera_objects import render_size, sfm_view_from_object
+from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
 from .job import BackendOperator, backend_job
+
+
+def orbit(context, target: Vector) -> tuple[float, float]:
+    """(radius, height) of a turntable around ``target``: the panel's, or fitted to the capture (Radius 0)."""
+    props = context.scene.igs
+    if props.turntable_radius > 0:
+        return props.turntable_radius, props.turntable_height
+    return capture_orbit(target)
 
 
 def fresh_output_dir(ws: Path, kind: str) -> Path:
@@ -121,8 +131,8 @@ class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
         cam = scene.camera
         if self.mode == "TURNTABLE":
             target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else selection_center(context)
-            mats = turntable_matrices(np.array(target), props.turntable_radius, props.turntable_height,
-                                      props.turntable_frames)
+            radius, height = orbit(context, target)
+            mats = turntable_matrices(np.array(target), radius, height, props.turntable_frames)
             return [sfm_view_from_object(scene, cam, name=f"turntable_{i:04d}", matrix_world=Matrix(m.tolist()))
                     for i, m in enumerate(mats)]
         if cam is None:

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import bpy
 
-from ..igs_blender import compat, edits
-from ..igs_blender.layers import LAYER_KINDS, object_name
+from ..igs_blender import compat, edits, layers
+from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
+from ..igs_blender.errors import UserError
+from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT
 
 CATEGORY = "Intrinsic Splats"
+LAYER_LABELS = {"composite": "Composite A×S+R", "albedo": "Albedo", "shading": "Shading", "residual": "Residual",
+                "radiance": "3DGS"}
 
 
 class _Panel:
@@ -22,6 +26,31 @@ def _lines(layout, text: str, icon: str = "NONE") -> None:
         col.label(text=line, icon=icon if i == 0 else "BLANK1")
 
 
+def _table(layout, text: str) -> None:
+    """Tab-separated lines as table rows (the first is the header), other lines as labels."""
+    col = layout.column(align=True)
+    for line in text.splitlines():
+        cells = line.split("\t")
+        if len(cells) == 1:
+            col.label(text=line)
+            continue
+        split = col.split(factor=0.34, align=True)
+        split.label(text=cells[0])
+        rest = split.row(align=True)
+        for cell in cells[1:]:
+            rest.label(text=cell)
+
+
+def iteration_counts(props) -> tuple[str, str]:
+    """What Decompose and Train 3DGS will run with the panel's Iterations (0: the backend's defaults)."""
+    n = props.iterations or DECOMPOSE_DEFAULT
+    per_stage = {"albedo": n, "shading": max(1, round(0.75 * n)), "residual": max(1, n // 2)}
+    stages = per_stage if props.decompose_stage == "ALL" else {props.decompose_stage: per_stage[props.decompose_stage]}
+    default = " (default)" if not props.iterations else ""
+    decompose = ", ".join(f"{k} {v:,}" for k, v in stages.items()) + default
+    return decompose, f"3DGS baseline {props.iterations or TRAIN_3DGS_DEFAULT:,}{default}"
+
+
 class IGS_PT_main(_Panel, bpy.types.Panel):
     bl_label = "Intrinsic Splats"
     bl_idname = "IGS_PT_main"
@@ -29,7 +58,7 @@ class IGS_PT_main(_Panel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         props = context.scene.igs
-        layout.prop(props, "workspace", text="")
+        layout.prop(props, "workspace")
         if props.job_running:
             box = layout.box()
             box.label(text=props.job_label, icon="SORTTIME")
@@ -57,8 +86,8 @@ class IGS_PT_capture(_Panel, bpy.types.Panel):
             col.prop(props, "source_path", text="")
             if props.source_kind == "VIDEO":
                 col.prop(props, "every")
-            col.prop(props, "max_frames")
-            col.prop(props, "max_side")
+            col.prop(props, "max_frames", text="Max Frames (0 = all)")
+            col.prop(props, "max_side", text="Max Side (0 = full size)")
             col.prop(props, "albedo_prior")
             if props.albedo_prior == "FOLDER":
                 col.prop(props, "albedo_folder", text="")
@@ -81,7 +110,11 @@ class IGS_PT_decompose(_Panel, bpy.types.Panel):
         layout = self.layout
         props = context.scene.igs
         layout.prop(props, "decompose_stage")
-        layout.prop(props, "iterations")
+        col = layout.column(align=True)
+        col.prop(props, "iterations", text="Iterations (0 = default)")
+        decompose, baseline = iteration_counts(props)
+        col.label(text=decompose, icon="INFO")
+        col.label(text=baseline, icon="BLANK1")
         layout.prop(props, "restart")
         row = layout.row()
         row.scale_y = 1.3
@@ -91,8 +124,8 @@ class IGS_PT_decompose(_Panel, bpy.types.Panel):
             _lines(layout.box(), props.job_stages, icon="PREVIEW_RANGE")
         if props.metrics_info:
             box = layout.box()
-            box.label(text="Metrics", icon="SORTSIZE")
-            _lines(box, props.metrics_info)
+            box.label(text="Metrics (held-out views)", icon="SORTSIZE")
+            _table(box, props.metrics_info)
 
 
 class IGS_PT_layers(_Panel, bpy.types.Panel):
@@ -103,21 +136,24 @@ class IGS_PT_layers(_Panel, bpy.types.Panel):
         layout = self.layout
         props = context.scene.igs
         col = layout.column()
-        col.prop(props, "max_points")
+        col.prop(props, "max_points", text="Max Points (0 = all)")
         col.prop(props, "radius_scale")
         col.prop(props, "build_composite")
         layout.operator("igs.load_layers", icon="POINTCLOUD_DATA")
         box = layout.box()
-        present = [(k, bpy.data.objects.get(object_name(k))) for k in (*LAYER_KINDS, "composite")]
-        present = [(k, o) for k, o in present if o is not None and o.type == "POINTCLOUD"]
-        if not present:
+        loaded = layers.loaded_layers()
+        if not loaded:
             box.label(text="No layers loaded")
-        for kind, obj in present:
-            row = box.row()
-            row.prop(obj, "hide_viewport", text="", invert_checkbox=True, emboss=False,
-                     icon="HIDE_ON" if obj.hide_viewport else "HIDE_OFF")
-            shown, total = len(obj.data.points), int(obj.get("igs_total", len(obj.data.points)))
-            row.label(text=f"{kind}: {shown:,}" + (f" of {total:,}" if total != shown else ""))
+        else:
+            box.label(text="Show one layer:", icon="HIDE_OFF")
+            col = box.column(align=True)
+            for kind, obj in loaded.items():  # a radio list: the pressed one is the layer in the viewport
+                shown, total = len(obj.data.points), int(obj.get("igs_total", len(obj.data.points)))
+                text = f"{LAYER_LABELS[kind]}: {shown:,}" + (f" of {total:,}" if total != shown else "")
+                col.prop_enum(props, "layer_display", kind, text=text)
+            edited = [i.name for i in props.edits if i.visible and i.albedo is not None]
+            if edited and layers.shown_kind(props.layer_display) == "albedo":
+                box.label(text=f"Albedo with edit {', '.join(edited)}", icon="BRUSH_DATA")
         layout.operator("igs.export_layer", icon="EXPORT")
         if compat.native_splat_display() is None:
             layout.label(text="Shown as points (no native splats in this Blender)", icon="INFO")
@@ -144,12 +180,28 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
         row = col.row(align=True)
         row.prop(scene, "camera", text="View")
         row.operator("igs.use_frame_camera", text="", icon="VIEW_CAMERA")
+        cam = scene.camera
+        if cam is not None and not frame_matches_output(scene, cam):
+            col.label(text="Output shape is not this photo's: Look Through", icon="ERROR")
         col.label(text="Ctrl+B in the camera view: edit rectangle", icon="SELECT_SET")
+        if cam is not None and scene.render.use_border:
+            try:
+                x0, y0, x1, y1 = render_region_rect(scene, cam)
+                col.label(text=f"Rectangle {x1 - x0}x{y1 - y0} px at ({x0}, {y0})", icon="CHECKMARK")
+            except UserError:
+                pass
         layout.prop(props, "edit_name")
         row = layout.row(align=True)
         row.operator("igs.fit_proxy", text="Fit Plane", icon="MESH_PLANE").primitive = "plane"
         row.operator("igs.fit_proxy", text="Fit Cylinder", icon="MESH_CYLINDER").primitive = "cylinder"
-        layout.operator("igs.use_selection_as_proxy", icon="RESTRICT_SELECT_OFF")
+        box = layout.box()
+        box.label(text="Fit Settings", icon="PREFERENCES")
+        sub = box.column(align=True)
+        sub.prop(props, "fit_threshold", text="Inlier Distance (0 = auto)")
+        sub.prop(props, "fit_min_selected")
+        row = layout.row(align=True)
+        row.operator("igs.use_selection_as_proxy", icon="RESTRICT_SELECT_OFF")
+        row.operator("igs.load_edits", icon="IMPORT")
         box = layout.box()
         box.label(text="Texture", icon="TEXTURE")
         box.prop(props, "texture_mode", expand=True)
@@ -160,7 +212,7 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
             row.prop(props, "edit_color", text="")
             row.operator("igs.set_proxy_color")
         layout.template_list("IGS_UL_edits", "", props, "edits", props, "edits_index", rows=3)
-        layout.prop(props, "bake_iterations")
+        layout.prop(props, "bake_iterations", text="Bake Iterations (0 = default)")
         row = layout.row(align=True)
         row.scale_y = 1.3
         item = edits.active(props)
@@ -187,13 +239,31 @@ class IGS_PT_render(_Panel, bpy.types.Panel):
         col = box.column(align=True)
         col.prop(props, "turntable_target")
         col.prop(props, "turntable_frames")
-        sub = col.column(align=True)
-        sub.active = props.turntable_target != "CAPTURE"  # the backend picks the orbit then
-        sub.prop(props, "turntable_radius")
-        sub.prop(props, "turntable_height")
-        box.prop(props, "write_mp4")
+        if props.turntable_target == "CAPTURE":  # the backend picks the orbit
+            col.label(text="Orbit inside the capture's camera path", icon="INFO")
+        else:
+            col.prop(props, "turntable_radius", text="Radius (0 = fit to capture)")
+            sub = col.row(align=True)
+            sub.active = props.turntable_radius > 0
+            sub.prop(props, "turntable_height")
+            if props.turntable_radius <= 0:
+                col.label(text=_fitted_orbit(context), icon="INFO")
+        box.prop(props, "write_mp4", text="MP4 (H.264)")
         box.operator("igs.render_sequence", text="Render Turntable", icon="ORIENTATION_GIMBAL").mode = "TURNTABLE"
         box.operator("igs.render_sequence", text="Render Camera Path", icon="CAMERA_DATA").mode = "CAMERA"
+
+
+def _fitted_orbit(context) -> str:
+    """The orbit Radius 0 gives around the cursor or the selection, as one line."""
+    from ..operators.render import selection_center
+
+    try:
+        target = context.scene.cursor.location if context.scene.igs.turntable_target == "CURSOR" else \
+            selection_center(context)
+        radius, height = capture_orbit(target)
+    except UserError as e:
+        return str(e).split(":")[0]
+    return f"Fitted: radius {radius:.3g}, height {height:.3g}"
 
 
 CLASSES = (IGS_PT_main, IGS_PT_capture, IGS_PT_decompose, IGS_PT_layers, IGS_UL_edits, IGS_PT_edit, IGS_PT_render)

@@ -836,6 +836,7 @@ def test_operators_follow_the_backend_contract_from_import_to_turntable(scene, t
     assert (view_dir / "edit.txt").read_text() == "decal"
 
     scene.cursor.location = (0.0, 0.0, 0.2)
+    props.turntable_target = "CURSOR"  # the default is now the capture's own orbit
     props.turntable_frames, props.turntable_radius, props.turntable_height = 5, 2.0, 0.5
     assert bpy.ops.igs.render_sequence(mode="TURNTABLE") == {"FINISHED"}, props.last_report
     seq = bpy.data.images["IGS Sequence"]
