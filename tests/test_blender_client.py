@@ -228,7 +228,7 @@ def test_environment_check_lists_packages_and_backend_commands():
     assert job.wait(timeout=90) == 0, job.report()
     ok, lines = backend_env.env_report_lines(job)
     assert ok, lines
-    assert lines[0].startswith("Python 3.11")
+    assert lines[0].startswith(f"Python {sys.version_info.major}.{sys.version_info.minor}.")
     assert any(line.startswith("All ") and "pinned packages present" in line for line in lines)
     assert any(line.startswith("Backend commands:") for line in lines)
 

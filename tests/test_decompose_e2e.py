@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import pytest
 import torch
+from _synth_capture import needs_synth_renderer
 
 from backend.cli import main
 from backend.splats.ply import read_ply
@@ -26,6 +27,7 @@ ARGS = ["--albedo-iterations", "50", "--shading-iterations", "24", "--residual-i
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
+    needs_synth_renderer()
     synth = pytest.importorskip("backend.capture.synth")
     ws = tmp_path_factory.mktemp("decompose") / "test_ws"
     synth.synthesize(ws, preset="test", seed=0)

@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import json
 
+from _synth_capture import needs_synth_renderer
+
 from backend.cli import main
 
 
 def test_demo_runs_synth_decompose_fit_bake_and_turntable(tmp_path, capsys):
+    needs_synth_renderer()
     ws = tmp_path / "demo"
     assert main(["demo", str(ws), "--preset", "test", "--frames", "2"]) in (0, None)
     summary = json.loads((ws / "demo_summary.json").read_text())

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import cv2
 import pytest
+from _synth_capture import needs_synth_renderer
 
 from backend.capture.colmap_io import read_model
 from backend.capture.importer import ImportConfig, import_capture
@@ -26,6 +27,7 @@ SFM = SfMConfig(num_threads=1, max_reproj_error=2.0)
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
+    needs_synth_renderer()
     ws = tmp_path_factory.mktemp("synth_sfm") / "ws"
     synthesize(ws, preset="sfm", seed=0, threads=2)
     return ws, read_model(ws / "sparse" / "0").cameras

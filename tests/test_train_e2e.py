@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from _synth_capture import needs_synth_renderer
 
 from backend.cli import main
 from backend.train.loop import load_checkpoint
@@ -24,6 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
+    needs_synth_renderer()
     synth = pytest.importorskip("backend.capture.synth")
     ws = tmp_path_factory.mktemp("e2e") / "test_ws"
     synth.synthesize(ws, preset="test", seed=0)
