@@ -1,7 +1,9 @@
 """Where the backend is and how to run it: interpreter, shipped sources, pinned requirements (no bpy).
 
 The extension ships the backend sources and ``pyproject.toml`` beside the add-on; jobs run the
-configured interpreter with that folder first on PYTHONPATH, so Blender never imports them.
+configured interpreter with that folder first on PYTHONPATH, so Blender never imports them. The
+pins carry PEP 508 ``python_version`` markers (one set per Python); the scripts that create and
+check an environment run in its interpreter and pick the set for it (check_env.py's evaluator).
 """
 
 from __future__ import annotations
@@ -13,27 +15,46 @@ import tempfile
 import time
 from pathlib import Path
 
+from . import check_env
 from .client import BackendJob, backend_command
 from .errors import UserError
 
 ADDON_ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = Path(__file__).resolve().parent
 
+# PyTorch's own index of CPU-only wheels (torch 2.13.0+cpu for cp311 is 192 MB where PyPI's Linux
+# wheel is the CUDA build with 2.2 GB of NVIDIA libraries); its mirror of torch's deps comes with it.
+CPU_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
+DEVICES = check_env.DEVICES
+FIX_ENV = "click Create Backend Environment"
 
-def pinned_requirements(root: Path = ADDON_ROOT, include_bpy: bool = True) -> list[str]:
-    """The ``[project] dependencies`` of the shipped pyproject.toml (exact pins)."""
+
+def read_pyproject(root: Path = ADDON_ROOT) -> tuple[str, list[str]]:
+    """(requires-python, ``[project] dependencies``) of the shipped pyproject.toml."""
     import tomllib
 
     path = root / "pyproject.toml"
     if not path.is_file():
         raise UserError(f"{path}: missing; this copy of the extension does not ship the backend's requirements")
     try:
-        deps = tomllib.loads(path.read_text(encoding="utf-8"))["project"]["dependencies"]
-    except (tomllib.TOMLDecodeError, KeyError) as e:
-        raise UserError(f"{path}: cannot read [project] dependencies ({e})") from e
+        project = tomllib.loads(path.read_text(encoding="utf-8"))["project"]
+        deps, requires = list(project["dependencies"]), str(project.get("requires-python", ""))
+        for dep in deps:
+            _, _, marker = check_env.split_requirement(dep)
+            if marker:
+                check_env.evaluate_marker(marker, "3.11")  # refuse markers the scripts cannot evaluate now
+        check_env.version_matches("3.11", requires)
+    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
+        raise UserError(f"{path}: cannot read [project] dependencies and requires-python ({e})") from e
+    return requires, deps
+
+
+def pinned_requirements(root: Path = ADDON_ROOT, include_bpy: bool = True) -> list[str]:
+    """The ``[project] dependencies`` of the shipped pyproject.toml (exact pins, markers kept)."""
+    deps = read_pyproject(root)[1]
     if not include_bpy:
-        deps = [d for d in deps if not d.lower().startswith("bpy")]
-    return list(deps)
+        deps = [d for d in deps if check_env.normal_name(check_env.split_requirement(d)[0]) != "bpy"]
+    return deps
 
 
 def backend_root(configured: str = "") -> Path:
@@ -74,19 +95,34 @@ def backend_job(interpreter: str, args: list, label: str, *, root: str = "", exp
     return BackendJob(argv, label, env=env, expected_stages=expected_stages, log_path=log_path(name))
 
 
-def check_job(interpreter: str, root: str = "", include_bpy: bool = True) -> BackendJob:
-    """A job that reports what ``interpreter`` lacks (see check_env.py)."""
+def check_job(interpreter: str, root: str = "", include_bpy: bool = True, device: str = "cpu") -> BackendJob:
+    """A job that reports what ``interpreter`` lacks for ``device`` (see check_env.py)."""
+    requires, _ = read_pyproject(backend_root(root))
     reqs = pinned_requirements(backend_root(root), include_bpy)
     _, env = backend_command(interpreter, [], backend_root(root))
-    argv = script_argv(interpreter, "check_env.py", ["--requirements-json", json.dumps(reqs)])
+    argv = script_argv(interpreter, "check_env.py", ["--requirements-json", json.dumps(reqs),
+                                                     "--requires-python", requires, "--device", _device(device)])
     return BackendJob(argv, "Check backend", env=env, cwd=str(Path.home()))
 
 
-def setup_job(base_python: str, env_dir: Path, include_bpy: bool = True, root: str = "") -> BackendJob:
-    """A job that creates/updates the backend venv from the pinned requirements (see setup_env.py)."""
+def setup_job(base_python: str, env_dir: Path, include_bpy: bool = True, root: str = "", device: str = "cpu",
+              torch_index: str = CPU_TORCH_INDEX) -> BackendJob:
+    """A job that creates/updates the backend venv from the pinned requirements (see setup_env.py).
+
+    ``base_python`` ('' = the running Python, Blender's own) makes the venv; its version picks the
+    pins. ``torch_index`` (CPU only; '' = PyPI) is where the CPU build of torch comes from.
+    """
+    device = _device(device)
+    if base_python and not (os.path.isfile(base_python) and os.access(base_python, os.X_OK)):
+        raise UserError(f"Base Python {base_python}: not found or not executable; fix 'Base Python' under "
+                        "Advanced in the preferences (empty: Blender's own Python)")
+    requires, _ = read_pyproject(backend_root(root))
     reqs = pinned_requirements(backend_root(root), include_bpy)
-    argv = script_argv(base_python or sys.executable, "setup_env.py",
-                       ["--venv", str(env_dir), "--requirements-json", json.dumps(reqs)])
+    args = ["--venv", str(env_dir), "--requirements-json", json.dumps(reqs), "--requires-python", requires,
+            "--device", device]
+    if device == "cpu" and torch_index.strip():
+        args += ["--torch-index", torch_index.strip()]
+    argv = script_argv(base_python or sys.executable, "setup_env.py", args)
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     env.pop("PYTHONPATH", None)
@@ -94,28 +130,96 @@ def setup_job(base_python: str, env_dir: Path, include_bpy: bool = True, root: s
                       expected_stages=1, grace_s=10.0, log_path=log_path("setup-env"))
 
 
+def _device(device: str) -> str:
+    device = device.lower()
+    if device not in DEVICES:
+        raise UserError(f"unknown device '{device}' (expected one of {', '.join(DEVICES)})")
+    return device
+
+
+def _and(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _package_problem(missing: list[dict], wrong: list[dict]) -> str:
+    """"torch missing and numpy 1.26.4 where 2.4.6 is wanted" ('' when nothing is)."""
+    parts = []
+    if missing:
+        names = [p["name"] for p in missing]
+        parts.append(_and(names if len(names) <= 3 else [*names[:2], f"{len(names) - 2} more"]) + " missing")
+    parts += [f"{p['name']} {p['have']} where {p['want'].removeprefix('==')} is wanted" for p in wrong[:2]]
+    if len(wrong) > 2:
+        parts.append(f"{len(wrong) - 2} more at other versions")
+    return " and ".join(parts)
+
+
+def _torch_report(env: dict) -> tuple[str, str, list[str]]:
+    """(what is wrong with torch for the device and needs a new environment, what else is wrong with a
+    fix of its own, detail lines)."""
+    info, device = env.get("torch"), env.get("device", "cpu")
+    if not info:
+        return "", "", []  # missing: the package list says so
+    version = info["version"]
+    if info.get("error"):
+        return f"torch {version} does not import ({info['error']})", "", [f"torch {version} does not import: {info['error']}"]
+    if info.get("cuda"):
+        usable = (f"CUDA usable on {info['cuda_device']}" if info.get("cuda_available")
+                  else f"CUDA not usable: {info.get('cuda_error') or 'no GPU'}")
+        lines = [f"torch {version}: CUDA {info['cuda']} build, {usable}"]
+    else:
+        lines = [f"torch {version}: CPU-only build"]
+    if device != "cuda":
+        return "", "", lines
+    lines.append(f"CUDA toolkit for gsplat's kernels: {env.get('nvcc') or 'none found (no nvcc on PATH or CUDA_HOME)'}")
+    if not info.get("cuda"):
+        return f"torch {version} is a CPU-only build where the Device is NVIDIA CUDA", "", lines
+    if not info.get("cuda_available"):
+        return "", (f"CUDA is not usable ({info.get('cuda_error') or 'no GPU'}): install the NVIDIA driver, "
+                    f"or choose CPU as Device and {FIX_ENV}"), lines
+    if not env.get("nvcc"):
+        return "", ("no CUDA toolkit (nvcc) found, and gsplat compiles its kernels with it on first use: "
+                    f"install it and set CUDA_HOME, or choose CPU as Device and {FIX_ENV}"), lines
+    return "", "", lines
+
+
 def env_report_lines(job: BackendJob) -> tuple[bool, list[str]]:
-    """(everything present, lines for the user) from a finished check job."""
+    """(everything present, lines for the user) from a finished check job: the first line says what is
+    wrong and how to fix it (or that the backend is ready), the others are the details."""
     env = next((e for e in job.state.other if e.get("event") == "env"), None)
     if env is None:
         return False, [job.report()]
-    lines = [f"Python {env['python']} at {env['executable']}"]
-    ok = bool(env.get("python_ok"))
-    if not ok:
-        lines.append(f"  needs Python {env.get('python_wanted')}.x (the pinned wheels, bpy 5.0.1 included, are built for it)")
+    minor = ".".join(env["python"].split(".")[:2])
+    details = [f"Python {env['python']} at {env['executable']}"
+               + (f" (requires-python {env['requires_python']})" if env.get("requires_python") else "")]
     missing = [p for p in env["packages"] if p["have"] is None]
     wrong = [p for p in env["packages"] if p["have"] is not None and not p["ok"]]
     if missing:
-        ok = False
-        lines.append("Missing: " + ", ".join(f"{p['name']}{p['want']}" for p in missing))
+        details.append("Missing: " + ", ".join(f"{p['name']}{p['want']}" for p in missing))
     if wrong:
-        ok = False
-        lines.append("Other versions: " + ", ".join(f"{p['name']} {p['have']} (wants {p['want']})" for p in wrong))
+        details.append("Other versions: " + ", ".join(f"{p['name']} {p['have']} (wants {p['want']})" for p in wrong))
     if not missing and not wrong:
-        lines.append(f"All {len(env['packages'])} pinned packages present")
+        details.append(f"All {len(env['packages'])} pinned packages present")
+    if env.get("not_applicable"):
+        details.append(f"Not for Python {minor}: " + ", ".join(env["not_applicable"]))
+    torch_problem, cuda_problem, torch_lines = _torch_report(env)
+    details += torch_lines
     if env.get("backend"):
-        lines.append("Backend commands: " + (", ".join(env["commands"]) or "none yet"))
+        details.append("Backend commands: " + (", ".join(env["commands"]) or "none yet"))
     else:
-        ok = False
-        lines.append(f"Backend does not import: {env.get('backend_error')}")
-    return ok, lines
+        details.append(f"Backend does not import: {env.get('backend_error')}")
+
+    if not env.get("python_ok", True):
+        choices = check_env.choices_text(env.get("python_supported") or [])
+        problem = f"Python {minor} is not supported: choose {choices} as Base Python and {FIX_ENV}"
+    elif missing or wrong or torch_problem:
+        problem = " and ".join(filter(None, (_package_problem(missing, wrong), torch_problem))) + f": {FIX_ENV}"
+    elif cuda_problem:
+        problem = cuda_problem
+    elif not env.get("backend"):
+        problem = f"backend does not import: {env.get('backend_error')}"
+    else:
+        info = env.get("torch") or {}
+        where = f"CUDA on {info['cuda_device']}" if info.get("cuda_available") else "on the CPU"
+        summary = f"Python {env['python']}: backend ready" + (f", torch {info['version']} {where}" if info else "")
+        return True, [summary, *details]
+    return False, [problem, *details]

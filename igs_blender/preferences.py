@@ -1,12 +1,26 @@
-"""Add-on preferences: the backend interpreter, creating its environment, checking it."""
+"""Add-on preferences: the backend interpreter, creating its environment (CPU or CUDA), checking it."""
 
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from . import ADDON_ID
+from .backend_env import CPU_TORCH_INDEX
 from .errors import UserError
+
+# Download sizes measured with pip (wheels, Linux x86-64): torch 2.13.0+cpu (cp311) 192 MB and the
+# CPU set for Python 3.11 458 MB in all; the CUDA set for Python 3.14 2.96 GB (torch 527 MB, the
+# nvidia-*/triton CUDA 13 libraries 2.2 GB, the rest 229 MB); bpy 5.0.1 374 MB (+9 MB of its deps).
+DEVICE_ITEMS = (
+    ("CPU", "CPU",
+     "CPU-only torch (2.13.0+cpu, 192 MB) from the Torch Package Index; about 0.46 GB of downloads in all "
+     "for Python 3.11, plus 0.38 GB for bpy. Training runs on the CPU"),
+    ("CUDA", "NVIDIA CUDA",
+     "torch from PyPI, whose Linux wheels are the CUDA 13 builds, plus gsplat 1.5.3: about 3 GB of downloads "
+     "for Python 3.14 (torch 527 MB, NVIDIA CUDA libraries 2.2 GB). Needs an NVIDIA GPU and driver, and the CUDA toolkit "
+     "(nvcc): gsplat compiles its kernels on first use. Linux only"),
+)
 
 
 class IGS_AddonPreferences(bpy.types.AddonPreferences):
@@ -25,7 +39,9 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
     )
     base_python: StringProperty(
         name="Base Python",
-        description="Python 3.11 used to create the environment (empty: Blender's own Python)",
+        description="Python that creates the environment (empty: Blender's own Python). One that the shipped "
+                    "pyproject.toml's requires-python allows; its version picks the pinned set "
+                    "(only Python 3.11 has the bpy module)",
         subtype="FILE_PATH",
     )
     env_dir: StringProperty(
@@ -34,9 +50,22 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
                     "(empty: this extension's user folder)",
         subtype="DIR_PATH",
     )
+    device: EnumProperty(
+        name="Device",
+        description="Which torch build 'Create Backend Environment' installs, and what 'Check Backend' expects",
+        items=DEVICE_ITEMS,
+        default="CPU",
+    )
+    torch_index: StringProperty(
+        name="Torch Package Index",
+        description="Package index torch alone comes from when the Device is CPU (PyTorch's CPU-only wheels "
+                    "and their dependencies); empty: PyPI, whose Linux torch is the CUDA build (~2.7 GB)",
+        default=CPU_TORCH_INDEX,
+    )
     include_bpy: BoolProperty(
         name="Include bpy",
-        description="Also install bpy in the backend environment (needed only for synthetic demo captures, ~400 MB)",
+        description="Also install the bpy module (Blender 5.0.1) in the backend environment, to render "
+                    "synthetic demo captures: 383 MB with its dependencies; exists only for Python 3.11",
         default=True,
     )
     check_report: StringProperty(name="Check Report", default="")
@@ -46,6 +75,7 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
         layout = self.layout
         col = layout.column()
         col.prop(self, "backend_python")
+        col.row().prop(self, "device", expand=True)
         row = col.row(align=True)
         row.operator("igs.create_backend_env", icon="CONSOLE")
         row.operator("igs.check_backend", icon="CHECKMARK")
@@ -65,6 +95,9 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
         adv = layout.column(heading="Advanced")
         adv.prop(self, "base_python")
         adv.prop(self, "env_dir")
+        sub = adv.row()
+        sub.active = self.device == "CPU"  # the index is used for the CPU build only
+        sub.prop(self, "torch_index")
         adv.prop(self, "backend_root")
         adv.prop(self, "include_bpy")
 

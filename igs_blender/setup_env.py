@@ -1,18 +1,25 @@
 """Create the backend's Python environment: a venv with the project's pinned requirements.
 
-Run by the add-on with a base Python 3.11 (Blender's own by default), never imported by Blender::
+Run by the add-on with the base Python (Blender's own by default), never imported by Blender::
 
-    python setup_env.py --venv DIR --requirements-json '["numpy==1.26.4", "torch==2.13.0", ...]'
+    python setup_env.py --venv DIR --requirements-json '["numpy==1.26.4; python_version < \\'3.12\\'", ...]' \\
+        [--requires-python '>=3.11,<3.15'] [--device cpu|cuda] [--torch-index URL] [--pip-arg ARG ...]
 
-Standard library only (the environment does not exist yet). Speaks the backend's JSON-lines event
-protocol on stdout (stage, progress, log, done, error, cancelled) so the add-on shows it like any
-backend job. torch is installed first and on its own, as ``dev.sh`` does, so that its pin picks
-the platform's default build. Exit codes: 0 ok, 2 failed, 130 cancelled.
+Standard library only (the environment does not exist yet). The requirements carry PEP 508
+markers: the set for the environment's Python is chosen with check_env.py's evaluator (the file
+beside this one), plus the device's extras (gsplat for cuda). torch is installed first and on its
+own, from ``--torch-index`` when given (PyTorch's CPU index: the small CPU-only build; empty: PyPI,
+whose Linux wheels are the CUDA builds); the rest from PyPI. A torch of the other build is
+uninstalled first, since pip would keep it (``torch==2.13.0`` matches ``2.13.0+cpu`` too).
+Speaks the backend's JSON-lines event protocol on stdout (stage, progress, log, output, done,
+error, cancelled) so the add-on shows it like any backend job. Exit codes: 0 ok, 2 failed,
+130 cancelled.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import subprocess
@@ -26,13 +33,97 @@ def emit(event: str, **fields) -> None:
     sys.stdout.flush()
 
 
+def load_check_env():
+    """check_env.py from this script's folder (run with runpy, this folder is not on sys.path)."""
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "check_env.py")
+    spec = importlib.util.spec_from_file_location("igs_check_env", path)
+    if spec is None or spec.loader is None:
+        raise RuntimeError(f"{path}: missing; reinstall the extension")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def venv_python(env_dir: str) -> str:
     if sys.platform == "win32":
         return os.path.join(env_dir, "Scripts", "python.exe")
     return os.path.join(env_dir, "bin", "python")
 
 
-def run_pip(python: str, args: list[str], stage: str, step: int, total: int) -> None:
+def venv_version(env_dir: str) -> str:
+    """The Python version an existing venv was made with (its pyvenv.cfg), '' when it is no venv."""
+    try:
+        with open(os.path.join(env_dir, "pyvenv.cfg"), encoding="utf-8") as f:
+            cfg = dict(line.split("=", 1) for line in f if "=" in line)
+    except OSError:
+        return ""
+    cfg = {k.strip().lower(): v.strip() for k, v in cfg.items()}
+    return cfg.get("version_info") or cfg.get("version") or "?"
+
+
+def prepare_venv(env_dir: str, python_full: str) -> None:
+    """Create ``env_dir``, or reuse it when it is a venv of this Python's minor version."""
+    have = venv_version(env_dir)
+    python = venv_python(env_dir)
+    if not have:
+        if os.path.isdir(env_dir) and os.listdir(env_dir):
+            raise RuntimeError(f"{env_dir} exists and is not a Python environment (no pyvenv.cfg): "
+                               "choose a new or empty Environment Folder")
+        emit("log", message=f"creating {env_dir} with {sys.executable} (Python {python_full})")
+        try:
+            venv.EnvBuilder(with_pip=True).create(env_dir)
+        except subprocess.CalledProcessError as e:  # ensurepip failed: Debian/Ubuntu split it out
+            raise RuntimeError(f"{sys.executable} cannot create a virtual environment with pip (ensurepip "
+                               f"failed); on Debian/Ubuntu install python{python_full.rsplit('.', 1)[0]}-venv, "
+                               "or choose another Base Python") from e
+    elif have.split(".")[:2] != python_full.split(".")[:2]:
+        raise RuntimeError(f"{env_dir} is a Python {'.'.join(have.split('.')[:2])} environment but the Base "
+                           f"Python is {'.'.join(python_full.split('.')[:2])}: delete that folder or choose "
+                           "another Environment Folder")
+    elif not os.path.exists(python):
+        # Its base Python moved (an upgraded Blender of the same Python): point it at this one.
+        emit("log", message=f"repairing {env_dir}: its interpreter is gone, using {sys.executable}")
+        venv.EnvBuilder(with_pip=True, upgrade=True).create(env_dir)
+    else:
+        emit("log", message=f"updating the existing environment {env_dir} (Python {have})")
+    if not os.path.exists(python):
+        raise RuntimeError(f"the new environment has no interpreter at {python}")
+
+
+_TORCH_QUERY = r"""
+import importlib.metadata as md, json
+try:
+    d = md.distribution("torch")
+    print(json.dumps([d.version, any(r.startswith("nvidia-") for r in d.requires or [])]))
+except md.PackageNotFoundError:
+    print("null")
+"""
+
+
+def installed_torch(python: str) -> tuple[str, bool] | None:
+    """(version, CUDA build) of the torch installed in the environment, without importing it."""
+    try:
+        out = subprocess.run([python, "-c", _TORCH_QUERY], capture_output=True, text=True, timeout=120)
+        found = json.loads(out.stdout.strip() or "null") if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError, ValueError):  # then pip decides alone
+        return None
+    return (found[0], bool(found[1])) if found else None
+
+
+def torch_build_mismatch(torch: tuple[str, bool] | None, device: str, index: str) -> str:
+    """Why the installed torch is the wrong build for ``device`` ('' when it fits or is absent)."""
+    if torch is None:
+        return ""
+    version, cuda_build = torch
+    cpu_build = version.endswith("+cpu")
+    if device == "cuda" and (cpu_build or (sys.platform == "linux" and not cuda_build)):
+        return f"torch {version} is a CPU-only build"
+    if device == "cpu" and index and cuda_build:
+        return f"torch {version} is a CUDA build"
+    return ""
+
+
+def run_pip(python: str, args: list[str], stage: str, step: int = 0, total: int = 0) -> None:
     """Run pip, forwarding its output as log events; raise RuntimeError with pip's last error line."""
     cmd = [python, "-m", "pip", *args]
     emit("log", message="$ " + " ".join(cmd))
@@ -49,47 +140,73 @@ def run_pip(python: str, args: list[str], stage: str, step: int, total: int) -> 
     rc = proc.wait()
     if rc != 0:
         raise RuntimeError(f"pip {' '.join(args[:2])} failed (exit {rc})" + (f": {last_error}" if last_error else ""))
-    emit("progress", stage=stage, step=step, total=total, eta_s=None)
+    if step:
+        emit("progress", stage=stage, step=step, total=total, eta_s=None)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--venv", required=True, help="folder of the environment to create or update")
-    parser.add_argument("--requirements-json", required=True, help="JSON list of pinned requirements")
+    parser.add_argument("--requirements-json", required=True,
+                        help="JSON list of pinned requirements (PEP 508 python_version markers allowed)")
+    parser.add_argument("--requires-python", default="", help="specifiers the base Python must satisfy")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                        help="cpu: any torch build (the CPU one from --torch-index); cuda: a CUDA torch and gsplat")
+    parser.add_argument("--torch-index", default="", help="package index for the torch step only (empty: PyPI)")
     parser.add_argument("--pip-arg", action="append", default=[], help="extra argument for every pip install")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    emit("start", command="setup-env", argv=argv or sys.argv[1:])
+    emit("start", command="setup-env", argv=argv if argv is not None else sys.argv[1:])
+    python_full = ".".join(str(v) for v in sys.version_info[:3])
     try:
+        check = load_check_env()
+        problem = check.python_problem(python_full, args.requires_python)
+        if problem:
+            choices = check.choices_text(check.supported_pythons(args.requires_python))
+            raise ValueError(f"{problem}: choose {choices} as Base Python")
+        if args.device == "cuda" and not args.torch_index and sys.platform != "linux":
+            raise ValueError(f"NVIDIA CUDA: PyPI has CUDA builds of torch only for Linux, not {sys.platform}; "
+                             "choose CPU as Device")
         reqs = json.loads(args.requirements_json)
         if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
-            raise ValueError("expected a JSON list of strings")
-    except ValueError as e:
-        emit("error", message=f"--requirements-json: {e}")
+            raise ValueError("--requirements-json: expected a JSON list of strings")
+        applies, skipped = check.requirements_for(reqs, python_full, args.device)
+    except (ValueError, RuntimeError, OSError) as e:
+        emit("error", message=str(e))
         return 2
-    torch = [r for r in reqs if r.split("=")[0].split("[")[0].strip().lower() == "torch"]
-    rest = [r for r in reqs if r not in torch]
-    groups = [g for g in (torch, rest) if g]
-    total = 1 + len(groups)
+    torch = [r for r in applies if check.normal_name(check.split_requirement(r)[0]) == "torch"]
+    rest = [r for r in applies if r not in torch]
+    total = 1 + bool(torch) + bool(rest)
     stage = "backend environment"
     emit("stage", stage=stage, total=total)
+    if skipped:
+        emit("log", message=f"not for Python {python_full}: " + ", ".join(skipped))
+    pip = ["install", "--disable-pip-version-check", "--progress-bar", "off"]
     try:
+        prepare_venv(args.venv, python_full)
         python = venv_python(args.venv)
-        if not os.path.exists(python):
-            emit("log", message=f"creating {args.venv} with {sys.executable} (Python {sys.version.split()[0]})")
-            venv.EnvBuilder(with_pip=True, clear=False, upgrade_deps=False).create(args.venv)
-        else:
-            emit("log", message=f"updating the existing environment {args.venv}")
-        if not os.path.exists(python):
-            raise RuntimeError(f"the new environment has no interpreter at {python}")
         emit("progress", stage=stage, step=1, total=total, eta_s=None)
-        for i, group in enumerate(groups, start=2):
-            run_pip(python, ["install", "--disable-pip-version-check", *args.pip_arg, *group], stage, i, total)
+        step = 1
+        if torch:
+            wrong = torch_build_mismatch(installed_torch(python), args.device, args.torch_index)
+            if wrong:
+                emit("log", message=f"{wrong}, not the one for device '{args.device}': replacing it")
+                run_pip(python, ["uninstall", "--yes", "torch"], stage)
+            # After the --pip-arg options, so that the torch index wins over an --index-url among them.
+            index = ["--index-url", args.torch_index] if args.torch_index else []
+            step += 1
+            run_pip(python, [*pip, *args.pip_arg, *index, *torch], stage, step, total)
+        if rest:
+            step += 1
+            run_pip(python, [*pip, *args.pip_arg, *rest], stage, step, total)
+        found = installed_torch(python) if torch else None
+        if found:
+            emit("log", message=f"torch {found[0]}: " + ("CUDA build" if found[1] else "CPU build"))
         emit("output", kind="interpreter", path=python)
     except KeyboardInterrupt:
         emit("cancelled", message="environment setup cancelled; run it again to finish")
         return 130
-    except (RuntimeError, OSError, subprocess.SubprocessError) as e:
+    except (RuntimeError, OSError, subprocess.SubprocessError, ValueError) as e:
         emit("error", message=str(e))
         return 2
     emit("done", command="setup-env", seconds=time.perf_counter() - t0)

@@ -12,7 +12,7 @@ from .job import BackendOperator
 
 
 class IGS_OT_create_backend_env(BackendOperator, bpy.types.Operator):
-    """Create a Python environment with the backend's pinned requirements (downloads ~1-2 GB: torch, bpy, pycolmap, OpenCV) and use it"""
+    """Create a Python environment with the backend's pinned requirements for the chosen Device and use it (downloads about 0.5 GB for CPU, 3 GB for NVIDIA CUDA)"""
 
     bl_idname = "igs.create_backend_env"
     bl_label = "Create Backend Environment"
@@ -23,32 +23,35 @@ class IGS_OT_create_backend_env(BackendOperator, bpy.types.Operator):
             backend_env.default_env_dir(compat.extension_user_dir(ADDON_ID, ""))
         base = bpy.path.abspath(prefs.base_python) if prefs.base_python else ""
         self._env_dir = env_dir
-        return backend_env.setup_job(base, env_dir, include_bpy=prefs.include_bpy, root=prefs.backend_root)
+        return backend_env.setup_job(base, env_dir, include_bpy=prefs.include_bpy, root=prefs.backend_root,
+                                     device=prefs.device, torch_index=prefs.torch_index)
 
     def finish(self, context, job: BackendJob) -> str:
         prefs = preferences.get(context)
         python = next((p for k, p in job.state.outputs if k == "interpreter"),
                       str(backend_env.venv_python(self._env_dir)))
         prefs.backend_python = python
+        prefs.check_report, prefs.check_ok = "", False  # the last check was of another environment
         return f"Backend environment ready: {python} (run 'Check Backend' to list its commands)"
 
 
 class IGS_OT_check_backend(BackendOperator, bpy.types.Operator):
-    """Check that the backend interpreter has every pinned package and list the backend's commands"""
+    """Check that the backend interpreter has every pinned package for its Python and the Device, which torch build it has, whether CUDA works, and list the backend's commands"""
 
     bl_idname = "igs.check_backend"
     bl_label = "Check Backend"
 
     def make_job(self, context) -> BackendJob:
         prefs = preferences.get(context)
-        return backend_env.check_job(preferences.interpreter(context), prefs.backend_root, prefs.include_bpy)
+        return backend_env.check_job(preferences.interpreter(context), prefs.backend_root, prefs.include_bpy,
+                                     device=prefs.device)
 
     def finish(self, context, job: BackendJob) -> str:
         prefs = preferences.get(context)
         ok, lines = backend_env.env_report_lines(job)
         prefs.check_ok = ok
         prefs.check_report = "\n".join(lines)
-        return ("Backend ready: " if ok else "Backend incomplete: ") + "; ".join(lines[1:])
+        return lines[0]  # what is wrong and how to fix it; the details are in the preferences
 
 
 CLASSES = (IGS_OT_create_backend_env, IGS_OT_check_backend)

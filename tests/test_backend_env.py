@@ -1,0 +1,454 @@
+"""The backend environment: one pinned set per Python, the CPU/CUDA choice, creating and checking it.
+
+The marker evaluator and requires-python handling are tested on their own and on the real
+pyproject.toml; check_env.py runs in real interpreters (the project's venv, a bare venv);
+setup_env.py runs the real venv + pip path offline, with tiny stand-in wheels named like the real
+pins (so pip would fail if the wrong set were asked for); the preferences' Device reaches the
+setup command through the real operator when bpy is available.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from igs_blender import backend_env, check_env  # noqa: E402
+from igs_blender.client import BackendJob, parse_event  # noqa: E402
+from igs_blender.errors import UserError  # noqa: E402
+
+PYTHON = sys.executable
+PINS = backend_env.pinned_requirements(ROOT)
+REQUIRES = backend_env.read_pyproject(ROOT)[0]
+FIX = "click Create Backend Environment"
+
+
+def names(reqs: list[str]) -> dict[str, str]:
+    return dict(r.split("==", 1) for r in reqs)
+
+
+def wanted_reqs(python: str, device: str = "cpu") -> list[str]:
+    return check_env.requirements_for(PINS, python, device)[0]
+
+
+# -- markers and requires-python ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("python, numpy, bpy", [("3.11", "1.26.4", "5.0.1"), ("3.11.7", "1.26.4", "5.0.1"),
+                                                ("3.13", "2.4.6", None), ("3.14.10", "2.4.6", None)])
+def test_the_real_pins_give_one_set_per_python(python, numpy, bpy):
+    applies, skipped = check_env.requirements_for(PINS, python)
+    pins = names(applies)
+    assert pins["numpy"] == numpy and pins.get("bpy") == bpy
+    assert pins["torch"] == "2.13.0" and pins["av"] == "18.1.0"
+    assert len(applies) == len(pins), "one pin per package"
+    assert all(";" not in r for r in applies) and all(";" in r for r in skipped)
+    assert len(applies) + len(skipped) == len(PINS)
+    cuda = names(check_env.requirements_for(PINS, python, "cuda")[0])
+    assert cuda == {**pins, "gsplat": "1.5.3"}
+
+
+def test_marker_evaluator_compares_versions_not_strings():
+    ev = check_env.evaluate_marker
+    assert ev("python_version < '3.12'", "3.11.9") and not ev("python_version < '3.12'", "3.13.0")
+    assert ev("python_version >= '3.12'", "3.14") and not ev("python_version >= '3.12'", "3.11")
+    assert not ev("python_version < '3.9'", "3.14")  # "3.14" < "3.9" as strings
+    assert ev('python_version == "3.13"', "3.13.5") and ev("python_version != '3.13'", "3.14")
+    assert ev("python_version >= '3.12' and python_version < '3.14'", "3.13")
+    assert not ev("python_version >= '3.12' and python_version < '3.14'", "3.14")
+    assert ev("python_version < '3.12' or python_version >= '3.14'", "3.14")
+    assert ev("python_full_version >= '3.11.4'", "3.11.7") and not ev("python_full_version >= '3.11.8'", "3.11.7")
+    assert ev("python_version ~= '3.11'", "3.14") and not ev("python_version ~= '3.13.0'", "3.14")
+
+
+@pytest.mark.parametrize("marker", ["sys_platform == 'linux'", "platform_machine == 'x86_64'",
+                                    "(python_version < '3.12')", "'3.12' > python_version",
+                                    "python_version < 3.12", "extra == 'cuda'"])
+def test_other_markers_are_refused_by_name(marker):
+    with pytest.raises(ValueError, match="unsupported marker.*only python_version"):
+        check_env.evaluate_marker(marker, "3.11")
+
+
+def test_a_pyproject_with_a_marker_the_scripts_cannot_read_is_one_user_error(tmp_path):
+    (tmp_path / "pyproject.toml").write_text('[project]\nrequires-python = ">=3.11"\n'
+                                             "dependencies = [\"torch==2.13.0; sys_platform == 'linux'\"]\n")
+    with pytest.raises(UserError, match="pyproject.toml: cannot read.*sys_platform"):
+        backend_env.pinned_requirements(tmp_path)
+
+
+def test_supported_pythons_come_from_requires_python():
+    assert REQUIRES == ">=3.11,<3.15"  # what the add-on and dev.sh read, never a hard-coded 3.11
+    assert check_env.supported_pythons(REQUIRES) == ["3.11", "3.12", "3.13", "3.14"]
+    assert check_env.supported_pythons(">=3.11,<3.15,!=3.12.*") == ["3.11", "3.13", "3.14"]
+    assert check_env.choices_text(["3.11", "3.13", "3.14"]) == "a Python 3.11, 3.13 or 3.14"
+    assert check_env.choices_text(check_env.supported_pythons(">=3.12")) == "a Python 3.12 or later"
+    assert check_env.python_problem("3.14.10", REQUIRES) == ""
+    assert check_env.python_problem("3.15.0", REQUIRES) == "Python 3.15 is not supported (requires-python >=3.11,<3.15)"
+    assert check_env.python_problem("3.10.4", REQUIRES).startswith("Python 3.10 is not supported")
+    with pytest.raises(ValueError, match="unsupported version specifier"):
+        check_env.version_matches("3.11", ">=3.11 ; <3.15")
+
+
+# -- check_env.py in real interpreters ------------------------------------------------------------
+
+
+def run_check(python: str | Path, *args: str, root: Path = ROOT) -> BackendJob:
+    argv = backend_env.script_argv(str(python), "check_env.py", list(args))
+    _, env = backend_env.backend_command(str(python), [], root)
+    job = BackendJob(argv, "Check backend", env=env, cwd=str(Path.home())).start()
+    assert job.wait(timeout=180) == 0, job.report()
+    return job
+
+
+def env_event(job: BackendJob) -> dict:
+    return next(e for e in job.state.other if e.get("event") == "env")
+
+
+def test_project_venv_is_ready_with_its_python_set_and_torch_build():
+    job = backend_env.check_job(PYTHON, str(ROOT)).start()
+    assert job.wait(timeout=180) == 0, job.report()
+    ok, lines = backend_env.env_report_lines(job)
+    env = env_event(job)
+    assert ok, lines
+    minor = f"{sys.version_info.major}.{sys.version_info.minor}"
+    assert lines[0].startswith(f"Python {minor}") and "backend ready" in lines[0]
+    torch = env["torch"]
+    assert lines[0].endswith(f"torch {torch['version']} " + (f"CUDA on {torch['cuda_device']}"
+                                                              if torch["cuda_available"] else "on the CPU"))
+    build = "CPU-only build" if torch["cuda"] is None else f"CUDA {torch['cuda']} build"
+    assert f"torch {torch['version']}: {build}" in lines
+    assert env["python_ok"] and env["requires_python"] == REQUIRES and env["device"] == "cpu"
+    wanted = names(wanted_reqs(minor))
+    assert {p["name"]: p["want"] for p in env["packages"]} == {n: "==" + v for n, v in wanted.items()}
+    skipped = [r for r in PINS if ";" in r and r.split(";")[0] not in wanted_reqs(minor)]
+    assert env["not_applicable"] == skipped and skipped
+    assert f"Not for Python {minor}: " + ", ".join(skipped) in lines
+
+
+def test_check_env_reads_the_real_pyproject_itself():
+    res = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "check_env.py"), "--pyproject", str(ROOT / "pyproject.toml")],
+                         capture_output=True, text=True, timeout=180, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
+    env = next(json.loads(ln) for ln in res.stdout.splitlines() if '"event": "env"' in ln)
+    assert env["python_ok"] and env["requires_python"] == REQUIRES
+    assert all(p["ok"] for p in env["packages"]), [p for p in env["packages"] if not p["ok"]]
+    listed = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "check_env.py"), "--pyproject",
+                             str(ROOT / "pyproject.toml"), "--list"], capture_output=True, text=True, timeout=60)
+    minor = f"{sys.version_info.major}.{sys.version_info.minor}"
+    assert listed.stdout.split() == check_env.requirements_for(PINS, minor)[0]
+
+
+@pytest.fixture(scope="module")
+def bare_venv(tmp_path_factory) -> Path:
+    """A venv made with ``python3.11 -m venv`` (no pip, nothing installed)."""
+    base = shutil.which("python3.11") or PYTHON
+    env_dir = tmp_path_factory.mktemp("bare") / "venv"
+    subprocess.run([base, "-m", "venv", "--without-pip", str(env_dir)], check=True, timeout=120)
+    return backend_env.venv_python(env_dir)
+
+
+def test_bare_venv_names_the_missing_packages_and_the_fix(bare_venv):
+    job = backend_env.check_job(str(bare_venv), str(ROOT)).start()
+    assert job.wait(timeout=120) == 0, job.report()
+    ok, lines = backend_env.env_report_lines(job)
+    assert not ok
+    # Every pin for 3.11 is missing: the first two named, the count of the rest, then the fix.
+    assert lines[0] == f"numpy, bpy and {len(wanted_reqs('3.11')) - 2} more missing: {FIX}"
+    missing = next(line for line in lines if line.startswith("Missing: "))
+    for req in wanted_reqs("3.11"):
+        assert req in missing
+    assert any(line.startswith("Backend does not import: ") for line in lines)
+
+
+def test_bare_venv_with_a_wrong_version_and_an_unsupported_python(bare_venv, tmp_path):
+    site = next(Path(bare_venv).parent.parent.glob("lib/python3*/site-packages"))
+    dist = site / "numpy-2.4.6.dist-info"
+    dist.mkdir()
+    try:
+        (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: numpy\nVersion: 2.4.6\n")
+        job = run_check(bare_venv, "--requirements-json", json.dumps(["numpy==1.26.4", "torch==2.13.0"]))
+        ok, lines = backend_env.env_report_lines(job)
+        assert not ok and lines[0] == f"torch missing and numpy 2.4.6 where 1.26.4 is wanted: {FIX}"
+        assert "Other versions: numpy 2.4.6 (wants ==1.26.4)" in lines
+    finally:
+        shutil.rmtree(dist)
+    job = run_check(bare_venv, "--requirements-json", json.dumps(PINS), "--requires-python", ">=3.12,<3.15")
+    ok, lines = backend_env.env_report_lines(job)
+    assert not ok
+    assert lines[0] == f"Python 3.11 is not supported: choose a Python 3.12, 3.13 or 3.14 as Base Python and {FIX}"
+
+
+def report_for(env: dict) -> tuple[bool, list[str]]:
+    """env_report_lines on a check event as check_env.py writes it (for what no machine here has)."""
+    base = {"executable": "/env/bin/python", "python": "3.14.10", "python_ok": True, "requires_python": REQUIRES,
+            "python_supported": ["3.11", "3.12", "3.13", "3.14"], "device": "cpu", "packages": [],
+            "not_applicable": [], "torch": None, "nvcc": "", "backend": True, "backend_error": "", "commands": ["info"]}
+    job = SimpleNamespace(state=SimpleNamespace(other=[{"event": "env", **base, **env}]), report=lambda: "")
+    return backend_env.env_report_lines(job)
+
+
+CUDA_TORCH = {"version": "2.13.0", "cuda": "13.0", "cuda_available": True, "cuda_device": "NVIDIA H100",
+              "cuda_error": "", "error": ""}
+
+
+def test_the_first_line_names_the_cuda_problem_and_its_fix():
+    ok, lines = report_for({"device": "cuda", "torch": CUDA_TORCH, "nvcc": "/usr/local/cuda/bin/nvcc"})
+    assert ok and lines[0] == "Python 3.14.10: backend ready, torch 2.13.0 CUDA on NVIDIA H100"
+    assert "torch 2.13.0: CUDA 13.0 build, CUDA usable on NVIDIA H100" in lines
+    ok, lines = report_for({"device": "cuda", "torch": CUDA_TORCH})
+    assert not ok and lines[0].startswith("no CUDA toolkit (nvcc) found, and gsplat compiles its kernels")
+    no_driver = {**CUDA_TORCH, "cuda_available": False, "cuda_error": "Found no NVIDIA driver on your system."}
+    ok, lines = report_for({"device": "cuda", "torch": no_driver, "nvcc": "/usr/bin/nvcc"})
+    assert not ok and lines[0] == ("CUDA is not usable (Found no NVIDIA driver on your system.): install the NVIDIA "
+                                   f"driver, or choose CPU as Device and {FIX}")
+    ok, lines = report_for({"device": "cpu", "torch": no_driver})  # a CUDA build is fine on the CPU
+    assert ok and lines[0].endswith("torch 2.13.0 on the CPU")
+    cpu = {**CUDA_TORCH, "version": "2.13.0+cpu", "cuda": None, "cuda_available": False, "cuda_device": ""}
+    ok, lines = report_for({"device": "cuda", "torch": cpu, "nvcc": "/usr/bin/nvcc",
+                            "packages": [{"name": "numpy", "want": "==2.4.6", "have": "1.26.4", "ok": False}]})
+    assert not ok and lines[0] == ("numpy 1.26.4 where 2.4.6 is wanted and torch 2.13.0+cpu is a CPU-only build "
+                                   f"where the Device is NVIDIA CUDA: {FIX}")
+    ok, lines = report_for({"torch": cpu, "backend": False, "backend_error": "ImportError: no module named cv2"})
+    assert not ok and lines[0] == "backend does not import: ImportError: no module named cv2"
+
+
+# -- setup_env.py: the real venv + pip path, offline -------------------------------------------------
+
+
+def make_wheel(folder: Path, name: str, version: str, module: str = "", requires: tuple[str, ...] = ()) -> Path:
+    """A pure-Python wheel ``name version`` holding ``module`` as its package's __init__."""
+    folder.mkdir(parents=True, exist_ok=True)
+    dist = f"{name.replace('-', '_')}-{version}"
+    pkg = name.replace("-", "_")
+    meta = f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n" + "".join(f"Requires-Dist: {r}\n"
+                                                                                  for r in requires)
+    files = {f"{pkg}/__init__.py": module,
+             f"{dist}.dist-info/METADATA": meta,
+             f"{dist}.dist-info/WHEEL": "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n"}
+    record = "".join(f"{n},,\n" for n in files) + f"{dist}.dist-info/RECORD,,\n"
+    whl = folder / f"{dist}-py3-none-any.whl"
+    with zipfile.ZipFile(whl, "w") as z:
+        for n, text in files.items():
+            z.writestr(n, text)
+        z.writestr(f"{dist}.dist-info/RECORD", record)
+    return whl
+
+
+TORCH_CPU = "__version__ = '2.13.0+cpu'\nclass version:\n    cuda = None\n"
+TORCH_CUDA = ("__version__ = '2.13.0'\nclass version:\n    cuda = '13.0'\nclass cuda:\n    @staticmethod\n"
+              "    def init():\n        raise RuntimeError('Found no NVIDIA driver on your system. Please check.')\n")
+
+
+def simple_index(wheels: Path) -> str:
+    """A PEP 503 index (file:// URL) serving the wheels of one folder, as pip reads PyTorch's."""
+    root = wheels.parent / f"{wheels.name}-simple"
+    for whl in wheels.glob("*.whl"):
+        project = root / check_env.normal_name(whl.name.split("-")[0])
+        project.mkdir(parents=True, exist_ok=True)
+        with open(project / "index.html", "a") as f:
+            f.write(f'<a href="{whl.as_uri()}">{whl.name}</a>\n')
+    return root.as_uri()
+
+
+@pytest.fixture(scope="module")
+def wheelhouses(tmp_path_factory) -> dict[str, Path]:
+    """Stand-ins for the real pins of this Python only (asking for another Python's pin is a pip
+    error), in three folders: the rest, the CPU torch, a CUDA torch (it requires an nvidia-* package,
+    as PyPI's does) with gsplat."""
+    folders = {k: tmp_path_factory.mktemp(k) for k in ("rest", "cpu_torch", "cuda")}
+    for name, version in names(wanted_reqs(f"{sys.version_info.major}.{sys.version_info.minor}")).items():
+        if name != "torch":
+            make_wheel(folders["rest"], name, version)
+    make_wheel(folders["cpu_torch"], "torch", "2.13.0+cpu", TORCH_CPU)
+    make_wheel(folders["cuda"], "torch", "2.13.0", TORCH_CUDA, ("nvidia-cuda-runtime==13.0.96",))
+    make_wheel(folders["cuda"], "nvidia-cuda-runtime", "13.0.96")
+    make_wheel(folders["cuda"], "gsplat", "1.5.3")
+    return folders
+
+
+def local_pip(job: BackendJob, *pip_args: str) -> BackendJob:
+    """Make every pip run of ``job`` see only ``pip_args`` (no pip config, no PIP_* variables)."""
+    job.argv += [f"--pip-arg={a}" for a in pip_args]
+    job.env = {k: v for k, v in (job.env or os.environ).items() if not k.startswith("PIP_")}
+    job.env["PIP_CONFIG_FILE"] = os.devnull
+    return job
+
+
+def logs(job: BackendJob) -> str:
+    """Every log event of a finished job, from its full log file (the job state keeps the last 50)."""
+    events = (parse_event(line) for line in job.log_path.read_text(encoding="utf-8").splitlines())
+    return "\n".join(e["message"] for e in events if e and e["event"] == "log")
+
+
+def pip_commands(job: BackendJob) -> list[str]:
+    return [line for line in logs(job).splitlines() if line.startswith("$ ")]
+
+
+def test_setup_env_installs_its_pythons_set_torch_first_and_switches_the_build(wheelhouses, tmp_path):
+    env_dir = tmp_path / "venv"
+    # torch from its own index (the only one that has it), the rest from another index.
+    torch_index, rest_index = simple_index(wheelhouses["cpu_torch"]), simple_index(wheelhouses["rest"])
+    job = backend_env.setup_job(PYTHON, env_dir, root=str(ROOT), device="cpu", torch_index=torch_index)
+    local_pip(job, f"--index-url={rest_index}").start()
+    assert job.wait(timeout=300) == 0, job.report() + logs(job)[-3000:]
+    python = backend_env.venv_python(env_dir)
+    assert job.state.outputs == [("interpreter", str(python))]
+    installs = [c for c in pip_commands(job) if " install " in c]
+    wanted = wanted_reqs(f"{sys.version_info.major}.{sys.version_info.minor}")
+    assert len(installs) == 2 and installs[0].endswith(f" --index-url {torch_index} torch==2.13.0")
+    assert installs[1].split()[-len(wanted) + 1:] == [r for r in wanted if not r.startswith("torch")]
+    assert torch_index not in installs[1]
+    assert f"not for Python {sys.version.split()[0]}: " in logs(job) and "torch 2.13.0+cpu: CPU build" in logs(job)
+
+    check = backend_env.check_job(str(python), str(ROOT), device="cpu").start()
+    assert check.wait(timeout=120) == 0, check.report()
+    ok, lines = backend_env.env_report_lines(check)
+    assert f"All {len(wanted)} pinned packages present" in lines and "torch 2.13.0+cpu: CPU-only build" in lines
+    assert not ok and lines[0].startswith("backend does not import: ")  # the stand-ins are empty modules
+    check = backend_env.check_job(str(python), str(ROOT), device="cuda").start()
+    assert check.wait(timeout=120) == 0, check.report()
+    ok, lines = backend_env.env_report_lines(check)
+    assert lines[0] == f"gsplat missing and torch 2.13.0+cpu is a CPU-only build where the Device is NVIDIA CUDA: {FIX}"
+
+    # NVIDIA CUDA on the same environment: pip alone would keep 2.13.0+cpu (it matches ==2.13.0).
+    job = backend_env.setup_job(PYTHON, env_dir, root=str(ROOT), device="cuda", torch_index=torch_index)
+    local_pip(job, "--no-index", f"--find-links={wheelhouses['cuda']}", f"--find-links={wheelhouses['rest']}").start()
+    assert job.wait(timeout=300) == 0, job.report() + logs(job)[-3000:]
+    assert "torch 2.13.0+cpu is a CPU-only build, not the one for device 'cuda': replacing it" in logs(job)
+    commands = pip_commands(job)
+    assert " uninstall --yes torch" in commands[0] and commands[1].endswith(" torch==2.13.0")
+    assert torch_index not in commands[1], "the CPU index is for the CPU build only"
+    assert commands[2].endswith(" gsplat==1.5.3") and "torch 2.13.0: CUDA build" in logs(job)
+    check = backend_env.check_job(str(python), str(ROOT), device="cuda").start()
+    assert check.wait(timeout=120) == 0, check.report()
+    ok, lines = backend_env.env_report_lines(check)
+    assert not ok and lines[0].startswith("CUDA is not usable (Found no NVIDIA driver on your system): install")
+    assert "torch 2.13.0: CUDA 13.0 build, CUDA not usable: Found no NVIDIA driver on your system" in lines
+
+
+def run_setup(*args: str) -> BackendJob:
+    job = BackendJob(backend_env.script_argv(PYTHON, "setup_env.py", list(args)), "Create backend environment").start()
+    job.wait(timeout=120)
+    return job
+
+
+@pytest.mark.skipif(sys.version_info[:2] != (3, 11), reason="the messages below are written for Python 3.11")
+def test_setup_env_refuses_an_unsupported_python_and_folders_it_must_not_touch(tmp_path):
+    pins = json.dumps(PINS)
+    job = run_setup("--venv", str(tmp_path / "a"), "--requirements-json", pins, "--requires-python", ">=3.12")
+    assert job.returncode == 2 and not (tmp_path / "a").exists()
+    assert job.state.error == ("Python 3.11 is not supported (requires-python >=3.12): choose a Python 3.12 or later "
+                               "as Base Python")
+    home = tmp_path / "home"
+    (home / "notes.txt").parent.mkdir()
+    (home / "notes.txt").write_text("mine")
+    job = run_setup("--venv", str(home), "--requirements-json", pins, "--requires-python", REQUIRES)
+    assert job.returncode == 2 and "is not a Python environment (no pyvenv.cfg)" in job.state.error
+    assert sorted(p.name for p in home.iterdir()) == ["notes.txt"]
+    other = tmp_path / "venv313"
+    other.mkdir()
+    (other / "pyvenv.cfg").write_text("home = /usr/bin\nversion = 3.13.1\n")
+    job = run_setup("--venv", str(other), "--requirements-json", pins, "--requires-python", REQUIRES)
+    assert job.returncode == 2 and job.state.error == (f"{other} is a Python 3.13 environment but the Base Python is "
+                                                       "3.11: delete that folder or choose another Environment Folder")
+
+
+def test_setup_job_argv_carries_the_device_index_and_requires_python(tmp_path):
+    def args(job: BackendJob) -> list[str]:
+        return job.argv[job.argv.index(str(backend_env.SCRIPTS / "setup_env.py")) + 1:]
+
+    url = backend_env.CPU_TORCH_INDEX
+    cpu = args(backend_env.setup_job(PYTHON, tmp_path, root=str(ROOT), device="CPU", torch_index=url))
+    assert cpu[cpu.index("--device") + 1] == "cpu" and cpu[cpu.index("--torch-index") + 1] == url
+    assert cpu[cpu.index("--requires-python") + 1] == REQUIRES
+    assert json.loads(cpu[cpu.index("--requirements-json") + 1]) == PINS
+    cuda = args(backend_env.setup_job(PYTHON, tmp_path, root=str(ROOT), device="CUDA", torch_index=url))
+    assert cuda[cuda.index("--device") + 1] == "cuda" and "--torch-index" not in cuda
+    assert "--torch-index" not in args(backend_env.setup_job(PYTHON, tmp_path, root=str(ROOT), torch_index=" "))
+    no_bpy = args(backend_env.setup_job(PYTHON, tmp_path, include_bpy=False, root=str(ROOT)))
+    assert not any(r.startswith("bpy") for r in json.loads(no_bpy[no_bpy.index("--requirements-json") + 1]))
+    with pytest.raises(UserError, match="Base Python .*nope.*not found"):
+        backend_env.setup_job(str(tmp_path / "nope"), tmp_path, root=str(ROOT))
+    with pytest.raises(UserError, match="unknown device 'tpu'"):
+        backend_env.setup_job(PYTHON, tmp_path, root=str(ROOT), device="TPU")
+
+
+# -- the preferences, through the real operators (bpy) ----------------------------------------------
+
+RECORDER = r'''#!{python}
+import json, os, sys
+with open(os.environ["IGS_ARGV_FILE"], "a") as f:
+    f.write(json.dumps(sys.argv[1:]) + "\n")
+print(json.dumps({{"event": "output", "kind": "interpreter", "path": "/env/bin/python"}}), flush=True)
+print(json.dumps({{"event": "done", "command": "setup-env", "seconds": 0.0}}), flush=True)
+'''
+
+
+@pytest.fixture(scope="module")
+def prefs(tmp_path_factory):
+    """The built extension installed and enabled in bpy (as tests/test_blender_addon.py does)."""
+    bpy = pytest.importorskip("bpy")
+    import addon_utils
+    import test_blender_addon as tba
+
+    ext_zip = tba.build_zip(tmp_path_factory.mktemp("build"))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    repo = bpy.context.preferences.extensions.repos.new(name="IGS Env Test", module=tba.REPO, source="USER",
+                                                        custom_directory=str(tmp_path_factory.mktemp("repo")))
+    bpy.ops.extensions.package_install_files(filepath=str(ext_zip), repo=tba.REPO, enable_on_install=True)
+    yield bpy.context.preferences.addons[tba.MOD].preferences
+    addon_utils.disable(tba.MOD, default_set=True)
+    bpy.context.preferences.extensions.repos.remove(repo)
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_the_preferences_device_reaches_the_setup_command(prefs, tmp_path, monkeypatch):
+    import bpy
+
+    recorder = tmp_path / "python"
+    recorder.write_text(RECORDER.format(python=PYTHON))
+    recorder.chmod(recorder.stat().st_mode | stat.S_IXUSR)
+    monkeypatch.setenv("IGS_ARGV_FILE", str(tmp_path / "argv.jsonl"))
+    assert prefs.device == "CPU" and prefs.torch_index == backend_env.CPU_TORCH_INDEX
+    prefs.base_python, prefs.env_dir = str(recorder), str(tmp_path / "env")
+    prefs.check_report, prefs.check_ok = "stale", True
+    for device, index in (("CPU", "https://example.org/cpu"), ("CUDA", "https://example.org/cpu"), ("CPU", "")):
+        prefs.device, prefs.torch_index = device, index
+        assert bpy.ops.igs.create_backend_env() == {"FINISHED"}
+    assert prefs.backend_python == "/env/bin/python" and prefs.check_report == "" and not prefs.check_ok
+    runs = [json.loads(line) for line in (tmp_path / "argv.jsonl").read_text().splitlines()]
+    flags = [(a[a.index("--device") + 1], a[a.index("--torch-index") + 1] if "--torch-index" in a else None)
+             for a in runs]
+    assert flags == [("cpu", "https://example.org/cpu"), ("cuda", None), ("cpu", None)]
+    assert all(a[a.index("--venv") + 1] == str(tmp_path / "env") for a in runs)
+
+    prefs.base_python = str(tmp_path / "missing")
+    with pytest.raises(RuntimeError, match="Base Python .*missing: not found"):
+        bpy.ops.igs.create_backend_env()
+    prefs.base_python = prefs.env_dir = ""
+
+
+def test_check_backend_reports_the_one_line_and_keeps_the_details(prefs, tmp_path, bare_venv, capfd):
+    import bpy
+
+    prefs.device, prefs.backend_python = "CPU", str(bare_venv)
+    capfd.readouterr()
+    assert bpy.ops.igs.check_backend() == {"FINISHED"}  # the check ran; what it found is its report
+    lines = prefs.check_report.splitlines()
+    assert not prefs.check_ok and lines[0] == f"numpy, bpy and {len(wanted_reqs('3.11')) - 2} more missing: {FIX}"
+    assert capfd.readouterr().out.splitlines() == [f"Info: {lines[0]}"]  # background Blender prints reports
+    assert lines[1].startswith("Python 3.11") and any(line.startswith("Missing: ") for line in lines)
+    prefs.backend_python = PYTHON
+    assert bpy.ops.igs.check_backend() == {"FINISHED"}
+    assert prefs.check_ok and prefs.check_report.splitlines()[0].startswith("Python 3.11")
