@@ -126,7 +126,9 @@ def test_project_venv_is_ready_with_its_python_set_and_torch_build():
     torch = env["torch"]
     assert lines[0].endswith(f"torch {torch['version']} " + (f"CUDA on {torch['cuda_device']}"
                                                               if torch["cuda_available"] else "on the CPU"))
-    build = "CPU-only build" if torch["cuda"] is None else f"CUDA {torch['cuda']} build"
+    build = "CPU-only build" if torch["cuda"] is None else f"CUDA {torch['cuda']} build, " + (
+        f"CUDA usable on {torch['cuda_device']}" if torch["cuda_available"]
+        else f"CUDA not usable: {torch['cuda_error'] or 'no GPU'}")  # PyPI's Linux torch is a CUDA build
     assert f"torch {torch['version']}: {build}" in lines
     assert env["python_ok"] and env["requires_python"] == REQUIRES and env["device"] == "cpu"
     wanted = names(wanted_reqs(minor))
@@ -149,9 +151,12 @@ def test_check_env_reads_the_real_pyproject_itself():
     assert listed.stdout.split() == check_env.requirements_for(PINS, minor)[0]
 
 
+BARE_MINOR = "3.11" if shutil.which("python3.11") else f"{sys.version_info.major}.{sys.version_info.minor}"
+
+
 @pytest.fixture(scope="module")
 def bare_venv(tmp_path_factory) -> Path:
-    """A venv made with ``python3.11 -m venv`` (no pip, nothing installed)."""
+    """A venv made with ``python3.11 -m venv`` (else this Python's; no pip, nothing installed)."""
     base = shutil.which("python3.11") or PYTHON
     env_dir = tmp_path_factory.mktemp("bare") / "venv"
     subprocess.run([base, "-m", "venv", "--without-pip", str(env_dir)], check=True, timeout=120)
@@ -163,10 +168,11 @@ def test_bare_venv_names_the_missing_packages_and_the_fix(bare_venv):
     assert job.wait(timeout=120) == 0, job.report()
     ok, lines = backend_env.env_report_lines(job)
     assert not ok
-    # Every pin for 3.11 is missing: the first two named, the count of the rest, then the fix.
-    assert lines[0] == f"numpy, bpy and {len(wanted_reqs('3.11')) - 2} more missing: {FIX}"
+    # Every pin for its Python is missing: the first two named, the count of the rest, then the fix.
+    first_two = "numpy, bpy" if BARE_MINOR == "3.11" else "numpy, torch"  # bpy is pinned for 3.11 only
+    assert lines[0] == f"{first_two} and {len(wanted_reqs(BARE_MINOR)) - 2} more missing: {FIX}"
     missing = next(line for line in lines if line.startswith("Missing: "))
-    for req in wanted_reqs("3.11"):
+    for req in wanted_reqs(BARE_MINOR):
         assert req in missing
     assert any(line.startswith("Backend does not import: ") for line in lines)
 
@@ -183,10 +189,13 @@ def test_bare_venv_with_a_wrong_version_and_an_unsupported_python(bare_venv, tmp
         assert "Other versions: numpy 2.4.6 (wants ==1.26.4)" in lines
     finally:
         shutil.rmtree(dist)
-    job = run_check(bare_venv, "--requirements-json", json.dumps(PINS), "--requires-python", ">=3.12,<3.15")
+    requires = ">=3.12,<3.15" if BARE_MINOR == "3.11" else f">=3.11,<3.15,!={BARE_MINOR}.*"
+    others = [v for v in ("3.11", "3.12", "3.13", "3.14") if v != BARE_MINOR]
+    job = run_check(bare_venv, "--requirements-json", json.dumps(PINS), "--requires-python", requires)
     ok, lines = backend_env.env_report_lines(job)
     assert not ok
-    assert lines[0] == f"Python 3.11 is not supported: choose a Python 3.12, 3.13 or 3.14 as Base Python and {FIX}"
+    assert lines[0] == (f"Python {BARE_MINOR} is not supported: choose a Python {', '.join(others[:-1])} or "
+                        f"{others[-1]} as Base Python and {FIX}")
 
 
 def report_for(env: dict) -> tuple[bool, list[str]]:
