@@ -71,7 +71,7 @@ def capture_summary(ws: Path) -> str:
     return "\n".join(lines)
 
 
-TABLE_HEADER = ("Layer", "PSNR", "SSIM", "Gaussians")
+TABLE_HEADER = ("Layer", "PSNR", "SSIM", "Splats")
 # (metrics key of a layer, row label), the full image first: the number to compare with 3DGS
 DECOMPOSE_ROWS = (("full", "A×S+R"), ("diffuse", "A×S"), ("albedo", "albedo"), ("shading", "shading"),
                   ("residual", "residual"))
@@ -98,7 +98,7 @@ def _flatten(prefix: str, obj: Any, lines: list[str], max_lines: int) -> None:
 
 
 def metrics_summary(ws: Path, max_lines: int = 12) -> str:
-    """metrics.json as the panel shows it: a table of held-out PSNR / SSIM / Gaussians, one tab-separated
+    """metrics.json as the panel shows it: a table of held-out PSNR / SSIM / splat count, one tab-separated
     line per row after a header, full-image rows first (the decomposition's A×S+R, then the 3DGS
     baseline and single-set runs), then the decomposition's layers, then a line on the views, size and
     time. Keys of another layout are flattened to 'key: value' lines (at most ``max_lines``)."""
@@ -123,12 +123,12 @@ def metrics_summary(ws: Path, max_lines: int = 12) -> str:
                         n = sum(diffuse) if kind == "diffuse" and None not in diffuse else counts.get(kind)
                         parts.append(_row(label, layers[kind], n))
                 size = entry.get("resolution")
-                note = [f"{entry.get('held_out_views', '?')} held-out views"]
+                note = [f"{entry.get('held_out_views', '?')} views"]
                 if isinstance(size, list) and len(size) == 2:
                     note.append(f"{size[0]}x{size[1]}")
                 if isinstance(entry.get("decompose_seconds"), (int, float)):
-                    note.append(f"{entry['decompose_seconds']:.0f} s")
-                notes.append("Decomposition: " + ", ".join(note))
+                    note.append(f"decompose {entry['decompose_seconds']:.0f} s")
+                notes.append(", ".join(note))
             else:  # decompose_single_set[_sequential]: the baseline's full image
                 full.append(_row(key.replace("decompose_", "").replace("_", " "), layers["full"],
                                  counts.get("total")))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import textwrap
+
 import bpy
 
 from ..igs_blender import compat, edits, layers
@@ -20,9 +22,18 @@ class _Panel:
     bl_category = CATEGORY
 
 
-def _lines(layout, text: str, icon: str = "NONE") -> None:
+def _wrap(text: str, context) -> list[str]:
+    """``text``'s lines wrapped to the sidebar's width (a label cuts a long line off with an ellipsis)."""
+    region = getattr(context, "region", None)
+    scale = (context.preferences.system.ui_scale if context.preferences else 0.0) or 1.0  # 0 without a window
+    width = region.width if region is not None and region.width > 1 else 300
+    chars = max(16, int((width - 60 * scale) / (6.3 * scale)))
+    return [w for line in text.splitlines() for w in (textwrap.wrap(line, chars) or [""])]
+
+
+def _lines(layout, text: str, icon: str = "NONE", context=None) -> None:
     col = layout.column(align=True)
-    for i, line in enumerate(text.splitlines()):
+    for i, line in enumerate(_wrap(text, context or bpy.context)):
         col.label(text=line, icon=icon if i == 0 else "BLANK1")
 
 
@@ -32,7 +43,8 @@ def _table(layout, text: str) -> None:
     for line in text.splitlines():
         cells = line.split("\t")
         if len(cells) == 1:
-            col.label(text=line)
+            for part in _wrap(line, bpy.context):
+                col.label(text=part)
             continue
         split = col.split(factor=0.34, align=True)
         split.label(text=cells[0])
@@ -58,7 +70,9 @@ class IGS_PT_main(_Panel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         props = context.scene.igs
-        layout.prop(props, "workspace")
+        col = layout.column(align=True)
+        col.label(text="Workspace folder:")
+        col.prop(props, "workspace", text="")
         if props.job_running:
             box = layout.box()
             box.label(text=props.job_label, icon="SORTTIME")
@@ -112,9 +126,7 @@ class IGS_PT_decompose(_Panel, bpy.types.Panel):
         layout.prop(props, "decompose_stage")
         col = layout.column(align=True)
         col.prop(props, "iterations", text="Iterations (0 = default)")
-        decompose, baseline = iteration_counts(props)
-        col.label(text=decompose, icon="INFO")
-        col.label(text=baseline, icon="BLANK1")
+        _lines(col, "\n".join(iteration_counts(props)), icon="INFO")
         layout.prop(props, "restart")
         row = layout.row()
         row.scale_y = 1.3
@@ -156,7 +168,7 @@ class IGS_PT_layers(_Panel, bpy.types.Panel):
                 box.label(text=f"Albedo with edit {', '.join(edited)}", icon="BRUSH_DATA")
         layout.operator("igs.export_layer", icon="EXPORT")
         if compat.native_splat_display() is None:
-            layout.label(text="Shown as points (no native splats in this Blender)", icon="INFO")
+            _lines(layout, "Shown as points (no native splats in this Blender)", icon="INFO")
 
 
 class IGS_UL_edits(bpy.types.UIList):
@@ -182,15 +194,15 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
         row.operator("igs.use_frame_camera", text="", icon="VIEW_CAMERA")
         cam = scene.camera
         if cam is not None and not frame_matches_output(scene, cam):
-            col.label(text="Output shape is not this photo's: Look Through", icon="ERROR")
-        col.label(text="Ctrl+B in the camera view: edit rectangle", icon="SELECT_SET")
+            _lines(col, "The output size is not this photo's shape: press Look Through (camera icon)", icon="ERROR")
+        _lines(col, "Ctrl+B in the camera view: edit rectangle", icon="SELECT_SET")
         if cam is not None and scene.render.use_border:
             try:
                 x0, y0, x1, y1 = render_region_rect(scene, cam)
                 col.label(text=f"Rectangle {x1 - x0}x{y1 - y0} px at ({x0}, {y0})", icon="CHECKMARK")
             except UserError:
                 pass
-        layout.prop(props, "edit_name")
+        layout.prop(props, "edit_name", text="Name")
         row = layout.row(align=True)
         row.operator("igs.fit_proxy", text="Fit Plane", icon="MESH_PLANE").primitive = "plane"
         row.operator("igs.fit_proxy", text="Fit Cylinder", icon="MESH_CYLINDER").primitive = "cylinder"
@@ -199,9 +211,7 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
         sub = box.column(align=True)
         sub.prop(props, "fit_threshold", text="Inlier Distance (0 = auto)")
         sub.prop(props, "fit_min_selected")
-        row = layout.row(align=True)
-        row.operator("igs.use_selection_as_proxy", icon="RESTRICT_SELECT_OFF")
-        row.operator("igs.load_edits", icon="IMPORT")
+        layout.operator("igs.use_selection_as_proxy", icon="RESTRICT_SELECT_OFF")
         box = layout.box()
         box.label(text="Texture", icon="TEXTURE")
         box.prop(props, "texture_mode", expand=True)
@@ -211,6 +221,7 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
             row = box.row(align=True)
             row.prop(props, "edit_color", text="")
             row.operator("igs.set_proxy_color")
+        layout.operator("igs.load_edits", text="Load Edits from Workspace", icon="IMPORT")
         layout.template_list("IGS_UL_edits", "", props, "edits", props, "edits_index", rows=3)
         layout.prop(props, "bake_iterations", text="Bake Iterations (0 = default)")
         row = layout.row(align=True)

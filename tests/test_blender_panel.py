@@ -81,6 +81,11 @@ def labels(texts) -> list[str]:
     return [t for fn, _, t, _ in texts if fn == "label" and t]
 
 
+def shown_text(texts) -> str:
+    """Every label, joined: what the user reads, wrapped lines rejoined."""
+    return " ".join(labels(texts))
+
+
 def prop_text(texts, prop: str) -> str | None:
     hits = [t for fn, p, t, _ in texts if fn == "prop" and p == prop]
     assert hits, f"{prop} is not drawn"
@@ -98,18 +103,18 @@ def test_fields_are_labelled_and_zero_says_default(scene):
     props = scene.igs
     props.source_kind = "VIDEO"
     texts = draw()
-    assert prop_text(texts, "workspace") is None  # drawn with its own name, "Workspace"
+    assert prop_text(texts, "workspace") == "" and "Workspace folder:" in labels(texts)
     assert "0 = default" in prop_text(texts, "iterations")
     assert "0 = full size" in prop_text(texts, "max_side") and "0 = all" in prop_text(texts, "max_frames")
     assert "0 = default" in prop_text(texts, "bake_iterations") and "0 = all" in prop_text(texts, "max_points")
-    assert "albedo 7,000, shading 5,250, residual 3,500 (default)" in labels(texts)
-    assert "3DGS baseline 3,500 (default)" in labels(texts)
+    assert "albedo 7,000, shading 5,250, residual 3,500 (default)" in shown_text(texts)
+    assert "3DGS baseline 3,500 (default)" in shown_text(texts)
     props.iterations = 400
     props.decompose_stage = "ALL"
-    got = labels(draw("IGS_PT_decompose"))
+    got = shown_text(draw("IGS_PT_decompose"))
     assert "albedo 400, shading 300, residual 200" in got and "3DGS baseline 400" in got
     props.decompose_stage = "shading"
-    assert "shading 300" in labels(draw("IGS_PT_decompose"))
+    assert "shading 300 3DGS" in shown_text(draw("IGS_PT_decompose"))
 
 
 def test_iterations_tooltip_and_shown_defaults_are_the_backends(addon):
@@ -162,12 +167,12 @@ def test_metrics_box_is_a_table_with_the_full_image_first(scene, tmp_path):
     bpy.ops.igs.load_layers()
     rows = [line.split("\t") for line in scene.igs.metrics_info.splitlines()]
     table = [r for r in rows if len(r) > 1]
-    assert table[0] == ["Layer", "PSNR", "SSIM", "Gaussians"]
+    assert table[0] == ["Layer", "PSNR", "SSIM", "Splats"]
     assert table[1] == ["A×S+R", "27.20", "0.735", "221,102"]  # the full image first, then the baseline
     assert table[2] == ["3DGS", "27.35", "0.731", "99,938"]
     assert [r[0] for r in table[3:]] == ["A×S", "albedo", "shading", "residual"]
     assert all(len(r) == 4 for r in table)
-    assert ["Decomposition: 12 held-out views, 256x192, 336 s"] in rows
+    assert ["12 views, 256x192, decompose 336 s"] in rows and ["3DGS: 2000 iterations, 193 s"] in rows
     assert len(rows) < 12  # per-view numbers and configs stay out
     shown = labels(draw("IGS_PT_decompose"))
     assert {"A×S+R", "27.20", "0.735", "221,102", "3DGS", "PSNR"} <= set(shown)
@@ -185,6 +190,8 @@ def test_one_layer_shows_at_a_time_and_the_status_box_follows(scene, tmp_path):
     assert visible_layers() == {"IGS composite"}
     assert props.last_report.startswith("Loaded layers: albedo 30, shading 40, residual 40, composite 30")
     assert "showing composite" in props.last_report
+    status = [t for t in labels(draw("IGS_PT_main")) if t != "Workspace folder:"][:4]  # wrapped, not cut off
+    assert " ".join(status).startswith(props.last_report) and max(map(len, status)) < len(props.last_report)
     enum_rows = [(item, text) for fn, prop, text, item in draw("IGS_PT_layers") if fn == "prop_enum"]
     assert [i for i, _ in enum_rows] == ["composite", "albedo", "shading", "residual"]
     assert enum_rows[0][1] == "Composite A×S+R: 30"
@@ -275,7 +282,7 @@ def test_the_rectangle_maps_to_photo_pixels_whatever_the_output_size(scene, tmp_
     r.resolution_x, r.resolution_y, r.resolution_percentage = 1920, 1080, 50
     scene.camera = cam  # the View field: the camera only, the output stays 16:9
     assert not camera_objects.frame_matches_output(scene, cam)
-    assert any("Look Through" in t for t in labels(draw("IGS_PT_edit")))
+    assert "shape: press Look Through" in shown_text(draw("IGS_PT_edit"))
     draw_border(scene, cam, (15, 12, 30, 22))
     assert camera_objects.render_region_rect(scene, cam) == (15, 12, 30, 22)
     assert "Rectangle 15x10 px at (15, 12)" in labels(draw("IGS_PT_edit"))
@@ -285,7 +292,7 @@ def test_the_rectangle_maps_to_photo_pixels_whatever_the_output_size(scene, tmp_
     assert (r.resolution_x, r.resolution_y, r.resolution_percentage) == (64, 48, 100)
     assert "now its frame's 64x48 (was 1920x1080 at 50%)" in scene.igs.last_report
     assert camera_objects.frame_matches_output(scene, cam)
-    assert not any("Look Through" in t for t in labels(draw("IGS_PT_edit")))
+    assert "Look Through" not in shown_text(draw("IGS_PT_edit"))
     r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 15 / 64, 22 / 64, 1 - 10 / 48, 1 - 3 / 48
     assert camera_objects.render_region_rect(scene, cam) == (15, 3, 22, 10)  # float32 border, no extra pixel
     bpy.ops.igs.use_frame_camera(camera=cam.name)
