@@ -118,7 +118,7 @@ def painting(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     img = np.zeros((size, size, 3), np.float32) + _palette(rng, [(0.85, 0.80, 0.70)])[0]
     y, x = np.mgrid[0:size, 0:size].astype(np.float32) / size
     for _ in range(7):
-        c = rng.uniform(0.15, 0.85, 2)
+        c = rng.uniform(0.15, 0.85, 2).astype(np.float32)  # x - c[0] in float32 under numpy 1 and 2 (NEP 50)
         rad = rng.uniform(0.08, 0.22)
         col = rng.uniform(0.05, 0.9, 3).astype(np.float32)
         inside = np.hypot(x - c[0], y - c[1]) < rad

@@ -399,7 +399,7 @@ def spawn_residual(views: Sequence[View], cfg: DecomposeConfig) -> GaussianSet:
         err = np.abs(diff).sum(-1).reshape(-1)
         depth = (v.depth if v.depth is not None else v.extras["depth_A"]).cpu().numpy()
         valid = (np.isfinite(depth) & (depth > 0)).reshape(-1)
-        err = np.where(valid, err, 0.0)
+        err = np.where(valid, err.astype(np.float64), 0.0)  # float64 under numpy 1 and 2 (NEP 50): same draws
         k = max(1, int(sc.top_fraction * valid.sum()))
         cand = np.argpartition(-err, min(k, len(err) - 1))[:k]
         cand = cand[err[cand] > 0]
