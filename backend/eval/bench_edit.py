@@ -220,7 +220,7 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         acc.add("oracle/image", _srgb(srgb_to_linear(gt_alb) * shading + residual), gt_img, mask)
         # image-space baselines: the depth-tested proxy colour where it covers the pixel
         comp, pm, _ = edited_albedo(original, proxy, cam, backend, supersample=BakeConfig.supersample)
-        colour = np.where(pm[..., None], comp, 0.0)
+        colour = np.where(pm[..., None], comp.astype(np.float64), 0.0)  # float64 under numpy 1 and 2 (NEP 50)
         tint = np.where(pm[..., None], orig_img * colour, orig_img)
         over = np.where(pm[..., None], colour, orig_img)
         acc.add("tint/image", _srgb(tint), gt_img, mask)
