@@ -36,7 +36,7 @@ class Intrinsics:
         try:
             return pycolmap.Camera(model=self.model, width=self.width, height=self.height, params=list(self.params))
         except Exception as e:
-            raise IGSError(f"camera model {self.model} with parameters {list(self.params)}: {e}") from e
+            raise IGSError(f"camera model {self.model} with parameters {[float(p) for p in self.params]}: {e}") from e
 
     @staticmethod
     def from_pycolmap(cam) -> Intrinsics:
