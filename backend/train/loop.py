@@ -304,19 +304,62 @@ def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimiz
     }
     path = _checkpoint_path(ckpt_dir)
     with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+        torch.save(_plain(state), tmp)
     return path
 
 
+def _plain(obj: Any) -> Any:
+    """``obj`` with numpy arrays and scalars turned into Python values, so that the checkpoint holds
+    only tensors, containers and plain values and loads with ``weights_only=True``."""
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_plain(v) for v in obj)
+    if isinstance(obj, (np.ndarray, np.generic)):
+        return obj.tolist()
+    return obj
+
+
 def load_checkpoint(ckpt_dir: Path) -> dict[str, Any] | None:
+    """The checkpoint in ``ckpt_dir`` (None when there is none).
+
+    Loaded with ``weights_only=True``: a checkpoint may hold tensors, numbers, strings and
+    containers only, so a crafted file cannot run code. Anything else is refused.
+    """
     path = _checkpoint_path(ckpt_dir)
     if not path.exists():
         return None
     try:
-        return torch.load(path, map_location="cpu", weights_only=False)
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
-        raise IGSError(f"{path}: unreadable checkpoint ({type(e).__name__}: {e}); "
-                       "run again with --restart to start over") from e
+        reason = _unpickler_reason(e)
+        if "GLOBAL" in reason:  # a class or function reference: only a pickle that can run code needs one
+            raise IGSError(f"{path}: the checkpoint holds more than tensors and plain values ({reason}); "
+                           "it is not loaded because it could run code; run again with --restart to start over") from e
+        raise IGSError(f"{path}: unreadable checkpoint ({reason}); run again with --restart to start over") from e
+    missing = [] if isinstance(ckpt, dict) else ["a dictionary"]
+    if not missing:
+        missing = [k for k in _CHECKPOINT_KEYS if k not in ckpt]
+    if missing:
+        raise IGSError(f"{path}: not an igs checkpoint (missing {', '.join(missing)}); "
+                       "run again with --restart to start over")
+    return ckpt
+
+
+def _unpickler_reason(e: Exception) -> str:
+    """The useful part of a ``torch.load`` error (torch wraps the unpickler's reason in advice)."""
+    text = str(e)
+    if "WeightsUnpickler error:" in text:
+        text = text.split("WeightsUnpickler error:", 1)[1]
+    boilerplate = ("Weights only load failed", "Check the documentation", "Please file an issue")
+    parts = [" ".join(p.split()) for p in text.split("\n\n")]
+    parts = [p for p in parts if p and not p.startswith(boilerplate)]
+    reason = parts[0].split(". Please", 1)[0][:200] if parts else ""
+    return f"{type(e).__name__}: {reason}" if reason else type(e).__name__
+
+
+_CHECKPOINT_KEYS = ("version", "stage", "step", "config", "kind", "sh_degree", "active_sh_degree", "params",
+                    "optimizer", "strategy", "sampler", "rng", "train_views", "train_seconds", "extra")
 
 
 def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
