@@ -94,6 +94,24 @@ def extension_user_dir(package: str, sub: str) -> str:
     return bpy.utils.extension_path_user(package, path=sub, create=True)
 
 
+def _fit_when_drawn(window, area) -> None:
+    """Zoom the Image Editor so the whole image fits (a small render otherwise sits at 1:1 in a corner).
+
+    The editor knows its size only once it has drawn, so this runs from a timer a moment later.
+    """
+    def fit():
+        try:
+            region = next(r for r in area.regions if r.type == "WINDOW")
+            with bpy.context.temp_override(window=window, area=area, region=region):
+                bpy.ops.image.view_all(fit_view=True)
+        except (RuntimeError, ReferenceError, StopIteration, TypeError):
+            pass  # the window was closed or the editor changed meanwhile: nothing to fit
+        return None
+
+    area.tag_redraw()
+    bpy.app.timers.register(fit, first_interval=0.2)
+
+
 def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
     """Show ``image`` in an Image Editor: an open one, else a new window; False without a UI."""
     if bpy.app.background or context.window_manager is None:
@@ -110,7 +128,7 @@ def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
         for area in window.screen.areas:
             if area.type == "IMAGE_EDITOR":
                 assign(area.spaces.active)
-                area.tag_redraw()
+                _fit_when_drawn(window, area)
                 return True
     try:
         with context.temp_override(window=context.window):
@@ -119,6 +137,7 @@ def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
         area = window.screen.areas[0]
         area.type = "IMAGE_EDITOR"
         assign(area.spaces.active)
+        _fit_when_drawn(window, area)
         return True
     except (RuntimeError, IndexError, AttributeError):
         return False

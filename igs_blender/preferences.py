@@ -63,7 +63,7 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
         default=CPU_TORCH_INDEX,
     )
     include_bpy: BoolProperty(
-        name="Include bpy",
+        name="Include bpy (Python 3.11 only)",
         description="Also install the bpy module (Blender 5.0.1) in the backend environment, to render "
                     "synthetic demo captures: 383 MB with its dependencies; exists only for Python 3.11",
         default=True,

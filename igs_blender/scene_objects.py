@@ -94,3 +94,47 @@ def tag_redraw(context=None) -> None:
         for area in window.screen.areas:
             if area.type in {"VIEW_3D", "IMAGE_EDITOR", "PREFERENCES"}:
                 area.tag_redraw()
+
+
+def _view3d_areas(context):
+    window = getattr(context, "window", None)
+    if bpy.app.background or window is None:
+        return []
+    return [a for a in window.screen.areas if a.type == "VIEW_3D"]
+
+
+def frame_in_viewports(context, points: list) -> bool:
+    """Centre the window's 3D views on ``points`` (world positions), far enough back to see them all.
+
+    After an import the capture can sit anywhere in the SfM world, far from the default view; a view
+    looking through a camera is left alone. False when there is no 3D view (background mode).
+    """
+    areas = _view3d_areas(context)
+    if not areas or not points:
+        return False
+    pts = np.array([tuple(p) for p in points], dtype=np.float64)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    center, radius = (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.1)
+    for area in areas:
+        r3d = area.spaces.active.region_3d
+        if r3d.view_perspective == "CAMERA":
+            continue
+        r3d.view_location = center.tolist()
+        r3d.view_distance = radius * 2.5
+        area.tag_redraw()
+    return True
+
+
+def show_point_colours(context) -> bool:
+    """Switch Solid 3D views to Material Preview, where the layers' point colours show.
+
+    Solid mode draws point clouds in one grey (it has no colour-attribute display for them).
+    Returns whether any view changed, so the caller can say so.
+    """
+    changed = False
+    for area in _view3d_areas(context):
+        shading = area.spaces.active.shading
+        if shading.type == "SOLID":
+            shading.type = "MATERIAL"
+            changed = True
+    return changed

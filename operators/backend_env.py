@@ -51,6 +51,7 @@ class IGS_OT_check_backend(BackendOperator, bpy.types.Operator):
         ok, lines = backend_env.env_report_lines(job)
         prefs.check_ok = ok
         prefs.check_report = "\n".join(lines)
+        self.finish_level = "INFO" if ok else "WARNING"
         return lines[0]  # what is wrong and how to fix it; the details are in the preferences
 
 

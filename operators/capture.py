@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import camera_objects
+from ..igs_blender import camera_objects, scene_objects
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, resolve
@@ -66,6 +66,7 @@ class IGS_OT_import_capture(BackendOperator, bpy.types.Operator):
         ws = existing_workspace(props.workspace)
         cams = camera_objects.import_cameras(context.scene, ws, backgrounds=props.camera_backgrounds)
         props.capture_info = capture_summary(ws)
+        scene_objects.frame_in_viewports(context, [c.matrix_world.translation for c in cams])
         return f"{job.state.label}: {len(cams)} cameras in {ws}"
 
 

@@ -40,7 +40,8 @@ class BackendOperator:
     """Mixin for ``bpy.types.Operator`` subclasses that run one backend job.
 
     Subclasses implement ``make_job(context) -> BackendJob`` (raise UserError for bad settings) and
-    ``finish(context, job) -> str`` (load the results; returns the message to report).
+    ``finish(context, job) -> str`` (load the results; returns the message to report). ``finish`` may
+    set ``self.finish_level`` to "WARNING" when the job ran but found a problem (a failed check).
     """
 
     bl_options = {"REGISTER"}
@@ -133,7 +134,7 @@ class BackendOperator:
             restore_mode(context, obj, mode)  # e.g. back to Texture Paint on the proxy
             props.last_report = msg
             props.job_status = msg
-            self.report({"INFO"}, msg)
+            self.report({getattr(self, "finish_level", "INFO")}, msg)
             return {"FINISHED"}
         props.last_report = job.report()
         self.report({"WARNING"} if outcome == "cancelled" else {"ERROR"}, props.last_report)

@@ -7,7 +7,7 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import edits, layers
+from ..igs_blender import edits, layers, scene_objects
 from ..igs_blender.errors import UserError
 from ..igs_blender.ply_io import write_splat_ply
 from ..igs_blender.workspace_files import existing_workspace, metrics_summary
@@ -50,6 +50,8 @@ class IGS_OT_load_layers(bpy.types.Operator):
         on_disk = [n for n in edits.workspace_edits(ws) if edits.find(props, n)[1] is None]
         if on_disk:
             msg += f"; the workspace has {len(on_disk)} edit(s) not in the scene: Edit panel > Load Edits"
+        if scene_objects.show_point_colours(context):
+            msg += "; viewport switched to Material Preview to show their colours"
         tell(self, context, "INFO", msg)
         return {"FINISHED"}
 
