@@ -94,7 +94,8 @@ def test_photos_import_recovers_poses_drops_strangers_and_aligns_gt_depth(scene,
     assert (ws / ".import" / "sfm" / "sfm.json").stat().st_mtime_ns == stamp
     again = read_model(ws / "sparse" / "0")
     assert np.allclose(again.cameras[5].t, est.cameras[5].t)
-    assert not (ws / "albedo").exists()  # priors not asked for this time: none left behind
+    # the same images and cameras again: the priors computed for them stay (issue #30)
+    assert load_capture(ws, need_albedo=True, need_depth=True).meta["priors"] == {"albedo": "gt", "depth": "gt"}
 
 
 def test_video_import_with_folder_priors_matched_by_index(scene, tmp_path):

@@ -38,9 +38,10 @@ from backend.capture.video import (
     resize_max_side,
     select_windows,
 )
-from backend.capture.workspace import Workspace
+from backend.capture.workspace import CAPTURE_SCHEMA, Workspace
 from backend.errors import IGSError
 from backend.io_utils import atomic_path, write_json
+from backend.staging import Staging
 
 SOURCE_KINDS = ("auto", "video", "photos", "colmap", "transforms")
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
@@ -330,12 +331,30 @@ def _outputs(frames: list[RawFrame], posed: Posed, post_max_side: int) -> dict[s
     return out
 
 
-def _clear(ws: Workspace) -> None:
-    for d in (ws.images, ws.albedo, ws.depth, ws.sparse):
-        if d.exists():
-            shutil.rmtree(d)
-    for f in (ws.transforms_json, ws.root / "import_report.json", ws.root / "priors_report.json"):
-        f.unlink(missing_ok=True)
+def _same_files(a: Path, b: Path) -> bool:
+    """Whether folders ``a`` and ``b`` hold the same file names with the same bytes."""
+    if not (a.is_dir() and b.is_dir()):
+        return False
+    names = sorted(p.name for p in a.iterdir())
+    if names != sorted(p.name for p in b.iterdir()):
+        return False
+    return all((a / n).is_file() and (b / n).is_file() and (a / n).read_bytes() == (b / n).read_bytes()
+               for n in names)
+
+
+def _priors_still_valid(ws: Workspace, staging: Staging) -> bool:
+    """The workspace's albedo/depth maps belong to the new import when its images and model are unchanged
+    (re-running the same import); otherwise they would be misaligned and are removed."""
+    return _same_files(ws.images, staging.staged(ws.images)) and _same_files(ws.sparse, staging.staged(ws.sparse))
+
+
+def _old_meta(ws: Workspace) -> dict:
+    """The workspace's capture.json, or {} when there is none or it is not a JSON object."""
+    try:
+        old = json.loads(ws.capture_json.read_text()) if ws.capture_json.exists() else {}
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    return old if isinstance(old, dict) else {}
 
 
 def _check_workspace(ws: Workspace, source: Path, force: bool) -> None:
@@ -343,11 +362,11 @@ def _check_workspace(ws: Workspace, source: Path, force: bool) -> None:
         raise IGSError(f"{ws.root}: exists and is not a folder")
     if ws.root.resolve() == source.resolve():
         raise IGSError(f"{ws.root}: the workspace must be a folder of its own, not the source itself")
+    if source.resolve().is_relative_to(ws.root.resolve()):  # importing would replace the files being read
+        raise IGSError(f"{source}: the source is inside the workspace {ws.root}; import it into another folder")
     if ws.capture_json.exists() and not force:
-        try:
-            old = json.loads(ws.capture_json.read_text()).get("source", {})
-        except json.JSONDecodeError:
-            old = {}
+        old = _old_meta(ws).get("source")
+        old = old if isinstance(old, dict) else {}
         if old.get("path") != str(source.resolve()):
             raise IGSError(f"{ws.root}: already holds a capture from {old.get('path') or old.get('kind', '?')}; "
                            "choose another workspace or pass --force to replace it")
@@ -397,23 +416,38 @@ def import_capture(source: str | Path, workspace: str | Path, config: ImportConf
     timings["poses"] = time.perf_counter() - t
     events.check_cancel()
 
-    # 3. undistorted images, model, transforms.json
+    # 3. undistorted images, model, transforms.json: built in a staging area, swapped in when complete
     t = time.perf_counter()
-    _clear(ws)
+    with Staging(ws.root, "import") as staging:
+        report = _write_results(ws, staging, source, kind, config, frames, posed, post_max_side, info, timings, t0)
+        staging.commit()
+    events.output("images", ws.images)
+    events.output("sparse", ws.sparse)
+    events.output("capture", ws.capture_json)
+    events.output("report", ws.root / "import_report.json")
+    events.log(f"import: {report['registered']} views ({len(report['dropped'])} dropped), {report['points']} points "
+               f"-> {ws.root}")
+    return report
+
+
+def _write_results(ws: Workspace, staging: Staging, source: Path, kind: str, config: ImportConfig,
+                   frames: list[RawFrame], posed: Posed, post_max_side: int, info: dict,
+                   timings: dict[str, float], t0: float) -> dict:
+    """Write every output of the import into ``staging``; returns the import report."""
+    t = time.perf_counter()
     outs = _outputs(frames, posed, post_max_side)
     registered = [f for f in frames if f.name in outs]
+    images = staging.path(ws.images)
     with events.stage("undistort", total=len(registered), unit="image") as bar:
         for f in registered:
-            _write_png(ws.images / f.name, outs[f.name][0].image(_read_bgr8(f.raw)))
+            _write_png(images / f.name, outs[f.name][0].image(_read_bgr8(f.raw)))
             bar.update(1)
     cameras = [outs[f.name][1] for f in registered]
     keep = [i for i, tr in enumerate(posed.tracks) if any(n in outs for n in tr) or not tr]
     tracks = [[n for n in posed.tracks[i] if n in outs] for i in keep]
-    write_model(ws.sparse, cameras, posed.points[keep], posed.colors[keep], tracks)
-    write_transforms(ws.transforms_json, cameras)
+    write_model(staging.path(ws.sparse), cameras, posed.points[keep], posed.colors[keep], tracks)
+    write_transforms(staging.path(ws.transforms_json), cameras)
     timings["undistort"] = time.perf_counter() - t
-    events.output("images", ws.images)
-    events.output("sparse", ws.sparse)
 
     # capture.json and the report
     gt = {k: str(v) for k, v in gt_dir_for(source).items() if v is not None}
@@ -433,13 +467,21 @@ def import_capture(source: str | Path, workspace: str | Path, config: ImportConf
     dropped += [{"name": None, "source": n} for n in posed.dropped if n not in {f.name for f in frames}]
     report = {"source": source_info["path"], "kind": kind, "frames_in": len(frames), "registered": len(registered),
               "dropped": dropped, "poses": posed.summary, "size": [cameras[0].width, cameras[0].height],
-              "timings_s": {k: round(v, 3) for k, v in timings.items()},
+              "points": len(keep), "timings_s": {k: round(v, 3) for k, v in timings.items()},
               "seconds": round(time.perf_counter() - t0, 3)}
-    write_json(ws.root / "import_report.json", report)
-    ws.write_capture_json({"source": source_info, "priors": {"albedo": "none", "depth": "none"},
-                           "import_frames": import_frames, "dropped": dropped, "sfm": posed.summary,
-                           "color_space": "srgb"})
-    events.output("capture", ws.capture_json)
-    events.output("report", ws.root / "import_report.json")
-    events.log(f"import: {len(registered)} views ({len(dropped)} dropped), {len(keep)} points -> {ws.root}")
+    meta = {"source": source_info, "priors": {"albedo": "none", "depth": "none"},
+            "import_frames": import_frames, "dropped": dropped, "sfm": posed.summary, "color_space": "srgb"}
+    if _priors_still_valid(ws, staging):  # the same import again: its priors stay
+        old = _old_meta(ws)
+        if isinstance(old.get("priors"), dict):
+            meta["priors"] = old["priors"]
+        if isinstance(old.get("prior_settings"), dict):
+            meta["prior_settings"] = old["prior_settings"]
+        if meta["priors"] != {"albedo": "none", "depth": "none"}:
+            events.log("import: same images and cameras as before; the workspace keeps its albedo and depth priors")
+    else:
+        for stale in (ws.albedo, ws.depth, ws.root / "priors_report.json"):
+            staging.remove(stale)
+    write_json(staging.path(ws.root / "import_report.json"), report)
+    write_json(staging.path(ws.capture_json), {"schema": CAPTURE_SCHEMA, **meta})
     return report

@@ -26,13 +26,14 @@ from backend import events
 from backend.capture.cameras import Camera
 from backend.capture.colmap_io import read_model
 from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
-from backend.capture.workspace import Workspace, load_capture
+from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, load_capture
 from backend.errors import IGSError
 from backend.io_utils import atomic_path, write_json
 from backend.priors.albedo import AlbedoOptions, AlbedoPredictor, make_albedo_predictor
 from backend.priors.align import AlignConfig, align_depth, points_in_view
 from backend.priors.depth import DepthOptions, DepthPredictor, make_depth_predictor
 from backend.priors.folder import PriorFrame
+from backend.staging import Staging
 
 
 @dataclass(frozen=True)
@@ -154,12 +155,29 @@ def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
     report: dict = {"workspace": str(ws.root), "albedo": None, "depth": None}
     if albedo_pred is None and depth_pred is None:
         return report
+    # New maps are built beside the old ones and swapped in together once every view has both.
+    with Staging(ws.root, "priors") as staging:
+        _compute(ws, meta, views, config, albedo_pred, depth_pred, staging, report)
+        report["seconds"] = round(time.perf_counter() - t0, 3)
+        write_json(staging.path(ws.root / "priors_report.json"), report)
+        staging.commit()
+    if albedo_pred is not None:
+        events.output("albedo", ws.albedo)
+    if depth_pred is not None:
+        events.output("depth", ws.depth)
+    events.output("report", ws.root / "priors_report.json")
+    return report
+
+
+def _compute(ws: Workspace, meta: dict, views: list[_View], config: PriorsConfig, albedo_pred: AlbedoPredictor | None,
+             depth_pred: DepthPredictor | None, staging: Staging, report: dict) -> None:
+    """Write the albedo/depth maps and the new capture.json into ``staging``; fill ``report``."""
 
     if albedo_pred is not None:
         t = time.perf_counter()
         cache = _Cache(ws.root / ".priors" / "albedo", albedo_pred.stamp(), enabled=not albedo_pred.warp)
-        if ws.albedo.exists():
-            shutil.rmtree(ws.albedo)
+        albedo_dir = staging.path(ws.albedo)
+        albedo_dir.mkdir()
         with events.stage(f"albedo ({albedo_pred.label})", total=len(views), unit="image") as bar:
             for v in views:
                 if albedo_pred.warp:
@@ -167,11 +185,10 @@ def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
                 amap = cache.get(v.frame.name, v.image, lambda v=v: albedo_pred.predict(v.frame, _rgb(v.image)))
                 amap = v.warp.image(amap) if albedo_pred.warp else v.warp.resize(amap)
                 data = (np.clip(amap, 0, 1) * 65535 + 0.5).astype(np.uint16)[:, :, ::-1]
-                with atomic_path(ws.albedo / v.frame.name) as tmp:
+                with atomic_path(albedo_dir / v.frame.name) as tmp:
                     if not cv2.imwrite(str(tmp), data):
                         raise IGSError(f"{ws.albedo / v.frame.name}: could not write")
                 bar.update(1)
-        events.output("albedo", ws.albedo)
         report["albedo"] = {"prior": albedo_pred.label, "views": len(views),
                             "seconds": round(time.perf_counter() - t, 3)}
 
@@ -186,8 +203,8 @@ def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
         has_tracks = any(model.tracks)
         align = AlignConfig(**{**asdict(config.align), "model": depth_pred.fit})
         cache = _Cache(ws.root / ".priors" / "depth", depth_pred.stamp(), enabled=not depth_pred.warp)
-        if ws.depth.exists():
-            shutil.rmtree(ws.depth)
+        depth_dir = staging.path(ws.depth)
+        depth_dir.mkdir()
         alignments = []
         with events.stage(f"depth ({depth_pred.label})", total=len(views), unit="image") as bar:
             for v in views:
@@ -197,7 +214,7 @@ def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
                 dmap = v.warp.depth(dmap) if depth_pred.warp else v.warp.resize(dmap)
                 pts = model.points[seen[v.frame.name]] if has_tracks else points_in_view(v.camera, model.points)
                 depth, rep = align_depth(dmap, depth_pred.kind, v.camera, pts, align)
-                with atomic_path(ws.depth / f"{Path(v.frame.name).stem}.npy") as tmp, open(tmp, "wb") as fh:
+                with atomic_path(depth_dir / f"{Path(v.frame.name).stem}.npy") as tmp, open(tmp, "wb") as fh:
                     np.save(fh, depth)
                 alignments.append(asdict(rep) if rep is not None else
                                   {"name": v.frame.name, "points": int(len(pts)), "aligned": False})
@@ -206,7 +223,6 @@ def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
         if unaligned:
             events.log(f"depth: {len(unaligned)} view(s) see too few sparse points to align; their depth is empty: "
                        + ", ".join(unaligned[:10]))
-        events.output("depth", ws.depth)
         report["depth"] = {"prior": depth_pred.label, "kind": depth_pred.kind, "fit": depth_pred.fit,
                            "summary": align_summary(alignments), "views": alignments,
                            "seconds": round(time.perf_counter() - t, 3)}
@@ -226,11 +242,7 @@ def compute_priors(workspace: str | Path, config: PriorsConfig) -> dict:
         settings["depth"]["align"] = asdict(config.align)
     new_meta = {k: v for k, v in meta.items() if k != "schema"}
     new_meta.update(priors=priors, prior_settings=settings)
-    ws.write_capture_json(new_meta)
-    report["seconds"] = round(time.perf_counter() - t0, 3)
-    write_json(ws.root / "priors_report.json", report)
-    events.output("report", ws.root / "priors_report.json")
-    return report
+    write_json(staging.path(ws.capture_json), {"schema": CAPTURE_SCHEMA, **new_meta})
 
 
 def align_summary(alignments: list[dict]) -> dict:
