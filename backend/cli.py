@@ -7,6 +7,7 @@ command is listed here only once it works end to end.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import sys
 import time
@@ -14,6 +15,12 @@ import traceback
 
 from backend import __version__, events
 from backend.errors import Cancelled, IGSError
+from backend.io_utils import os_error
+
+# Errors of the machine rather than of the program (full disk, read-only or missing folder,
+# permissions): one line naming the file, like bad input.
+DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG,
+               errno.ENOENT, errno.ENOTDIR, errno.EISDIR}
 
 # Modules with a ``register(subparsers)`` function, in the order of the pipeline.
 COMMAND_MODULES: list[str] = [
@@ -59,14 +66,25 @@ def main(argv: list[str] | None = None) -> int:
         events.emit("error", message=str(e))
         print(f"igs {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        if e.errno not in DISK_ERRORS:  # a bug, not the machine: the traceback below
+            return _internal_error(e)
+        msg = str(os_error(e.filename or "?", e, "could not read or write"))
+        events.emit("error", message=msg)
+        print(f"igs {args.command}: error: {msg}", file=sys.stderr)
+        return 2
     except (Cancelled, KeyboardInterrupt):
         msg = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
         events.emit("cancelled", message=msg)
         print(f"igs {args.command}: {msg}", file=sys.stderr)
         return 130
     except Exception as e:  # a bug, not bad input: keep the traceback but still report one line
-        events.emit("error", message=f"internal error: {type(e).__name__}: {e}")
-        traceback.print_exc()
-        return 1
+        return _internal_error(e)
     events.emit("done", command=args.command, seconds=time.perf_counter() - t0)
     return 0
+
+
+def _internal_error(e: Exception) -> int:
+    events.emit("error", message=f"internal error: {type(e).__name__}: {e}")
+    traceback.print_exc()
+    return 1

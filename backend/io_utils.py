@@ -1,43 +1,120 @@
-"""Atomic file writes: write to a temporary name in the same folder, then rename."""
+"""Atomic file writes: write to a temporary name in the same folder, flush it to the disk, then rename.
+
+A write either leaves the complete new file or the old one: the data is written, flushed and
+fsynced, its size checked, and only then renamed over the target. A full disk, a read-only folder
+or a missing permission end in one :class:`IGSError` naming the file and the cause. Temporary
+files carry the writer's process id, so those of a killed process are recognised and removed
+(:func:`clean_stale_tmp`).
+"""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import re
 import tempfile
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from backend.errors import IGSError
+
+TMP_MARK = ".tmp"
+_TMP_RE = re.compile(r"^\..+\.(?:(\d+)-)?[A-Za-z0-9_]{8}\.tmp(?:\.[^.]*)?$")
+_ORPHAN_AGE_S = 3600.0  # temporary files without a process id (older versions) are stale after this long
+
+
+def os_error(path: str | os.PathLike, e: OSError, doing: str = "could not write") -> IGSError:
+    """One message for an operating-system error on ``path``: the file and the cause."""
+    cause = e.strerror or str(e)
+    if e.errno in (errno.ENOSPC, errno.EDQUOT):
+        cause = "no space left on the device"
+    elif e.errno == errno.EROFS:
+        cause = "the file system is read-only"
+    elif e.errno in (errno.EACCES, errno.EPERM):
+        cause = "permission denied"
+    return IGSError(f"{path}: {doing} ({cause})")
+
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path`` in one rename.
+    """Yield a temporary path beside ``path``; once the body has written it, the file is flushed to
+    the disk and replaces ``path`` in one rename.
 
     The temporary name keeps the suffix so that writers choosing a format by extension
-    (OpenCV, numpy, plyfile) still work.
+    (OpenCV, numpy, plyfile) still work. An OSError while writing (disk full, read-only) becomes an
+    IGSError naming ``path``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.{os.getpid()}-", suffix=f"{TMP_MARK}{path.suffix}",
+                                   dir=path.parent)
+    except OSError as e:
+        raise os_error(path, e) from e
     os.close(fd)
     tmp_path = Path(tmp)
     # mkstemp creates 0600 files; give the result the usual permissions (0666 minus the umask).
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(tmp_path, 0o666 & ~umask)
     try:
+        os.chmod(tmp_path, 0o666 & ~umask)
         yield tmp_path
+        _sync_file(tmp_path, path)
         os.replace(tmp_path, path)
+        _sync_dir(path.parent)
+    except OSError as e:
+        raise os_error(path, e) from e
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        try:
+            tmp_path.unlink(missing_ok=True)
+        except OSError:
+            pass
+
+
+def _sync_file(tmp: Path, path: Path, expected: int | None = None) -> None:
+    """fsync ``tmp`` (the data reaches the disk before the rename makes it visible) and check its size."""
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+        size = os.fstat(fd).st_size
+    finally:
+        os.close(fd)
+    if expected is not None and size != expected:
+        raise IGSError(f"{path}: could not write (only {size} of {expected} bytes reached the disk)")
+
+
+def _sync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some file systems cannot sync a folder; the rename is still atomic
+    finally:
+        os.close(fd)
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` as ``path`` atomically: write, flush, fsync, check the size, rename."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        size = tmp.stat().st_size
+        if size != len(data):
+            raise IGSError(f"{path}: could not write (only {size} of {len(data)} bytes reached the disk)")
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
+    write_bytes(path, text.encode("utf-8"))
 
 
 def write_json(path: str | os.PathLike, data: Any) -> None:
@@ -48,6 +125,73 @@ def write_with(path: str | os.PathLike, writer: Callable[[Path], Any]) -> None:
     """Call ``writer(tmp_path)`` and move the result into place atomically."""
     with atomic_path(path) as tmp:
         writer(tmp)
+
+
+def encode_image(path: str | os.PathLike, data: Any, params: Sequence[int] = ()) -> bytes:
+    """``data`` (OpenCV channel order) encoded in memory in the format of ``path``'s extension."""
+    os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # must precede the first cv2 import
+    import cv2
+
+    path = Path(path)
+    try:
+        ok, buf = cv2.imencode(path.suffix or ".png", data, list(params))
+    except cv2.error as e:
+        raise IGSError(f"{path}: could not encode the image ({str(e).strip().splitlines()[-1]})") from e
+    if not ok:
+        raise IGSError(f"{path}: could not encode the image as {path.suffix or '.png'}")
+    return buf.tobytes()
+
+
+def write_image_file(path: str | os.PathLike, data: Any, params: Sequence[int] = ()) -> None:
+    """Encode an image in memory (the format from the extension), then write it atomically: unlike
+    ``cv2.imwrite``, a short write on a full disk is an error, never a file that does not decode."""
+    write_bytes(path, encode_image(path, data, params))
+
+
+def is_tmp_name(name: str) -> bool:
+    return _TMP_RE.match(name) is not None
+
+
+def clean_stale_tmp(folder: str | os.PathLike, recursive: bool = False) -> list[Path]:
+    """Remove temporary files that writers killed mid-write left in ``folder``; returns them.
+
+    A temporary file is stale when the process named in it is gone (or, for names without a
+    process id, when it is over an hour old); files of live writers are left alone.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    walker = os.walk(folder) if recursive else [(str(folder), [], [p.name for p in folder.iterdir()])]
+    for dirpath, _, names in walker:
+        for name in names:
+            m = _TMP_RE.match(name)
+            if m is None:
+                continue
+            p = Path(dirpath) / name
+            try:
+                if m.group(1) is not None:
+                    stale = not _alive(int(m.group(1)))
+                else:
+                    stale = time.time() - p.stat().st_mtime > _ORPHAN_AGE_S
+                if stale and p.is_file():
+                    p.unlink()
+                    removed.append(p)
+            except OSError:
+                continue
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's live process
+    return True
 
 
 def _default(obj: Any) -> Any:

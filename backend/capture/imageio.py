@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from backend.errors import IGSError  # noqa: E402
-from backend.io_utils import atomic_path  # noqa: E402
+from backend.io_utils import write_bytes, write_image_file  # noqa: E402
 
 
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
@@ -58,9 +59,7 @@ def write_image(path: str | Path, rgb: np.ndarray, bits: int = 8) -> None:
     """Write float RGB in [0,1] (already sRGB-encoded) as PNG/JPEG, atomically."""
     scale, dtype = (65535.0, np.uint16) if bits == 16 else (255.0, np.uint8)
     data = (np.clip(rgb, 0.0, 1.0) * scale + 0.5).astype(dtype)[:, :, ::-1]
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), data):
-            raise IGSError(f"{path}: could not write image")
+    write_image_file(path, data)
 
 
 def write_linear_as_srgb(path: str | Path, linear: np.ndarray, bits: int = 8) -> None:
@@ -84,9 +83,7 @@ def write_exr(path: str | Path, linear: np.ndarray, half: bool = True) -> None:
     """Write linear float RGB (H, W, 3) as a (half-float, compressed) EXR, atomically."""
     data = np.ascontiguousarray(np.asarray(linear, dtype=np.float32)[:, :, ::-1])
     params = [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_HALF if half else cv2.IMWRITE_EXR_TYPE_FLOAT]
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), data, params):
-            raise IGSError(f"{path}: could not write EXR")
+    write_image_file(path, data, params)
 
 
 def read_depth(path: str | Path) -> np.ndarray:
@@ -108,9 +105,14 @@ def read_depth(path: str | Path) -> np.ndarray:
 
 
 def write_depth(path: str | Path, depth: np.ndarray) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.save(f, np.asarray(depth, dtype=np.float32))
+    write_bytes(path, npy_bytes(np.asarray(depth, dtype=np.float32)))
+
+
+def npy_bytes(array: np.ndarray) -> bytes:
+    """``array`` in the .npy format, in memory (written with :func:`backend.io_utils.write_bytes`)."""
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=False)
+    return buf.getvalue()
 
 
 def image_size(path: str | Path) -> tuple[int, int]:

@@ -40,7 +40,7 @@ from backend.capture.video import (
 )
 from backend.capture.workspace import CAPTURE_SCHEMA, Workspace
 from backend.errors import IGSError
-from backend.io_utils import atomic_path, write_json
+from backend.io_utils import write_image_file, write_json
 from backend.staging import Staging
 
 SOURCE_KINDS = ("auto", "video", "photos", "colmap", "transforms")
@@ -137,9 +137,7 @@ def gt_dir_for(source: Path) -> dict[str, Path | None]:
 
 
 def _write_png(path: Path, bgr: np.ndarray) -> None:
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), bgr):
-            raise IGSError(f"{path}: could not write image")
+    write_image_file(path, bgr)
 
 
 def _to_bgr8(img: np.ndarray) -> np.ndarray:

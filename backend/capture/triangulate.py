@@ -18,6 +18,7 @@ from backend import events
 from backend.capture.sfm import SfMConfig, token_watching_cancel
 from backend.capture.undistort import Intrinsics
 from backend.errors import Cancelled, IGSError
+from backend.io_utils import write_image_file
 
 
 def _dlt(P: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -61,7 +62,7 @@ def triangulate_known_poses(frames, intrinsics: dict[str, Intrinsics], poses: di
         img = cv2.imread(str(f.raw), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
         if img is None:
             raise IGSError(f"{f.raw}: unreadable image")
-        cv2.imwrite(str(dst), img)
+        write_image_file(dst, img)
     db_path = work / "database.db"
     names = [f.name for f in frames]
     level = pycolmap.logging.minloglevel

@@ -16,7 +16,7 @@ import numpy as np
 
 from backend import events
 from backend.errors import IGSError
-from backend.io_utils import atomic_path, write_json
+from backend.io_utils import write_image_file, write_json
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".mts", ".m2ts", ".3gp")
 
@@ -116,9 +116,7 @@ def extract_frames(video: str | Path, out_dir: str | Path, selection: FrameSelec
     def flush() -> None:
         vi, score, img = cur
         path = out_dir / f".window_{len(written):06d}.png"
-        with atomic_path(path) as tmp:
-            if not cv2.imwrite(str(tmp), img):
-                raise IGSError(f"{path}: could not write frame")
+        write_image_file(path, img)
         written.append(ExtractedFrame(path, vi, score))
 
     index = 0

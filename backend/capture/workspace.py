@@ -14,7 +14,7 @@ import numpy as np
 
 from backend.capture.cameras import Camera
 from backend.errors import IGSError
-from backend.io_utils import write_json
+from backend.io_utils import clean_stale_tmp, write_json
 from backend.staging import recover
 
 CAPTURE_SCHEMA = 1
@@ -205,6 +205,7 @@ def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool =
     if not ws.root.is_dir():
         raise IGSError(f"{ws.root}: workspace folder not found")
     recover(ws.root)  # a command killed while swapping in its results: finish the swap first
+    clean_stale_tmp(ws.root, recursive=True)  # and files it was writing
     meta = ws.read_capture_json()
     if not ws.images.is_dir():
         raise IGSError(f"{ws.images}: missing images folder")

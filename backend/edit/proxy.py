@@ -73,7 +73,7 @@ import numpy as np
 
 from backend.capture.imageio import linear_to_srgb, read_linear
 from backend.errors import IGSError
-from backend.io_utils import atomic_path, write_json
+from backend.io_utils import write_image_file, write_json
 
 PROXY_SCHEMA = 1
 DEGENERATE_AREA_RATIO = 1e-10
@@ -429,9 +429,7 @@ def write_texture(path: str | os.PathLike, linear_rgb: np.ndarray, alpha: np.nda
     if alpha is not None:
         chans.append(np.clip(np.asarray(alpha, np.float32), 0.0, 1.0))
     data = (np.stack(chans, axis=2) * 65535.0 + 0.5).astype(np.uint16)
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), data):
-            raise IGSError(f"{path}: could not write texture image")
+    write_image_file(path, data)
 
 
 def save_proxy(path: str | os.PathLike, proxy: ProxyMesh) -> Path:

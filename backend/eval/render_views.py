@@ -198,7 +198,7 @@ def turntable(center, radius: float, height: float, frames: int, template: Camer
         raise IGSError(f"--frames must be >= 1, got {frames}")
     u = np.asarray(up, dtype=np.float64).reshape(3)
     if not (np.all(np.isfinite(u)) and np.linalg.norm(u) > 1e-9):
-        raise IGSError(f"--up must be a non-zero x,y,z direction, got {list(u)}")
+        raise IGSError(f"--up must be a non-zero x,y,z direction, got {u.tolist()}")
     u = u / np.linalg.norm(u)
     e1 = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = e1 - np.dot(e1, u) * u
@@ -267,9 +267,12 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
                             writers[w] = Mp4Writer(out / f"{w}.mp4", fps)
                         writers[w].write(srgb)  # a video has one size: the first frame's
                 bar.update(1)
-    finally:
-        for v in writers.values():
-            v.close()
+    except BaseException:
+        for v in writers.values():  # an unfinished video is not left in place of a finished one
+            v.abort()
+        raise
+    for v in writers.values():
+        v.close()
     videos = {w: str(out / f"{w}.mp4") for w in writers}
     for w, files in written.items():
         if files:

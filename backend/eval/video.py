@@ -7,6 +7,8 @@ heights are padded by repeating the last column / row.
 
 from __future__ import annotations
 
+import os
+import tempfile
 from fractions import Fraction
 from pathlib import Path
 
@@ -14,6 +16,7 @@ import av
 import numpy as np
 
 from backend.errors import IGSError
+from backend.io_utils import os_error
 
 CRF = 18
 """x264 constant rate factor: 18 is visually lossless for renders, about 1/10 of the PNGs' size."""
@@ -23,7 +26,8 @@ class Mp4Writer:
     """Frames (H, W, 3) sRGB uint8 or float in [0, 1] -> ``path`` (H.264, yuv420p, ``fps``).
 
     The video has one size, the first frame's (padded to even); later frames of another size are
-    resized to it. Use as a context manager, or call :meth:`close`."""
+    resized to it. Use as a context manager, or call :meth:`close`. It is written under a temporary
+    name and renamed to ``path`` by :meth:`close` once complete; :meth:`abort` drops it."""
 
     def __init__(self, path: str | Path, fps: float = 24.0, crf: int = CRF):
         if not (np.isfinite(fps) and fps > 0):
@@ -35,12 +39,20 @@ class Mp4Writer:
         self._container = None
         self._stream = None
         self._size: tuple[int, int] | None = None  # (h, w) of the frames as given
+        self._tmp: Path | None = None
 
     def _open(self, h: int, w: int) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.{os.getpid()}-", suffix=f".tmp{self.path.suffix}",
+                                       dir=self.path.parent)
+            os.close(fd)
+        except OSError as e:
+            raise os_error(self.path, e) from e
+        self._tmp = Path(tmp)
         try:
             # faststart: the index goes first, so a browser starts playing before the whole file arrived
-            self._container = av.open(str(self.path), mode="w", container_options={"movflags": "+faststart"})
+            self._container = av.open(str(self._tmp), mode="w", container_options={"movflags": "+faststart"})
             stream = self._container.add_stream("libx264", rate=self.fps)
         except (av.error.FFmpegError, ValueError) as e:
             raise IGSError(f"{self.path}: cannot write an H.264 video here ({e})") from e
@@ -71,17 +83,36 @@ class Mp4Writer:
         self.frames += 1
 
     def close(self) -> None:
+        """Finish the video and move it into place."""
         if self._container is None:
             return
         try:
             for packet in self._stream.encode(None):  # flush the encoder's delayed frames
                 self._container.mux(packet)
-        finally:
             self._container.close()
             self._container = None
+            os.replace(self._tmp, self.path)
+        except (OSError, av.error.FFmpegError) as e:
+            self.abort()
+            raise os_error(self.path, e) if isinstance(e, OSError) else IGSError(f"{self.path}: could not write "
+                                                                                 f"the video ({e})") from e
+
+    def abort(self) -> None:
+        """Drop the unfinished video (``path`` keeps what it held)."""
+        if self._container is not None:
+            try:
+                self._container.close()
+            except (OSError, av.error.FFmpegError):
+                pass
+            self._container = None
+        if self._tmp is not None:
+            self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> Mp4Writer:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -28,7 +28,7 @@ from backend.capture.colmap_io import read_model
 from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
 from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, load_capture
 from backend.errors import IGSError
-from backend.io_utils import atomic_path, write_json
+from backend.io_utils import atomic_path, write_image_file, write_json
 from backend.priors.albedo import AlbedoOptions, AlbedoPredictor, make_albedo_predictor
 from backend.priors.align import AlignConfig, align_depth, points_in_view
 from backend.priors.depth import DepthOptions, DepthPredictor, make_depth_predictor
@@ -185,9 +185,7 @@ def _compute(ws: Workspace, meta: dict, views: list[_View], config: PriorsConfig
                 amap = cache.get(v.frame.name, v.image, lambda v=v: albedo_pred.predict(v.frame, _rgb(v.image)))
                 amap = v.warp.image(amap) if albedo_pred.warp else v.warp.resize(amap)
                 data = (np.clip(amap, 0, 1) * 65535 + 0.5).astype(np.uint16)[:, :, ::-1]
-                with atomic_path(albedo_dir / v.frame.name) as tmp:
-                    if not cv2.imwrite(str(tmp), data):
-                        raise IGSError(f"{ws.albedo / v.frame.name}: could not write")
+                write_image_file(albedo_dir / v.frame.name, data)
                 bar.update(1)
         report["albedo"] = {"prior": albedo_pred.label, "views": len(views),
                             "seconds": round(time.perf_counter() - t, 3)}

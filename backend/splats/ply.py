@@ -25,6 +25,7 @@ with their own (usually 3DGS's 0.3), a little softer.
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +34,7 @@ import torch
 from plyfile import PlyData, PlyElement
 
 from backend.errors import IGSError
-from backend.io_utils import atomic_path
+from backend.io_utils import write_bytes
 from backend.splats.gaussians import C0, FILTER, KINDS, SH_KINDS, GaussianSet, sh_coeffs
 
 ENCODINGS = {"albedo": "rgb01", "shading": "rgb", "residual": "sh", "radiance": "sh"}
@@ -87,8 +88,9 @@ def write_ply(path: str | Path, gaussians: GaussianSet, space: str = "linear") -
                 f"igs_sh_degree {gaussians.sh_degree}"]
     ply = PlyData([PlyElement.describe(rec, "vertex")], text=False, byte_order="<", comments=comments)
     path = Path(path)
-    with atomic_path(path) as tmp:
-        ply.write(str(tmp))
+    buf = io.BytesIO()
+    ply.write(buf)
+    write_bytes(path, buf.getvalue())
     return path
 
 

@@ -12,6 +12,7 @@ cancel (a checkpoint is written, then :class:`Cancelled` propagates), and tqdm/J
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import random
@@ -28,7 +29,7 @@ import torch
 from backend import events
 from backend.errors import Cancelled, IGSError
 from backend.eval.metrics import image_metrics, mean_metrics
-from backend.io_utils import atomic_path, write_json
+from backend.io_utils import clean_stale_tmp, os_error, write_bytes, write_json
 from backend.render import RenderOutput, render
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import SH_KINDS, GaussianSet
@@ -303,8 +304,9 @@ def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimiz
         "extra": extra,
     }
     path = _checkpoint_path(ckpt_dir)
-    with atomic_path(path) as tmp:
-        torch.save(_plain(state), tmp)
+    buf = io.BytesIO()  # serialised in memory: a full disk is then a clear error, not torch's "unexpected pos"
+    torch.save(_plain(state), buf)
+    write_bytes(path, buf.getvalue())
     return path
 
 
@@ -404,9 +406,13 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
     np.finfo(np.float32), np.finfo(np.float64)  # cache numpy's limits first: it warns when computed under FTZ
     torch.set_flush_denormal(True)
     ckpt_dir = Path(ckpt_dir)
-    if not resume and ckpt_dir.exists():
-        shutil.rmtree(ckpt_dir)
-    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        if not resume and ckpt_dir.exists():
+            shutil.rmtree(ckpt_dir)
+        ckpt_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise os_error(ckpt_dir, e, "could not prepare the checkpoint folder") from e
+    clean_stale_tmp(ckpt_dir)  # half-written checkpoints of a killed run
 
     rng = seed_everything(cfg.seed)
     sampler = ViewSampler(len(stage.train_views), rng)
