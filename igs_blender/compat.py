@@ -94,26 +94,39 @@ def extension_user_dir(package: str, sub: str) -> str:
     return bpy.utils.extension_path_user(package, path=sub, create=True)
 
 
-def _fit_when_drawn(window, area) -> None:
-    """Zoom the Image Editor so the whole image fits (a small render otherwise sits at 1:1 in a corner).
+def _fit_when_drawn(window, area, image: bpy.types.Image, size: tuple[int, int] | None) -> None:
+    """Zoom the Image Editor so the whole image fits (a small render otherwise sits at 1:1 in the middle).
 
-    The editor knows its size only once it has drawn, so this runs from a timer a moment later.
+    The editor knows its size only once it has drawn, and an image sequence knows its own only once
+    a frame is shown, so this runs from a timer with the size the caller knows.
     """
+    tries = [0]
+
     def fit():
+        tries[0] += 1
         try:
             region = next(r for r in area.regions if r.type == "WINDOW")
+            w, h = (image.size[0], image.size[1]) if image.size[0] > 0 else (size or (0, 0))
+            if (region.width <= 1 or w <= 0) and tries[0] < 20:
+                return 0.1  # not drawn yet
+            if w <= 0 or h <= 0:
+                return None
+            ratio = 0.9 * min(region.width / w, region.height / h)
             with bpy.context.temp_override(window=window, area=area, region=region):
-                bpy.ops.image.view_all(fit_view=True)
-        except (RuntimeError, ReferenceError, StopIteration, TypeError):
-            pass  # the window was closed or the editor changed meanwhile: nothing to fit
+                bpy.ops.image.view_all()
+                bpy.ops.image.view_zoom_ratio(ratio=ratio)
+        except (RuntimeError, ReferenceError, StopIteration, TypeError) as e:
+            # the window was closed or the editor changed meanwhile: nothing to fit
+            print(f"Intrinsic Splats: could not fit the image to its editor: {e}")
         return None
 
     area.tag_redraw()
     bpy.app.timers.register(fit, first_interval=0.2)
 
 
-def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
-    """Show ``image`` in an Image Editor: an open one, else a new window; False without a UI."""
+def show_image(context: bpy.types.Context, image: bpy.types.Image, size: tuple[int, int] | None = None) -> bool:
+    """Show ``image`` (``size`` pixels, if known) in an Image Editor: an open one, else a new window,
+    zoomed to fit; False without a UI."""
     if bpy.app.background or context.window_manager is None:
         return False
 
@@ -128,7 +141,7 @@ def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
         for area in window.screen.areas:
             if area.type == "IMAGE_EDITOR":
                 assign(area.spaces.active)
-                _fit_when_drawn(window, area)
+                _fit_when_drawn(window, area, image, size)
                 return True
     try:
         with context.temp_override(window=context.window):
@@ -137,7 +150,7 @@ def show_image(context: bpy.types.Context, image: bpy.types.Image) -> bool:
         area = window.screen.areas[0]
         area.type = "IMAGE_EDITOR"
         assign(area.spaces.active)
-        _fit_when_drawn(window, area)
+        _fit_when_drawn(window, area, image, size)
         return True
     except (RuntimeError, IndexError, AttributeError):
         return False

@@ -111,7 +111,7 @@ class IGS_OT_render_view(BackendOperator, bpy.types.Operator):
         if not files:
             raise UserError(f"the render wrote no image into {self._out / context.scene.igs.render_layer}")
         image = images.load_image(files[0], "IGS Render")
-        compat.show_image(context, image)
+        compat.show_image(context, image, render_size(context.scene))
         return f"Rendered {files[0]}"
 
 
@@ -169,7 +169,7 @@ class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
         if len(frames) != self._count:
             raise UserError(f"expected {self._count} frames in {self._out}, the render wrote {len(frames)}")
         image = images.load_image(frames[0], "IGS Sequence", sequence_length=len(frames))
-        compat.show_image(context, image)
+        compat.show_image(context, image, render_size(context.scene))
         msg = f"Rendered {len(frames)} frames into {self._out}"
         movies = [p for p in output_files(job.state.outputs, self._out, VIDEO_SUFFIXES) if p.stem == layer]
         if context.scene.igs.write_mp4:

@@ -456,7 +456,7 @@ def test_check_backend_reports_the_one_line_and_keeps_the_details(prefs, tmp_pat
     assert bpy.ops.igs.check_backend() == {"FINISHED"}  # the check ran; what it found is its report
     lines = prefs.check_report.splitlines()
     assert not prefs.check_ok and lines[0] == f"numpy, bpy and {len(wanted_reqs('3.11')) - 2} more missing: {FIX}"
-    assert capfd.readouterr().out.splitlines() == [f"Info: {lines[0]}"]  # background Blender prints reports
+    assert capfd.readouterr().out.splitlines() == [f"Warning: {lines[0]}"]  # a failed check warns; background Blender prints reports
     assert lines[1].startswith("Python 3.11") and any(line.startswith("Missing: ") for line in lines)
     prefs.backend_python = PYTHON
     assert bpy.ops.igs.check_backend() == {"FINISHED"}

@@ -265,7 +265,8 @@ def flow():
                   for o in bpy.data.objects if o.type == "POINTCLOUD"}
         s.data["point_clouds"] = clouds
         assert len(clouds) >= 3, clouds
-    yield 0.5
+        s.data["shading"] = view3d()[1].spaces.active.shading.type
+    yield 20.0  # Material Preview compiles EEVEE's shaders first (many seconds on llvmpipe)
     shot("09-layers")
 
     # -- edit: look through the edit's camera, a real Ctrl+B rectangle, fit a plane, colour, bake ----
