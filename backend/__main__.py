@@ -1,4 +1,8 @@
-from backend.cli import main
+from backend import signals
+
+signals.install()  # before the imports below: a Ctrl-C while they load is a cancel, not a traceback
+
+from backend.cli import main  # noqa: E402
 
 if __name__ == "__main__":
     raise SystemExit(main())

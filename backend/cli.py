@@ -13,7 +13,7 @@ import sys
 import time
 import traceback
 
-from backend import __version__, events
+from backend import __version__, events, signals
 from backend.errors import Cancelled, IGSError
 from backend.io_utils import os_error
 
@@ -21,6 +21,8 @@ from backend.io_utils import os_error
 # permissions): one line naming the file, like bad input.
 DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG,
                errno.ENOENT, errno.ENOTDIR, errno.EISDIR}
+
+CANCELLED = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
 
 # Modules with a ``register(subparsers)`` function, in the order of the pipeline.
 COMMAND_MODULES: list[str] = [
@@ -53,14 +55,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Run one command; the exit code: 0 done, 2 user error, 130 cancelled, 1 internal error.
+
+    Without ``argv`` (a process of its own: ``igs``, ``python -m backend``) signals arriving after
+    the command has finished are ignored, so that the exit code stays the command's.
+    """
+    if argv is not None:
+        return _main(argv)
+    try:
+        return _main(sys.argv[1:])
+    finally:
+        # Python's shutdown puts back the default SIGINT action (killed, -2) while threads are
+        # joined; a late Ctrl-C must not turn a finished 0 or 130 into that.
+        signals.ignore()
+
+
+def _main(argv: list[str]) -> int:
+    signals.install()  # first: a Ctrl-C while torch and the commands load is a cancel, not a traceback
+    # --events is known before the commands load, so a second Ctrl-C meanwhile still ends in an event
+    events.enable_json("--events" in argv[:next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))])
+    signals.on_stop_now(events.stop_now_event)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:  # only if a library put Python's default handler back while loading
+        print(f"igs: {CANCELLED}", file=sys.stderr)
+        return signals.EXIT_CANCELLED
     events.enable_json(args.events)
     events.install_signal_handlers()
     t0 = time.perf_counter()
     events.emit("start", command=args.command, argv=argv)
     try:
+        events.check_cancel()  # a signal that came while loading
         args.func(args)
     except IGSError as e:
         events.emit("error", message=str(e))
@@ -74,10 +100,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"igs {args.command}: error: {msg}", file=sys.stderr)
         return 2
     except (Cancelled, KeyboardInterrupt):
-        msg = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
-        events.emit("cancelled", message=msg)
-        print(f"igs {args.command}: {msg}", file=sys.stderr)
-        return 130
+        events.emit("cancelled", message=CANCELLED)
+        print(f"igs {args.command}: {CANCELLED}", file=sys.stderr)
+        return signals.EXIT_CANCELLED
     except Exception as e:  # a bug, not bad input: keep the traceback but still report one line
         return _internal_error(e)
     events.emit("done", command=args.command, seconds=time.perf_counter() - t0)

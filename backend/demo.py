@@ -108,11 +108,12 @@ def run(args: argparse.Namespace) -> dict:
                "seconds": round(time.perf_counter() - t0, 1), "capture": capture_summary(load_capture(ws))}
     write_json(ws / "demo_summary.json", summary)
     events.output("summary", ws / "demo_summary.json")
-    print(json.dumps({k: summary[k] for k in ("workspace", "iterations", "edit_plane", "steps_seconds", "seconds")}, indent=2))
-    print(f"\nResults in {ws}/:\n"
+    short = {k: summary[k] for k in ("workspace", "iterations", "edit_plane", "steps_seconds", "seconds")}
+    events.result("demo", short, json.dumps(short, indent=2) + "\n"
+                  f"\nResults in {ws}/:\n"
           f"  layers/{{albedo,shading,residual}}.ply   the three fields (open in any 3DGS viewer or the Blender add-on)\n"
           f"  report.png, metrics.json                held-out views: input | A | S | R | A*S+R | ground truth\n"
           f"  edits/{DEMO_EDIT}/albedo.ply           the edited albedo field\n"
           f"  renders/{DEMO_EDIT}-turntable/          A, S, R and full turntables (PNG sequences + MP4)\n"
-          f"Inspect with: ./dev.sh igs info {ws}")
+                  f"Inspect with: ./dev.sh igs info {ws}")
     return summary

@@ -8,16 +8,18 @@ line. Every event is one JSON object with an ``event`` key:
 - ``{"event": "progress", "stage": str, "step": int, "total": int, "eta_s": float, ...metrics}``
 - ``{"event": "log", "message": str}``
 - ``{"event": "output", "kind": str, "path": str}``       a file the user may want to open
+- ``{"event": "result", "command": str, "data": {...}}``  the command's summary (printed as JSON without --events)
 - ``{"event": "done", "command": str, "seconds": float}``
 - ``{"event": "error", "message": str}`` / ``{"event": "cancelled", "message": str}``
 
-Lines that are not JSON objects must be ignored by readers.
+In ``--events`` mode every stdout line is such an event (human text goes to stderr). Lines that
+are not JSON objects must still be ignored by readers.
 """
 
 from __future__ import annotations
 
 import json
-import signal
+import os
 import sys
 import threading
 import time
@@ -27,10 +29,11 @@ from typing import Any
 
 from tqdm import tqdm
 
+from backend import signals
 from backend.errors import Cancelled
 
 _state = {"json": False}
-_cancel = threading.Event()
+_cancel = signals.cancel_event
 _lock = threading.Lock()
 
 
@@ -70,6 +73,17 @@ def output(kind: str, path: Any) -> None:
     emit("output", kind=kind, path=str(path))
 
 
+def result(command: str, data: dict[str, Any], text: str | None = None, indent: int | None = 2) -> None:
+    """The command's summary on stdout: a ``result`` event in ``--events`` mode (where stdout carries
+    only events; ``text`` then goes to stderr), otherwise ``text`` or the JSON of ``data``."""
+    if _state["json"]:
+        emit("result", command=command, data=data)
+        if text is not None:
+            tqdm.write(text, file=sys.stderr)
+        return
+    print(text if text is not None else json.dumps(data, indent=indent, default=_jsonable), flush=True)
+
+
 def request_cancel() -> None:
     _cancel.set()
 
@@ -85,19 +99,23 @@ def check_cancel() -> None:
 
 
 def install_signal_handlers() -> None:
-    """SIGINT/SIGTERM set the cancel flag; long loops call :func:`check_cancel` and stop cleanly."""
+    """SIGINT/SIGTERM set the cancel flag; long loops call :func:`check_cancel` and stop cleanly;
+    a second signal ends the process at once with 130 (:mod:`backend.signals`)."""
     try:  # importing pycolmap installs glog's C-level SIGTERM handler over Python's: import it first
         import pycolmap  # noqa: F401
     except ImportError:
         pass
+    signals.on_stop_now(stop_now_event)
+    signals.install()
 
-    def handler(signum, frame):  # noqa: ARG001
-        if _cancel.is_set():  # second signal: stop now
-            raise KeyboardInterrupt
-        _cancel.set()
 
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
+def stop_now_event() -> None:
+    """The ``cancelled`` event of a second signal, written without the lock (the signal may have
+    interrupted a write that holds it); the leading newline ends any line cut short."""
+    if _state["json"]:
+        line = json.dumps({"event": "cancelled", "message": "stopped at once (second signal); the workspace keeps "
+                           "the last checkpoint, run the same command again to resume"})
+        os.write(1, f"\n{line}\n".encode())
 
 
 class Progress:

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
 
+from backend import events
 from backend.capture.workspace import capture_summary, load_capture
 
 
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> dict:
     summary = capture_summary(load_capture(args.workspace))
     if args.json:
-        print(json.dumps(summary, indent=2))
+        events.result("info", summary)
         return summary
     pri = summary["priors"]
     lines = [
@@ -34,5 +34,5 @@ def run(args: argparse.Namespace) -> dict:
         f"layers      {', '.join(summary['layers']) or 'none yet (run `igs decompose`)'}",
         f"edits       {', '.join(summary['edits']) or 'none'}",
     ]
-    print("\n".join(lines))
+    events.result("info", summary, "\n".join(lines))
     return summary

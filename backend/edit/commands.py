@@ -175,7 +175,7 @@ def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
     grown = f", refined on {fit.grown_points} points of the {grown_on.split(' (')[0]}" if fit.grown_points else ""
     events.log(f"fit-{kind}: {len(fit.gaussian_ids)} Gaussians selected, {meta['inliers']} inliers{grown}; "
                f"wrote {path}")
-    print(json.dumps(meta, indent=2))
+    events.result(f"edit fit-{kind}", meta)
     return meta
 
 
@@ -215,8 +215,8 @@ def run_bake(args: argparse.Namespace) -> None:
                      seed=args.seed, surface=args.surface, supersample=args.supersample,
                      edit_filter=args.edit_filter)
     summary = bake_edit(args.workspace, proxy, name, cfg)
-    print(json.dumps({k: v for k, v in summary.items() if k not in ("config",)} | {
-        "held_out": {k: v for k, v in summary["held_out"].items() if k != "views"}}, indent=2))
+    events.result("edit bake", {k: v for k, v in summary.items() if k not in ("config",)} | {
+        "held_out": {k: v for k, v in summary["held_out"].items() if k != "views"}})
 
 
 # ----------------------------------------------------------------------------------------------

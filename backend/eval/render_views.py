@@ -318,7 +318,7 @@ def run_render(args: argparse.Namespace) -> None:
     out = Path(args.out) if args.out else ws.renders / (args.edit or "layers")
     result = render_views(cams, layers, wanted, out, args.backend, args.mp4, args.fps)
     events.log(f"render: {len(cams)} views x {', '.join(wanted)} -> {out}")
-    print(json.dumps({"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]}, indent=2))
+    events.result("render", {"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]})
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
 
+from backend import events
 from backend.errors import IGSError
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
@@ -63,5 +63,5 @@ def run_train_3dgs(args: argparse.Namespace) -> dict:
                          downscale=args.downscale, device=args.device)
     entry = train_3dgs(args.workspace, cfg, resume=args.resume)
     summary = {k: entry.get(k) for k in ("psnr", "ssim", "lpips", "iterations", "gaussians", "train_seconds")}
-    print(json.dumps(summary))
+    events.result("train-3dgs", summary, indent=None)
     return entry

@@ -4,9 +4,9 @@ single-set baseline."""
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 
+from backend import events
 from backend.errors import IGSError
 from backend.train.device import add_device_argument
 from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations
@@ -107,6 +107,7 @@ def run_decompose(args: argparse.Namespace) -> dict:
             raise IGSError("--single-set-schedule applies only with --single-set")
         summary = decompose(args.workspace, cfg, stages=args.stage or STAGES, resume=args.resume)
     short = {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips")} for k, v in summary["layers"].items()}
-    print(json.dumps({"mode": summary["mode"], "layers": short, "gaussians": summary["gaussians"],
-                      "decompose_seconds": summary["decompose_seconds"], "report": summary["report"]}))
+    events.result("decompose", {"mode": summary["mode"], "layers": short, "gaussians": summary["gaussians"],
+                                "decompose_seconds": summary["decompose_seconds"], "report": summary["report"]},
+                  indent=None)
     return summary
