@@ -106,9 +106,10 @@ def _fit_when_drawn(window, area, image: bpy.types.Image, size: tuple[int, int] 
         tries[0] += 1
         try:
             region = next(r for r in area.regions if r.type == "WINDOW")
+            # Wait until the editor has drawn the image: it resets its view when the first frame loads.
+            if (region.width <= 1 or image.size[0] <= 0) and tries[0] < 30:
+                return 0.1
             w, h = (image.size[0], image.size[1]) if image.size[0] > 0 else (size or (0, 0))
-            if (region.width <= 1 or w <= 0) and tries[0] < 20:
-                return 0.1  # not drawn yet
             if w <= 0 or h <= 0:
                 return None
             ratio = 0.9 * min(region.width / w, region.height / h)

@@ -342,7 +342,7 @@ def flow():
         s.data["mp4s"] = renders
         assert new, "no render was loaded into Blender"
         assert renders, "no MP4 was written"
-    yield 1.0
+    yield 4.0  # the image window zooms to fit once it has drawn the first frame
     shot("14-turntable")
     RESULTS["done"] = True
     save_results()
