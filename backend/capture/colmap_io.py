@@ -10,6 +10,7 @@ import numpy as np
 from backend.capture.cameras import Camera, rotmat_to_qvec
 from backend.errors import IGSError
 from backend.io_utils import write_text
+from backend.paths import relative_name
 
 
 @dataclass
@@ -85,6 +86,7 @@ def read_model(folder: str | Path) -> SparseModel:
     for image in rec.images.values():
         if not image.has_pose:
             continue
+        relative_name(image.name, f"{folder} (image name)")  # it names a file under images/
         cam = image.camera
         model = cam.model_name if hasattr(cam, "model_name") else str(cam.model)
         p = list(cam.params)

@@ -41,6 +41,7 @@ from backend.capture.video import (
 from backend.capture.workspace import CAPTURE_SCHEMA, Workspace
 from backend.errors import IGSError
 from backend.io_utils import write_image_file, write_json
+from backend.paths import inside
 from backend.staging import Staging
 
 SOURCE_KINDS = ("auto", "video", "photos", "colmap", "transforms")
@@ -249,7 +250,7 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
     frames, intr, poses, dropped = [], {}, {}, []
     name_of: dict[int, str] = {}
     for img in images:
-        raw = image_dir / img.name
+        raw = inside(image_dir, img.name, f"{model_dir} (image name)")
         if not img.has_pose:
             dropped.append(img.name)
             continue

@@ -20,6 +20,7 @@ from backend.capture.cameras import Camera
 from backend.capture.undistort import Intrinsics
 from backend.errors import IGSError
 from backend.io_utils import write_json
+from backend.paths import inside
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".exr")
@@ -62,7 +63,7 @@ def cv_w2c_to_opengl_c2w(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _resolve_image(root: Path, file_path: str, where: str) -> Path:
-    p = (root / file_path).resolve()
+    p = inside(root, file_path, f"{where} file_path")
     if p.exists():
         return p
     if not p.suffix or p.suffix.lower() not in IMAGE_SUFFIXES:  # NeRF-synthetic omits the extension
@@ -132,7 +133,7 @@ def read_transforms(path: str | Path) -> TransformsDataset:
         if abs(np.linalg.det(R) - 1.0) > 1e-3:
             raise IGSError(f"{where}: transform_matrix rotation is not orthonormal (scaled poses are not supported)")
         frames.append(TransformsFrame(image, intr, R, t))
-    ply = (root / data["ply_file_path"]).resolve() if data.get("ply_file_path") else None
+    ply = inside(root, data["ply_file_path"], f"{path} ply_file_path") if data.get("ply_file_path") else None
     if ply is not None and not ply.exists():
         raise IGSError(f"{path}: ply_file_path '{data['ply_file_path']}' not found")
     return TransformsDataset(path, frames, ply)

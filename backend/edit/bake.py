@@ -54,6 +54,7 @@ from backend.edit.views import (
 )
 from backend.errors import IGSError
 from backend.io_utils import write_json
+from backend.paths import plain_name
 from backend.render import RenderOutput, render
 from backend.render.projection import EPS2D
 from backend.splats.gaussians import FILTER, GaussianSet
@@ -129,15 +130,13 @@ class BakeConfig:
 # Inputs
 
 
-def edit_dir(ws: Workspace, name: str) -> Path:
-    if not name or "/" in name or "\\" in name or name in (".", ".."):
-        raise IGSError(f"--name must be a plain folder name, got {name!r}")
-    return ws.edits / name
+def edit_dir(ws: Workspace, name: str, option: str = "--name") -> Path:
+    return ws.edits / plain_name(name, option)
 
 
 def load_albedo(ws: Workspace, base: str | None) -> tuple[GaussianSet, Path]:
     """The albedo layer to edit: ``<ws>/layers/albedo.ply`` or another edit's result."""
-    path = edit_dir(ws, base) / "albedo.ply" if base else ws.layers / "albedo.ply"
+    path = edit_dir(ws, base, "--base") / "albedo.ply" if base else ws.layers / "albedo.ply"
     if not path.exists():
         hint = (f"bake edit '{base}' first" if base else "run `igs decompose` first")
         raise IGSError(f"{path}: no albedo layer to edit; {hint}")

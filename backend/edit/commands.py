@@ -43,6 +43,7 @@ from backend.edit.sweep import sweep_fitted
 from backend.edit.texture import textured_from_view
 from backend.errors import IGSError
 from backend.io_utils import write_json
+from backend.paths import plain_name
 from backend.train.device import add_device_argument
 from backend.train.views import view_camera
 
@@ -129,6 +130,7 @@ def world_cylinder(proxy: ProxyMesh) -> dict[str, Any]:
 
 
 def run_fit(args: argparse.Namespace, kind: str) -> dict[str, Any]:
+    _check_names(args)
     capture = load_capture(args.workspace)
     ws = capture.workspace
     albedo, source = load_albedo(ws, args.base)
@@ -193,7 +195,15 @@ def run_project(args: argparse.Namespace) -> None:
     events.log(f"project: albedo seen from {cam.name} projected onto '{proxy.name}'; wrote {dst}")
 
 
+def _check_names(args: argparse.Namespace) -> None:
+    """Edit names are folders under <ws>/edits: checked before any work."""
+    for option in ("name", "base"):
+        if getattr(args, option, None) is not None:
+            plain_name(getattr(args, option), f"--{option}")
+
+
 def run_bake(args: argparse.Namespace) -> None:
+    _check_names(args)
     if (args.proxy is None) == (args.plane is None):
         raise IGSError("give exactly one of --proxy proxy.json or --plane plane.json")
     if args.proxy is not None and (args.texture or args.color):

@@ -39,6 +39,7 @@ from backend.capture.imageio import linear_to_srgb, write_image
 from backend.capture.workspace import load_capture
 from backend.errors import IGSError
 from backend.eval.video import Mp4Writer
+from backend.paths import plain_name
 from backend.render import render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
@@ -228,7 +229,7 @@ def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, 
             continue
         path = ws_root / "layers" / f"{kind}.ply"
         if kind == "albedo" and edit:
-            path = ws_root / "edits" / edit / "albedo.ply"
+            path = ws_root / "edits" / plain_name(edit, "--edit") / "albedo.ply"
             if not path.exists():
                 raise IGSError(f"--edit {edit}: {path} not found; bake the edit first (igs edit bake)")
         if not path.exists():
@@ -283,6 +284,8 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
 
 
 def run_render(args: argparse.Namespace) -> None:
+    if args.edit is not None:
+        plain_name(args.edit, "--edit")  # a folder under <ws>/edits and <ws>/renders, never a path
     wanted = [w.strip() for w in args.layers.split(",") if w.strip()]
     bad = [w for w in wanted if w not in LAYERS]
     if bad or not wanted:
@@ -315,7 +318,7 @@ def run_render(args: argparse.Namespace) -> None:
         cams = turntable(center, radius, height, args.frames, template, args.fov, up)
     needed = set().union(*(NEEDS[w] for w in wanted))
     layers = load_layers(ws.root, args.edit, needed)
-    out = Path(args.out) if args.out else ws.renders / (args.edit or "layers")
+    out = Path(args.out) if args.out else ws.renders / (plain_name(args.edit, "--edit") if args.edit else "layers")
     result = render_views(cams, layers, wanted, out, args.backend, args.mp4, args.fps)
     events.log(f"render: {len(cams)} views x {', '.join(wanted)} -> {out}")
     events.result("render", {"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]})
