@@ -300,6 +300,8 @@ def flow():
         r = bpy.context.scene.render
         s.data["border"] = [r.use_border, r.border_min_x, r.border_min_y, r.border_max_x, r.border_max_y]
         assert r.use_border, "Ctrl+B drew no render border"
+        scroll_sidebar(26)  # down to the Edit panel
+    yield 0.5
     shot("10-rectangle")
     with Step("fit_plane") as s:
         pr = props()
@@ -330,6 +332,7 @@ def flow():
 
     # -- render ---------------------------------------------------------------------------------------
     with Step("render_turntable") as s:
+        scroll_sidebar(30)  # down to the Render panel
         pr = props()
         pr.turntable_frames = CONFIG["turntable_frames"]
         pr.write_mp4 = True
@@ -346,6 +349,16 @@ def flow():
     shot("14-turntable")
     RESULTS["done"] = True
     save_results()
+
+
+def scroll_sidebar(clicks: int) -> None:
+    """Real mouse-wheel clicks over the sidebar (positive: down), as a user scrolls to a sub-panel."""
+    win, area, _ = view3d()
+    ui = next(r for r in area.regions if r.type == "UI")
+    x, y = ui.x + ui.width // 2, win.height - (ui.y + ui.height // 2)
+    xdo("mousemove", str(x), str(y))
+    for _ in range(abs(clicks)):
+        xdo("click", "5" if clicks > 0 else "4")
 
 
 def camera_pixel_to_screen(u: float, v: float) -> tuple[int, int]:
