@@ -9,9 +9,11 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import re
 import sys
 import time
 import traceback
+from typing import NoReturn
 
 from backend import __version__, events, signals
 from backend.errors import Cancelled, IGSError
@@ -38,8 +40,17 @@ COMMAND_MODULES: list[str] = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors: ``igs CMD: error: --option must be ...``."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        message = re.sub(r"^argument (\S+?)(/\S+)?: ", r"\1 ", message)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="igs",
         description="Intrinsic Splats: decompose a capture into albedo, shading and residual Gaussians, "
         "edit the albedo, render.",
@@ -81,6 +92,8 @@ def _main(argv: list[str]) -> int:
     except KeyboardInterrupt:  # only if a library put Python's default handler back while loading
         print(f"igs: {CANCELLED}", file=sys.stderr)
         return signals.EXIT_CANCELLED
+    except SystemExit as e:  # --help, --version, or a bad option (argparse printed it): its exit code
+        return e.code if isinstance(e.code, int) else 2
     events.enable_json(args.events)
     events.install_signal_handlers()
     t0 = time.perf_counter()

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from backend import events
+from backend import options as opt
 from backend.errors import IGSError
 from backend.io_utils import write_json
 
@@ -31,11 +32,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"workspace folder (default: {DEFAULT_WORKSPACE})")
     p.add_argument("--preset", default="demo", choices=["test", "demo", "paper"],
                    help="synthetic capture preset (default: demo)")
-    p.add_argument("--seed", type=int, default=0, help="scene seed")
-    p.add_argument("--iterations", type=int, default=None,
+    p.add_argument("--seed", type=opt.SEED, default=0, help="scene seed")
+    p.add_argument("--iterations", type=opt.COUNT, default=None,
                    help="decomposition budget: albedo N, shading 3N/4, residual N/2 (default per preset: "
                         + ", ".join(f"{k} {v}" for k, v in ITERATIONS.items()) + ")")
-    p.add_argument("--frames", type=int, default=36, help="turntable frames (default 36)")
+    p.add_argument("--frames", type=opt.COUNT, default=36, help="turntable frames (default 36)")
     p.set_defaults(func=run)
 
 

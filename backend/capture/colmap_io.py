@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -11,6 +13,8 @@ from backend.capture.cameras import Camera, rotmat_to_qvec
 from backend.errors import IGSError
 from backend.io_utils import write_text
 from backend.paths import relative_name
+
+MAX_SIDE = 16384  # pixels
 
 
 @dataclass
@@ -68,6 +72,93 @@ def write_model(folder: str | Path, cameras: list[Camera], points: np.ndarray, c
     write_text(folder / "points3D.txt", "\n".join(pt_lines) + "\n")
 
 
+# pycolmap's messages for broken models name its internals; say what is wrong in the files instead.
+_COLMAP_MESSAGES = (
+    (re.compile(r"Rig with ID (\d+) does not exist"),
+     lambda m: f"an image refers to camera {m.group(1)}, which cameras.txt/.bin does not define"),
+    (re.compile(r"Camera with ID (\d+) does not exist|Camera (\d+) does not exist"),
+     lambda m: f"an image refers to camera {m.group(1) or m.group(2)}, which cameras.txt/.bin does not define"),
+    (re.compile(r"VerifyParams"), lambda m: "a camera has the wrong number of parameters or invalid ones"),
+    (re.compile(r"Camera model does not exist"), lambda m: "a camera model name is not one COLMAP knows"),
+    (re.compile(r"reconstruction_io_text\.cc.*(image_id|camera_id|point3D_id)"),
+     lambda m: "a line of the text files is malformed (expected numbers)"),
+)
+
+
+def colmap_error(folder: Path, e: Exception) -> IGSError:
+    """One message for a COLMAP model pycolmap cannot read."""
+    text = " ".join(str(e).split())
+    for pattern, say in _COLMAP_MESSAGES:
+        m = pattern.search(text)
+        if m:
+            return IGSError(f"{folder}: could not read the COLMAP model: {say(m)}")
+    return IGSError(f"{folder}: could not read the COLMAP model ({text[:200] or type(e).__name__})")
+
+
+def check_rotations(folder: Path) -> None:
+    """Every image's quaternion is finite and non-zero (pycolmap silently turns a zero one into the
+    identity); read from images.txt or images.bin directly."""
+    for name, q in _quaternions(folder):
+        norm = float(np.linalg.norm(q)) if np.isfinite(q).all() else float("nan")
+        if not (norm > 1e-6):
+            raise IGSError(f"{folder}: image '{name}' has the rotation quaternion {q.tolist()} (zero or not finite)")
+
+
+def _quaternions(folder: Path) -> list[tuple[str, np.ndarray]]:
+    txt, binary = folder / "images.txt", folder / "images.bin"
+    out = []
+    if txt.exists():
+        rows = [ln.split() for ln in txt.read_text(errors="replace").splitlines() if ln.strip() and not ln.startswith("#")]
+        for row in rows[::2]:  # image lines alternate with their 2D points
+            if len(row) >= 10:
+                try:
+                    out.append((" ".join(row[9:]), np.array([float(v) for v in row[1:5]])))
+                except ValueError:
+                    continue  # pycolmap reports the malformed line
+        return out
+    if binary.exists():
+        data = binary.read_bytes()
+        try:
+            (n,), pos = struct.unpack_from("<Q", data, 0), 8
+            for _ in range(n):
+                q = np.array(struct.unpack_from("<4d", data, pos + 4))
+                pos += 4 + 8 * 7 + 4
+                end = data.index(b"\0", pos)
+                name = data[pos:end].decode(errors="replace")
+                pos = end + 1
+                (npts,) = struct.unpack_from("<Q", data, pos)
+                pos += 8 + npts * 24
+                out.append((name, q))
+        except (struct.error, ValueError):
+            pass  # truncated: pycolmap reports it
+    return out
+
+
+def check_camera(intr_model: str, width: int, height: int, params, where: str) -> None:
+    """Image size, finite parameters and positive focal lengths of one camera."""
+    import pycolmap
+
+    if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
+        raise IGSError(f"{where}: image size {width}x{height} is not 1..{MAX_SIDE} pixels")
+    params = [float(p) for p in params]
+    if not all(np.isfinite(params)):
+        raise IGSError(f"{where}: {intr_model} parameters {params} are not all finite")
+    try:
+        focal = pycolmap.Camera(model=intr_model, width=width, height=height, params=params).focal_length_idxs()
+    except Exception as e:  # noqa: BLE001 (pycolmap raises plain errors for unknown models and counts)
+        raise IGSError(f"{where}: {intr_model} with {len(params)} parameters is not a valid COLMAP camera ({e})") from e
+    if any(params[i] <= 0 for i in focal):
+        raise IGSError(f"{where}: focal length {[params[i] for i in focal]} must be > 0")
+
+
+def check_pose(R: np.ndarray, t: np.ndarray, where: str) -> None:
+    R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    if not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise IGSError(f"{where}: the pose has NaN or infinite values")
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
+        raise IGSError(f"{where}: the rotation is not a proper rotation matrix")
+
+
 def read_model(folder: str | Path) -> SparseModel:
     """Read a COLMAP model (text or binary) with pycolmap. Only undistorted pinhole cameras are accepted."""
     import pycolmap
@@ -77,10 +168,11 @@ def read_model(folder: str | Path) -> SparseModel:
     has_bin = (folder / "cameras.bin").exists() and (folder / "images.bin").exists()
     if not (has_txt or has_bin):
         raise IGSError(f"{folder}: no COLMAP model here (expected cameras/images/points3D .txt or .bin)")
+    check_rotations(folder)
     try:
         rec = pycolmap.Reconstruction(str(folder))
     except Exception as e:  # pycolmap raises plain RuntimeErrors on malformed files
-        raise IGSError(f"{folder}: could not read the COLMAP model: {e}") from e
+        raise colmap_error(folder, e) from e
 
     cameras = []
     for image in rec.images.values():
@@ -99,8 +191,10 @@ def read_model(folder: str | Path) -> SparseModel:
             raise IGSError(f"{folder}: camera {cam.camera_id} of image '{image.name}' is {model}; "
                            "only undistorted PINHOLE cameras can be used (import the capture with `igs import` "
                            "to undistort it)")
+        check_camera(model, int(cam.width), int(cam.height), p, f"{folder}: camera {cam.camera_id} of '{image.name}'")
         pose = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
         m = np.asarray(pose.matrix())
+        check_pose(m[:3, :3], m[:3, 3], f"{folder}: image '{image.name}'")
         cameras.append(Camera(image.name, int(cam.width), int(cam.height), fx, fy, cx, cy, m[:3, :3], m[:3, 3]))
     cameras.sort(key=lambda c: c.name)
     if not cameras:

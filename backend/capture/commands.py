@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from backend import events
+from backend import options as opt
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,10 +26,10 @@ def _register_synth(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", choices=sorted(PRESETS), default="demo",
                    help="size and quality: " + "; ".join(
                        f"{k}: {v.views} views {v.width}x{v.height}, {v.samples} spp" for k, v in PRESETS.items()))
-    p.add_argument("--seed", type=int, default=0, help="scene, camera path and sampling seed (default 0)")
-    p.add_argument("--views", type=int, default=None, help="number of views (default: the preset's)")
-    p.add_argument("--samples", type=int, default=None, help="Cycles samples per pixel (default: the preset's)")
-    p.add_argument("--threads", type=int, default=None, help="render threads (default: all cores)")
+    p.add_argument("--seed", type=opt.SEED, default=0, help="scene, camera path and sampling seed (default 0)")
+    p.add_argument("--views", type=opt.COUNT, default=None, help="number of views (default: the preset's)")
+    p.add_argument("--samples", type=opt.COUNT, default=None, help="Cycles samples per pixel (default: the preset's)")
+    p.add_argument("--threads", type=opt.COUNT0, default=None, help="render threads (default: all cores)")
     p.add_argument("--force", action="store_true",
                    help="delete a previous synthetic capture in WORKSPACE rendered with other settings")
     p.add_argument("--renderer", choices=RENDERERS, default="auto",

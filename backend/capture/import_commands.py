@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from backend import options as opt
 from backend.capture.importer import SOURCE_KINDS, ImportConfig, gt_dir_for, import_capture
 from backend.capture.sfm import MATCHING, SfMConfig
 from backend.capture.video import FrameSelection
@@ -27,24 +28,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("workspace", help="workspace folder to create")
     p.add_argument("--kind", choices=SOURCE_KINDS, default="auto", help="source kind (default: detected)")
     g = p.add_argument_group("frames")
-    g.add_argument("--every", type=int, default=5, help="video: keep one frame in every N (default 5)")
-    g.add_argument("--max-frames", type=int, default=0, help="keep at most N frames, evenly spread (0: all)")
-    g.add_argument("--max-side", type=int, default=0,
+    g.add_argument("--every", type=opt.COUNT, default=5, help="video: keep one frame in every N (default 5)")
+    g.add_argument("--max-frames", type=opt.COUNT0, default=0, help="keep at most N frames, evenly spread (0: all)")
+    g.add_argument("--max-side", type=opt.integer(0, 16384), default=0,
                    help="downscale frames to this longer side in pixels (0: keep the size)")
     g.add_argument("--no-sharpest", action="store_true",
                    help="video: take the first frame of each window instead of the sharpest")
     g = p.add_argument_group("structure from motion")
     g.add_argument("--matching", choices=MATCHING, default="auto",
                    help="sequential (video), exhaustive (small photo sets), auto (default)")
-    g.add_argument("--max-reproj-error", type=float, default=SfMConfig.max_reproj_error,
+    g.add_argument("--max-reproj-error", type=opt.POSITIVE, default=SfMConfig.max_reproj_error,
                    help="reprojection error (pixels) above which the mapper rejects observations (default "
                         f"{SfMConfig.max_reproj_error:g}, COLMAP's; 2 suits short sweeps of small images)")
     g.add_argument("--camera-model", default="SIMPLE_RADIAL",
                    help="COLMAP camera model to estimate (SIMPLE_RADIAL, RADIAL, OPENCV, PINHOLE, ...)")
     g.add_argument("--camera-per-image", action="store_true", help="estimate one camera per image (zoom changes)")
-    g.add_argument("--max-features", type=int, default=8192, help="SIFT features per image")
-    g.add_argument("--threads", type=int, default=-1, help="CPU threads for SfM (-1: all)")
-    g.add_argument("--seed", type=int, default=0, help="random seed of SfM")
+    g.add_argument("--max-features", type=opt.COUNT, default=8192, help="SIFT features per image")
+    g.add_argument("--threads", type=opt.integer(-1), default=-1, help="CPU threads for SfM (-1: all)")
+    g.add_argument("--seed", type=opt.SEED, default=0, help="random seed of SfM")
     add_prior_arguments(p)
     p.add_argument("--force", action="store_true", help="replace a workspace that holds another capture")
     p.set_defaults(func=run)

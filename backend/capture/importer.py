@@ -27,7 +27,7 @@ import numpy as np
 
 from backend import events
 from backend.capture.cameras import Camera
-from backend.capture.colmap_io import write_model
+from backend.capture.colmap_io import check_camera, check_pose, check_rotations, colmap_error, write_model
 from backend.capture.sfm import SfMConfig, run_sfm, sparse_points
 from backend.capture.transforms_io import read_ply_points, read_transforms, write_transforms
 from backend.capture.undistort import FrameWarp, Intrinsics, Undistorter, make_undistorter
@@ -38,7 +38,7 @@ from backend.capture.video import (
     resize_max_side,
     select_windows,
 )
-from backend.capture.workspace import CAPTURE_SCHEMA, Workspace
+from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, image_file_size
 from backend.errors import IGSError
 from backend.io_utils import write_image_file, write_json
 from backend.paths import inside
@@ -242,10 +242,11 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
                                   source) if d.is_dir() and any(d.iterdir())), None)
     if image_dir is None:
         raise IGSError(f"{source}: no images folder next to the COLMAP model {model_dir} (expected {source / 'images'})")
+    check_rotations(model_dir)
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:
-        raise IGSError(f"{model_dir}: could not read the COLMAP model: {e}") from e
+        raise colmap_error(model_dir, e) from e
     images = sorted(rec.images.values(), key=lambda im: im.name)
     frames, intr, poses, dropped = [], {}, {}, []
     name_of: dict[int, str] = {}
@@ -254,13 +255,17 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
         if not img.has_pose:
             dropped.append(img.name)
             continue
-        if not raw.exists():
+        if not raw.is_file():
             raise IGSError(f"{raw}: image of the COLMAP model not found (images are looked for in {image_dir})")
         name = FRAME_NAME.format(len(frames))
         frames.append(RawFrame(name, raw, img.name))
         name_of[img.image_id] = name
         intr[name] = Intrinsics.from_pycolmap(img.camera)
+        check_camera(intr[name].model, intr[name].width, intr[name].height, intr[name].params,
+                     f"{model_dir}: camera {img.camera_id} of '{img.name}'")
+        _check_size(raw, intr[name], model_dir)
         m = np.asarray(img.cam_from_world().matrix())
+        check_pose(m[:3, :3], m[:3, 3], f"{model_dir}: image '{img.name}'")
         poses[name] = (m[:3, :3], m[:3, 3])
     if not frames:
         raise IGSError(f"{model_dir}: the COLMAP model has no registered images")
@@ -273,6 +278,13 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
         tracks = _visibility_tracks(pts, frames, intr, poses)
     summary = {"method": f"COLMAP model {model_dir}", "registered": len(frames), "points": int(len(pts))}
     return frames, Posed(intr, poses, pts, cols, tracks, dropped, summary)
+
+
+def _check_size(raw: Path, intr: Intrinsics, where: Path) -> None:
+    """The image file has the size its camera says (a mismatch would be undistorted wrongly)."""
+    w, h = image_file_size(raw)
+    if (w, h) != (intr.width, intr.height):
+        raise IGSError(f"{raw}: image is {w}x{h} but its camera in {where} is {intr.width}x{intr.height}")
 
 
 def poses_from_transforms(source: Path, config: ImportConfig, work: Path) -> tuple[list[RawFrame], Posed]:
@@ -347,6 +359,14 @@ def _priors_still_valid(ws: Workspace, staging: Staging) -> bool:
     return _same_files(ws.images, staging.staged(ws.images)) and _same_files(ws.sparse, staging.staged(ws.sparse))
 
 
+def _check_camera_model(name: str) -> None:
+    import pycolmap
+
+    known = [m for m in pycolmap.CameraModelId.__members__ if m != "INVALID"]
+    if name not in known:
+        raise IGSError(f"--camera-model must be one of {', '.join(known)}, got {name!r}")
+
+
 def _old_meta(ws: Workspace) -> dict:
     """The workspace's capture.json, or {} when there is none or it is not a JSON object."""
     try:
@@ -386,6 +406,8 @@ def import_capture(source: str | Path, workspace: str | Path, config: ImportConf
     if not source.exists():
         raise IGSError(f"{source}: not found")
     _check_workspace(ws, source, config.force)
+    if kind in ("video", "photos"):
+        _check_camera_model(config.sfm.camera_model)  # before minutes of frame extraction
     work = ws.root / ".import"
     work.mkdir(parents=True, exist_ok=True)
     events.log(f"import: {kind} {source} -> {ws.root}")

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> dict:
-    summary = capture_summary(load_capture(args.workspace))
+    summary = capture_summary(load_capture(args.workspace, decode=True))  # every file decoded, not just headers
     if args.json:
         events.result("info", summary)
         return summary

@@ -23,6 +23,7 @@ from backend.io_utils import write_json
 from backend.paths import inside
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+MAX_SIDE = 16384  # pixels
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".exr")
 _INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "k3", "k4", "p1", "p2",
                    "camera_model", "camera_angle_x", "camera_angle_y")
@@ -64,34 +65,62 @@ def cv_w2c_to_opengl_c2w(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def _resolve_image(root: Path, file_path: str, where: str) -> Path:
     p = inside(root, file_path, f"{where} file_path")
-    if p.exists():
+    if p.is_file():
         return p
+    if p.is_dir():
+        raise IGSError(f"{where}: image '{file_path}' is a folder, not an image file")
     if not p.suffix or p.suffix.lower() not in IMAGE_SUFFIXES:  # NeRF-synthetic omits the extension
         for suffix in IMAGE_SUFFIXES:
             q = p.with_name(p.name + suffix)
-            if q.exists():
+            if q.is_file():
                 return q
     raise IGSError(f"{where}: image '{file_path}' not found")
 
 
-def _intrinsics(spec: dict, image: Path, where: str) -> Intrinsics:
-    w, h = spec.get("w"), spec.get("h")
-    if w is None or h is None:
-        from backend.capture.workspace import image_file_size
+def _number(spec: dict, key: str, where: str, positive: bool = False) -> float:
+    v = spec[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+        raise IGSError(f"{where}: '{key}' must be a number, got {v!r}")
+    try:
+        f = float(v)
+    except ValueError:
+        raise IGSError(f"{where}: '{key}' must be a number, got {v!r}") from None
+    if not math.isfinite(f) or (positive and f <= 0):
+        raise IGSError(f"{where}: '{key}' must be a finite number{' > 0' if positive else ''}, got {v!r}")
+    return f
 
-        w, h = image_file_size(image)
-    w, h = int(w), int(h)
-    if "fl_x" in spec or "fl_y" in spec:
-        fx = float(spec.get("fl_x", spec.get("fl_y")))
-        fy = float(spec.get("fl_y", fx))
-    elif "camera_angle_x" in spec:
-        fx = 0.5 * w / math.tan(0.5 * float(spec["camera_angle_x"]))
-        fy = 0.5 * h / math.tan(0.5 * float(spec["camera_angle_y"])) if "camera_angle_y" in spec else fx
+
+def _side(spec: dict, key: str, where: str) -> int:
+    f = _number(spec, key, where, positive=True)
+    if f != int(f) or f > MAX_SIDE:
+        raise IGSError(f"{where}: '{key}' must be a whole number of pixels 1..{MAX_SIDE}, got {spec[key]!r}")
+    return int(f)
+
+
+def _intrinsics(spec: dict, image: Path, where: str) -> Intrinsics:
+    from backend.capture.workspace import image_file_size
+
+    size = image_file_size(image)
+    w = _side(spec, "w", where) if spec.get("w") is not None else size[0]
+    h = _side(spec, "h", where) if spec.get("h") is not None else size[1]
+    if (w, h) != size:
+        raise IGSError(f"{image}: image is {size[0]}x{size[1]} but {where} says {w}x{h}")
+    if spec.get("fl_x") is not None or spec.get("fl_y") is not None:
+        fx = _number(spec, "fl_x" if spec.get("fl_x") is not None else "fl_y", where, positive=True)
+        fy = _number(spec, "fl_y", where, positive=True) if spec.get("fl_y") is not None else fx
+    elif spec.get("camera_angle_x") is not None:
+        fx = _focal_from_angle(spec, "camera_angle_x", w, where)
+        fy = _focal_from_angle(spec, "camera_angle_y", h, where) if spec.get("camera_angle_y") is not None else fx
     else:
         raise IGSError(f"{where}: no focal length (expected 'fl_x'/'fl_y' or 'camera_angle_x')")
-    cx, cy = float(spec.get("cx", w / 2)), float(spec.get("cy", h / 2))
-    k = {key: float(spec.get(key, 0.0)) for key in ("k1", "k2", "k3", "k4", "p1", "p2")}
-    model = str(spec.get("camera_model", "OPENCV")).upper()
+    cx = _number(spec, "cx", where) if spec.get("cx") is not None else w / 2
+    cy = _number(spec, "cy", where) if spec.get("cy") is not None else h / 2
+    k = {key: _number(spec, key, where) if spec.get(key) is not None else 0.0
+         for key in ("k1", "k2", "k3", "k4", "p1", "p2")}
+    model = spec.get("camera_model", "OPENCV")
+    if not isinstance(model, str):
+        raise IGSError(f"{where}: camera_model must be a string, got {model!r}")
+    model = model.upper()
     if model == "OPENCV_FISHEYE":
         return Intrinsics("OPENCV_FISHEYE", w, h, (fx, fy, cx, cy, k["k1"], k["k2"], k["k3"], k["k4"]))
     if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
@@ -101,17 +130,40 @@ def _intrinsics(spec: dict, image: Path, where: str) -> Intrinsics:
     return Intrinsics("OPENCV", w, h, (fx, fy, cx, cy, k["k1"], k["k2"], k["p1"], k["p2"]))
 
 
+def _focal_from_angle(spec: dict, key: str, side: int, where: str) -> float:
+    angle = _number(spec, key, where)
+    if not 0 < angle < math.pi:
+        raise IGSError(f"{where}: '{key}' must be an angle in radians between 0 and pi, got {spec[key]!r}")
+    return 0.5 * side / math.tan(0.5 * angle)
+
+
+def _matrix(fr: dict, where: str) -> np.ndarray:
+    try:
+        m = np.asarray(fr["transform_matrix"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise IGSError(f"{where}: transform_matrix must be a 4x4 (or 3x4) matrix of numbers") from None
+    if m.shape == (3, 4):
+        m = np.vstack([m, [0, 0, 0, 1]])
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise IGSError(f"{where}: transform_matrix must be a finite 4x4 matrix")
+    return m
+
+
 def read_transforms(path: str | Path) -> TransformsDataset:
-    """Parse a transforms.json (a file, or a folder holding one)."""
+    """Parse a transforms.json (a file, or a folder holding one); every bad value is one IGSError."""
     path = Path(path)
     if path.is_dir():
         path = path / "transforms.json"
-    if not path.exists():
+    if not path.is_file():
         raise IGSError(f"{path}: file not found")
     try:
         data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise IGSError(f"{path}: not valid JSON ({e})") from e
+    except RecursionError:
+        raise IGSError(f"{path}: not valid JSON (nested too deeply)") from None
+    if not isinstance(data, dict):
+        raise IGSError(f"{path}: expected a JSON object with a 'frames' list, got {type(data).__name__}")
     frames_in = data.get("frames")
     if not isinstance(frames_in, list) or not frames_in:
         raise IGSError(f"{path}: no 'frames' list")
@@ -120,22 +172,21 @@ def read_transforms(path: str | Path) -> TransformsDataset:
     frames = []
     for i, fr in enumerate(frames_in):
         where = f"{path} frame {i}"
+        if not isinstance(fr, dict):
+            raise IGSError(f"{where}: a frame must be a JSON object, got {fr!r:.40}")
         if "file_path" not in fr or "transform_matrix" not in fr:
             raise IGSError(f"{where}: needs 'file_path' and 'transform_matrix'")
-        m = np.asarray(fr["transform_matrix"], dtype=np.float64)
-        if m.shape == (3, 4):
-            m = np.vstack([m, [0, 0, 0, 1]])
-        if m.shape != (4, 4) or not np.isfinite(m).all():
-            raise IGSError(f"{where}: transform_matrix must be a finite 4x4 matrix")
+        m = _matrix(fr, where)
         image = _resolve_image(root, fr["file_path"], where)
         intr = _intrinsics({**base, **{k: fr[k] for k in _INTRINSIC_KEYS if k in fr}}, image, where)
         R, t = opengl_c2w_to_cv_w2c(m)
-        if abs(np.linalg.det(R) - 1.0) > 1e-3:
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or abs(np.linalg.det(R) - 1.0) > 1e-3:
             raise IGSError(f"{where}: transform_matrix rotation is not orthonormal (scaled poses are not supported)")
         frames.append(TransformsFrame(image, intr, R, t))
-    ply = inside(root, data["ply_file_path"], f"{path} ply_file_path") if data.get("ply_file_path") else None
-    if ply is not None and not ply.exists():
-        raise IGSError(f"{path}: ply_file_path '{data['ply_file_path']}' not found")
+    ply_ref = data.get("ply_file_path")
+    ply = inside(root, ply_ref, f"{path} ply_file_path") if ply_ref else None
+    if ply is not None and not ply.is_file():
+        raise IGSError(f"{path}: ply_file_path '{ply_ref}' not found")
     return TransformsDataset(path, frames, ply)
 
 
@@ -159,12 +210,19 @@ def read_ply_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
     try:
         v = PlyData.read(str(path))["vertex"]
-    except Exception as e:
-        raise IGSError(f"{path}: unreadable PLY point cloud ({e})") from e
-    names = v.data.dtype.names
-    xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
-    if all(c in names for c in ("red", "green", "blue")):
-        rgb = np.stack([v["red"], v["green"], v["blue"]], axis=1).astype(np.uint8)
-    else:
-        rgb = np.full((len(xyz), 3), 128, np.uint8)
+        names = v.data.dtype.names or ()
+        if not all(c in names for c in "xyz"):
+            raise IGSError(f"{path}: the PLY's vertices have no x, y, z")
+        xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
+        if all(c in names for c in ("red", "green", "blue")):
+            rgb = np.clip(np.stack([v["red"], v["green"], v["blue"]], axis=1), 0, 255).astype(np.uint8)
+        else:
+            rgb = np.full((len(xyz), 3), 128, np.uint8)
+    except IGSError:
+        raise
+    except Exception as e:  # noqa: BLE001 (plyfile raises many kinds on malformed files)
+        raise IGSError(f"{path}: unreadable PLY point cloud ({type(e).__name__}: {e})") from e
+    keep = np.isfinite(xyz).all(axis=1)
+    if not keep.all():
+        raise IGSError(f"{path}: {int((~keep).sum())} of {len(xyz)} points have NaN or infinite coordinates")
     return xyz, rgb

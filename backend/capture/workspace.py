@@ -21,6 +21,12 @@ CAPTURE_SCHEMA = 1
 GT_PASSES = ("albedo", "shading", "residual", "depth")
 
 
+# The types of capture.json's keys that commands read (others are informative).
+_CAPTURE_TYPES: dict[str, type] = {"source": dict, "priors": dict, "prior_settings": dict, "import_frames": list,
+                                   "dropped": list, "sfm": dict, "color_space": str}
+_KIND_NAMES = {dict: "an object", list: "a list", str: "a string"}
+
+
 @dataclass(frozen=True)
 class Workspace:
     """Paths inside a workspace folder."""
@@ -94,9 +100,19 @@ class Workspace:
             raise IGSError(f"{self.capture_json}: missing; is {self.root} a workspace? "
                            "(create one with `igs synth` or `igs import`)")
         try:
-            return json.loads(self.capture_json.read_text())
-        except json.JSONDecodeError as e:
+            data = json.loads(self.capture_json.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
             raise IGSError(f"{self.capture_json}: not valid JSON ({e})") from e
+        if not isinstance(data, dict):
+            raise IGSError(f"{self.capture_json}: expected a JSON object, got {type(data).__name__}; "
+                           "re-run `igs import` or `igs synth` to rewrite it")
+        for key, kind in _CAPTURE_TYPES.items():
+            if data.get(key) is not None and not isinstance(data[key], kind):
+                raise IGSError(f"{self.capture_json}: '{key}' must be {_KIND_NAMES[kind]}, got {data[key]!r:.60}; "
+                               "re-run `igs import` or `igs synth` to rewrite it")
+        if any(not isinstance(v, str) for v in (data.get("priors") or {}).values()):
+            raise IGSError(f"{self.capture_json}: 'priors' must map albedo/depth to names, got {data['priors']!r:.60}")
+        return data
 
     def write_capture_json(self, data: dict[str, Any]) -> None:
         write_json(self.capture_json, {"schema": CAPTURE_SCHEMA, **data})
@@ -165,6 +181,8 @@ def image_file_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file; PNG headers are read without decoding."""
     if not path.exists():
         raise IGSError(f"{path}: image file not found")
+    if not path.is_file():
+        raise IGSError(f"{path}: is a folder, not an image file")
     size = _png_size(path)
     if size is not None:
         return size
@@ -172,6 +190,15 @@ def image_file_size(path: Path) -> tuple[int, int]:
 
     img = read_image(path)
     return img.shape[1], img.shape[0]
+
+
+def _decode_check(path: Path, size: tuple[int, int]) -> None:
+    """Decode ``path`` fully (a truncated file has a valid header but no pixels)."""
+    from backend.capture.imageio import read_image
+
+    img = read_image(path)
+    if (img.shape[1], img.shape[0]) != size:
+        raise IGSError(f"{path}: decodes to {img.shape[1]}x{img.shape[0]}, expected {size[0]}x{size[1]}")
 
 
 def _depth_shape(path: Path) -> tuple[int, ...]:
@@ -192,12 +219,14 @@ def _prior_dir(ws: Workspace, kind: str, meta: dict[str, Any]) -> tuple[Path | N
     return None, "none"
 
 
-def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool = False) -> Capture:
+def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool = False,
+                 decode: bool = False) -> Capture:
     """Read and validate a workspace; every problem is one IGSError naming the file.
 
     Checks: capture.json, images/ and sparse/0 exist; every registered view has a readable image
     whose size matches its camera; albedo/depth priors exist for every view when required and
-    have the image size.
+    have the image size. PNG sizes come from their headers; ``decode`` also decodes every image,
+    albedo and depth map (``igs info``), which finds truncated and corrupt files.
     """
     from backend.capture.colmap_io import read_model
 
@@ -224,6 +253,8 @@ def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool =
         w, h = image_file_size(image)
         if (w, h) != (cam.width, cam.height):
             raise IGSError(f"{image}: image is {w}x{h} but its camera in {ws.sparse} is {cam.width}x{cam.height}")
+        if decode:
+            _decode_check(image, (w, h))
         stem = Path(cam.name).stem
         albedo = _find(albedo_dir, stem, (".png", ".jpg", ".jpeg")) if albedo_dir else None
         depth = _find(depth_dir, stem, (".npy",)) if depth_dir else None
@@ -235,6 +266,14 @@ def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool =
             missing_depth.append(cam.name)
         elif need_depth and _depth_shape(depth)[:2] != (h, w):
             raise IGSError(f"{depth}: depth map has shape {_depth_shape(depth)} but the image is {h}x{w}")
+        if decode and albedo is not None:
+            _decode_check(albedo, (w, h))
+        if decode and depth is not None:
+            from backend.capture.imageio import read_depth
+
+            d = read_depth(depth)
+            if d.shape != (h, w):
+                raise IGSError(f"{depth}: depth map has shape {d.shape} but the image is {h}x{w}")
         gt = {p: f for p in GT_PASSES
               if (f := _find(ws.gt_pass(p), stem, (".png", ".exr", ".npy"))) is not None}
         frames.append(Frame(cam, image, albedo, depth, gt))

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from backend import events
+from backend import options as opt
 from backend.capture.imageio import read_linear
 from backend.capture.workspace import load_capture
 from backend.edit.bake import (
@@ -237,7 +238,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("workspace", help="workspace folder")
     p.add_argument("--base", default=None, help="edit the albedo of <ws>/edits/BASE (stacking) instead of <ws>/layers")
     p.add_argument("--backend", default="auto", choices=BACKENDS, help="renderer backend (default auto)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=opt.SEED, default=0, help="random seed (default 0)")
 
 
 def _add_fit(sub, kind: str) -> None:
@@ -248,14 +249,14 @@ def _add_fit(sub, kind: str) -> None:
         "projected onto it) and edit.json (edit view, rectangle, the surface in world coordinates).")
     _common(p)
     p.add_argument("--view", required=True, help="edit view name (e.g. frame_0009.png)")
-    p.add_argument("--rect", type=float, nargs=4, required=True, metavar=("X0", "Y0", "X1", "Y1"),
+    p.add_argument("--rect", type=opt.number(), nargs=4, required=True, metavar=("X0", "Y0", "X1", "Y1"),
                    help="rectangle in pixels of the view (origin top-left, x right, y down)")
     p.add_argument("--name", default=kind, help=f"edit name (folder under <ws>/edits, default {kind})")
     p.add_argument("--out", default=None, help="proxy.json path (default <ws>/edits/NAME/proxy.json)")
     p.add_argument("--color", default=None, help="flat linear colour r,g,b instead of the projected albedo texture")
-    p.add_argument("--threshold", type=float, default=None,
+    p.add_argument("--threshold", type=opt.POSITIVE, default=None,
                    help="RANSAC inlier distance in world units (default: 2%% of the selection's robust size)")
-    p.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
+    p.add_argument("--min-selected", type=opt.COUNT, default=FitConfig.min_selected,
                    help=f"fewest distinct Gaussians the rectangle must select (default {FitConfig.min_selected})")
     where = ("all the surface points (--grow-on) lying on the cylinder (the rest of the column seen from other views)"
              if kind == "cylinder" else "the surface points (--grow-on) lying on the plane around the rectangle (the "
@@ -290,7 +291,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--proxy", required=True, help="proxy.json")
     p.add_argument("--view", default=None, help="view to project from (default: the fit's view, else the best one)")
     p.add_argument("--out", default=None, help="output proxy.json (default <proxy dir>/projected.json)")
-    p.add_argument("--texels-per-pixel", type=float, default=2.0, help="texture resolution (default 2)")
+    p.add_argument("--texels-per-pixel", type=opt.number(0, 64, lo_open=True), default=2.0, help="texture resolution (default 2)")
     p.set_defaults(func=run_project)
 
     d = BakeConfig()
@@ -306,28 +307,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--color", default=None, help="with --plane: flat linear colour r,g,b")
     p.add_argument("--name", default=None, help="edit name (default: the proxy's edit folder or file stem)")
     p.add_argument("--view", default=None, help="edit view (default: the fit's, else the view seeing the proxy best)")
-    p.add_argument("--views", type=int, default=d.views, help=f"virtual views around the edit view (default {d.views}; "
+    p.add_argument("--views", type=opt.COUNT0, default=d.views, help=f"virtual views around the edit view (default {d.views}; "
                    "0 = single-view bake)")
-    p.add_argument("--max-angle", type=float, default=d.max_angle,
+    p.add_argument("--max-angle", type=opt.number(0, 180, lo_open=True), default=d.max_angle,
                    help=f"half-angle of the cap of virtual views in degrees (default {d.max_angle:g})")
-    p.add_argument("--spawn-fraction", type=float, default=d.spawn_fraction,
+    p.add_argument("--spawn-fraction", type=opt.number(0, 1), default=d.spawn_fraction,
                    help=f"new Gaussians at this fraction of the edit pixels (default {d.spawn_fraction:g})")
-    p.add_argument("--iterations", type=int, default=d.iterations, help=f"re-optimisation steps (default {d.iterations})")
+    p.add_argument("--iterations", type=opt.COUNT0, default=d.iterations, help=f"re-optimisation steps (default {d.iterations})")
     add_device_argument(p)
-    p.add_argument("--capture-views", type=int, default=d.capture_views,
+    p.add_argument("--capture-views", type=opt.COUNT0, default=d.capture_views,
                    help=f"training views that see the proxy, composited like the virtual views (default "
                         f"{d.capture_views})")
-    p.add_argument("--anchor-views", type=int, default=d.anchor_views,
+    p.add_argument("--anchor-views", type=opt.COUNT0, default=d.anchor_views,
                    help=f"training views supervised with the unedited albedo (default {d.anchor_views})")
     p.add_argument("--surface", default=d.surface, choices=("replace", "paint"),
                    help="old Gaussians on the proxy under the edit: replace them by the new ones (default) or "
                         "keep them painted with the edit's colour")
-    p.add_argument("--supersample", type=int, default=d.supersample,
+    p.add_argument("--supersample", type=opt.integer(1, 16), default=d.supersample,
                    help=f"proxy texture samples per pixel side (anti-aliasing; default {d.supersample})")
-    p.add_argument("--edit-filter", type=float, default=d.edit_filter, metavar="PX2",
+    p.add_argument("--edit-filter", type=opt.NON_NEGATIVE, default=d.edit_filter, metavar="PX2",
                    help=f"screen-space low-pass of the new Gaussians, pixels^2 (default {d.edit_filter}; "
                         "3DGS's 0.3 blurs textures with 1-2 px detail)")
     p.add_argument("--no-restrict", action="store_true",
                    help="let every albedo Gaussian change (default: only those under the edit and the new ones)")
-    p.add_argument("--downscale", type=float, default=1.0, help="divide image sizes by this factor (default 1)")
+    p.add_argument("--downscale", type=opt.DOWNSCALE, default=1.0, help="divide image sizes by this factor (default 1)")
     p.set_defaults(func=run_bake)

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from backend import events
+from backend import options as opt
 from backend.capture.cameras import Camera, from_blender_matrix_world
 from backend.capture.imageio import linear_to_srgb, write_image
 from backend.capture.workspace import load_capture
@@ -47,6 +48,7 @@ from backend.splats.ply import read_ply
 from backend.train.intrinsic import layer_splats
 
 LAYERS = ("A", "S", "R", "full")
+MAX_SIDE = 16384  # pixels: larger images would not fit a render buffer
 NEEDS = {"A": ("albedo",), "S": ("shading",), "R": ("residual",), "full": ("albedo", "shading", "residual")}
 GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
@@ -70,8 +72,8 @@ def camera_from_dict(d: Any, where: str) -> Camera:
     if not isinstance(d, dict):
         raise IGSError(f"{where}: a camera must be a JSON object")
     w, h = int(_num(d, "width", where)), int(_num(d, "height", where))
-    if w < 1 or h < 1:
-        raise IGSError(f"{where}: width and height must be positive")
+    if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
+        raise IGSError(f"{where}: width and height must be 1..{MAX_SIDE} pixels, got {w}x{h}")
     if "fx" in d:
         fx = _num(d, "fx", where)
         fy = _num(d, "fy", where, fx)
@@ -80,6 +82,8 @@ def camera_from_dict(d: Any, where: str) -> Camera:
         if not 0 < fov < 180:
             raise IGSError(f"{where}: 'fov_x_deg' must be in (0, 180)")
         fx = fy = 0.5 * w / np.tan(np.radians(fov) / 2)
+    if not (fx > 0 and fy > 0):
+        raise IGSError(f"{where}: focal lengths must be > 0, got fx {fx:g}, fy {fy:g}")
     cx, cy = _num(d, "cx", where, w / 2), _num(d, "cy", where, h / 2)
     try:
         if "matrix_world" in d:
@@ -217,9 +221,12 @@ def turntable(center, radius: float, height: float, frames: int, template: Camer
 
 def _vector(text: str, flag: str) -> np.ndarray:
     try:
-        return np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
+        v = np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
     except ValueError:
         raise IGSError(f"{flag} must be x,y,z, got {text!r}") from None
+    if not np.isfinite(v).all():
+        raise IGSError(f"{flag} must be finite x,y,z, got {text!r}")
+    return v
 
 
 def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, GaussianSet]:
@@ -286,6 +293,8 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
 def run_render(args: argparse.Namespace) -> None:
     if args.edit is not None:
         plain_name(args.edit, "--edit")  # a folder under <ws>/edits and <ws>/renders, never a path
+    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
+        raise IGSError(f"--out {args.out}: is a file; give a folder (the images go to OUT/<layer>/)")
     wanted = [w.strip() for w in args.layers.split(",") if w.strip()]
     bad = [w for w in wanted if w not in LAYERS]
     if bad or not wanted:
@@ -339,19 +348,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--center", default=None, help="turntable centre x,y,z (default: centroid of the SfM points)")
     p.add_argument("--up", default=None, help="turntable axis x,y,z (default: the capture's up, read from its "
                    "cameras: the direction most nearly perpendicular to their x axes)")
-    p.add_argument("--radius", type=float, default=None,
+    p.add_argument("--radius", type=opt.POSITIVE, default=None,
                    help="turntable radius (default: 85%% of the cameras' mean distance from the axis)")
-    p.add_argument("--height", type=float, default=None,
+    p.add_argument("--height", type=opt.number(), default=None,
                    help="camera height above the centre along --up (default: the cameras' mean height)")
-    p.add_argument("--frames", type=int, default=60, help="turntable frames (default 60)")
-    p.add_argument("--size", type=int, nargs=2, default=None, metavar=("W", "H"),
+    p.add_argument("--frames", type=opt.integer(1, 100_000), default=60, help="turntable frames (default 60)")
+    p.add_argument("--size", type=opt.integer(1, MAX_SIDE), nargs=2, default=None, metavar=("W", "H"),
                    help="turntable image size (default: the capture's)")
-    p.add_argument("--fov", type=float, default=None, help="turntable horizontal field of view in degrees "
+    p.add_argument("--fov", type=opt.number(0, 180, lo_open=True, hi_open=True), default=None, help="turntable horizontal field of view in degrees "
                    "(default: the capture's)")
     p.add_argument("--layers", default="A,S,R,full", help="comma list of A, S, R, full (default all)")
     p.add_argument("--out", default=None, help="output folder (default <ws>/renders/<edit or 'layers'>)")
     p.add_argument("--mp4", action="store_true", help="also write OUT/<layer>.mp4")
-    p.add_argument("--fps", type=float, default=24.0, help="video frame rate (default 24)")
+    p.add_argument("--fps", type=opt.number(0, 1000, lo_open=True), default=24.0, help="video frame rate (default 24)")
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
                    help="renderer backend (default auto)")
     p.set_defaults(func=run_render)

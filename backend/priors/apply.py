@@ -24,7 +24,7 @@ import numpy as np
 
 from backend import events
 from backend.capture.cameras import Camera
-from backend.capture.colmap_io import read_model
+from backend.capture.colmap_io import check_camera, read_model
 from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
 from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, load_capture
 from backend.errors import IGSError
@@ -70,11 +70,18 @@ def _views(ws: Workspace, capture) -> list[_View]:
         if rec is None:
             views.append(_View(PriorFrame(i, f.name, f.name, f.image), FrameWarp.identity(f.camera), f.camera, f.image))
             continue
-        ri = rec["intrinsics"]
-        intr = Intrinsics(ri["model"], int(ri["width"]), int(ri["height"]), tuple(float(p) for p in ri["params"]))
+        try:
+            ri = rec["intrinsics"]
+            intr = Intrinsics(str(ri["model"]), int(ri["width"]), int(ri["height"]),
+                              tuple(float(p) for p in ri["params"]))
+            frame = PriorFrame(int(rec["index"]), f.name, str(rec.get("source", f.name)), Path(rec["raw"]),
+                               None if rec.get("video_index") is None else int(rec["video_index"]))
+        except (KeyError, TypeError, ValueError) as e:
+            raise IGSError(f"{ws.capture_json}: the import record of {f.name} is malformed ({type(e).__name__}: {e}); "
+                           "re-run `igs import`") from e
+        check_camera(intr.model, intr.width, intr.height, intr.params, f"{ws.capture_json}: import record of {f.name}")
         warp = FrameWarp(make_undistorter(intr), f.camera.width, f.camera.height)
-        views.append(_View(PriorFrame(int(rec["index"]), f.name, rec.get("source", f.name), Path(rec["raw"]),
-                                      rec.get("video_index")), warp, f.camera, f.image))
+        views.append(_View(frame, warp, f.camera, f.image))
     return views
 
 

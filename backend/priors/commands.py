@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from backend import options as opt
 from backend.priors.albedo import ALBEDO_SPECS, AlbedoOptions
 from backend.priors.align import AlignConfig
 from backend.priors.apply import PriorsConfig, compute_priors
@@ -15,16 +16,16 @@ def add_prior_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--albedo", default="none", help=f"albedo prior: {ALBEDO_SPECS}")
     g.add_argument("--albedo-space", choices=("srgb", "linear"), default="srgb",
                    help="folder albedo maps (8/16-bit) hold sRGB-encoded (default) or linear values")
-    g.add_argument("--albedo-steps", type=int, default=0, help="model denoising steps (0: the model's default)")
-    g.add_argument("--albedo-ensemble", type=int, default=1, help="model predictions averaged per frame")
-    g.add_argument("--albedo-resolution", type=int, default=0, help="model processing resolution (0: default)")
+    g.add_argument("--albedo-steps", type=opt.COUNT0, default=0, help="model denoising steps (0: the model's default)")
+    g.add_argument("--albedo-ensemble", type=opt.COUNT, default=1, help="model predictions averaged per frame")
+    g.add_argument("--albedo-resolution", type=opt.COUNT0, default=0, help="model processing resolution (0: default)")
     g.add_argument("--depth", default="none", help=f"depth prior: {DEPTH_SPECS}")
     g.add_argument("--depth-kind", choices=("depth", "disparity"), default="depth",
                    help="what folder depth maps hold: z-depth (any unit) or disparity = inverse depth")
     g.add_argument("--depth-fit", choices=("auto", "scale", "scale_shift"), default="auto",
                    help="alignment to SfM: auto = scale for gt and metric models, scale and shift otherwise")
     g.add_argument("--device", default="cpu", help="torch device for model priors: cpu, cuda, auto")
-    g.add_argument("--prior-seed", type=int, default=0, help="seed of model priors and of the depth fit")
+    g.add_argument("--prior-seed", type=opt.SEED, default=0, help="seed of model priors and of the depth fit")
 
 
 def priors_config_from_args(args: argparse.Namespace) -> PriorsConfig:

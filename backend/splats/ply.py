@@ -81,6 +81,10 @@ def write_ply(path: str | Path, gaussians: GaussianSet, space: str = "linear") -
         cols.append(t[FILTER][:, None])
         names.append(FILTER)
     data = torch.cat(cols, dim=1).numpy()
+    bad = ~np.isfinite(data).all(axis=1)
+    if bad.any():  # a diverged optimisation: never replace a layer with NaNs
+        raise IGSError(f"{path}: not written: {int(bad.sum())} of {n} Gaussians have NaN or infinite values "
+                       "(the optimisation diverged; lower the loss weights or the learning rates)")
     rec = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         rec[name] = data[:, i]
@@ -121,6 +125,7 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
         raise IGSError(f"{path}: PLY has no 'vertex' element, not a Gaussian splat file") from None
     except Exception as e:  # plyfile raises several types for truncated/garbled files
         raise IGSError(f"{path}: unreadable PLY ({type(e).__name__}: {e}); the file may be truncated") from e
+    _check_binary_size(path, ply)
 
     present = set(data.dtype.names or ())
     rest = sorted((p for p in present if p.startswith("f_rest_")), key=lambda p: int(p[7:]) if p[7:].isdigit() else -1)
@@ -200,6 +205,25 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
             tensors["colors"] = c
     g = GaussianSet(kind, tensors, sh_degree=sh_degree)
     return g, LayerFile(kind=kind, encoding=encoding, space=space, foreign=foreign)
+
+
+def _check_binary_size(path: Path, ply: PlyData) -> None:
+    """A binary PLY holds exactly the data its header declares: more data means the element counts
+    are wrong (a count smaller than the data would silently drop Gaussians)."""
+    if ply.text or any(getattr(prop, "len_dtype", None) for el in ply.elements for prop in el.properties):
+        return  # ASCII or list properties: the size does not follow from the header
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    end = head.find(b"end_header")
+    if end < 0:
+        return
+    nl = head.find(b"\n", end)
+    header_len = nl + 1 if nl >= 0 else len(head)
+    expected = header_len + sum(el.count * el.data.dtype.itemsize for el in ply.elements)
+    actual = path.stat().st_size
+    if actual != expected:
+        raise IGSError(f"{path}: the header declares {', '.join(f'{el.count} {el.name}' for el in ply.elements)} "
+                       f"({expected} bytes) but the file has {actual} bytes; its counts do not match its data")
 
 
 def ply_header_comments(path: str | Path) -> list[str]:

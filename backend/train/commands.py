@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from backend import events
+from backend import options as opt
 from backend.errors import IGSError
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
@@ -30,7 +31,7 @@ def add_train_3dgs(sub: argparse._SubParsersAction) -> None:
         "<ws>/checkpoints/train_3dgs/ (a killed or cancelled run resumes where it stopped).",
     )
     p.add_argument("workspace", help="workspace folder")
-    p.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS,
+    p.add_argument("--iterations", type=opt.COUNT, default=DEFAULT_ITERATIONS,
                    help=f"optimisation steps (default {DEFAULT_ITERATIONS}; 3DGS uses 30000)")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--resume", dest="resume", action="store_true", default=True,
@@ -39,16 +40,16 @@ def add_train_3dgs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
                    help="renderer backend (default auto: gsplat on CUDA, else the compiled cpu kernel)")
     add_device_argument(p)
-    p.add_argument("--downscale", type=float, default=1.0, help="divide the image size by this factor (default 1)")
-    p.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0)")
-    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
+    p.add_argument("--downscale", type=opt.DOWNSCALE, default=1.0, help="divide the image size by this factor (default 1)")
+    p.add_argument("--seed", type=opt.SEED, default=d.seed, help="random seed (default 0)")
+    p.add_argument("--checkpoint-every", type=opt.COUNT, default=d.checkpoint_every,
                    help=f"iterations between checkpoints (default {d.checkpoint_every})")
     p.add_argument("--sh-degree", type=int, default=3, choices=(0, 1, 2, 3), help="highest SH degree (default 3)")
     p.add_argument("--color-space", default="srgb", choices=("srgb", "linear"),
                    help="fit the sRGB images as they are (default, as 3DGS) or their linear values")
-    p.add_argument("--max-gaussians", type=int, default=DEFAULT_MAX_GAUSSIANS,
+    p.add_argument("--max-gaussians", type=opt.COUNT, default=DEFAULT_MAX_GAUSSIANS,
                    help=f"densification budget (default {DEFAULT_MAX_GAUSSIANS})")
-    p.add_argument("--depth-weight", type=float, default=0.0,
+    p.add_argument("--depth-weight", type=opt.WEIGHT, default=0.0,
                    help="weight of the depth L1 against <ws>/depth maps (default 0: vanilla 3DGS)")
     p.set_defaults(func=run_train_3dgs)
 

@@ -7,6 +7,7 @@ import argparse
 from dataclasses import replace
 
 from backend import events
+from backend import options as opt
 from backend.errors import IGSError
 from backend.train.device import add_device_argument
 from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations
@@ -27,11 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("workspace", help="workspace folder")
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
-    p.add_argument("--iterations", type=int, default=None,
+    p.add_argument("--iterations", type=opt.COUNT, default=None,
                    help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
                         f"{d.albedo.iterations}/{d.shading.iterations}/{d.residual.iterations})")
     for s in STAGES:
-        p.add_argument(f"--{s}-iterations", type=int, default=None, help=f"iterations of the {s} stage")
+        p.add_argument(f"--{s}-iterations", type=opt.COUNT, default=None, help=f"iterations of the {s} stage")
     p.add_argument("--single-set", action="store_true",
                    help="the baseline the paper argues against: one set of Gaussians carrying albedo, shading "
                         "and residual colours, same losses and iterations (writes <ws>/layers/single_set/ and "
@@ -49,23 +50,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
                    help="renderer backend (default auto: gsplat on CUDA, else the compiled cpu kernel)")
     add_device_argument(p)
-    p.add_argument("--downscale", type=float, default=1.0, help="divide the image size by this factor (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--checkpoint-every", type=int, default=d.albedo.checkpoint_every,
+    p.add_argument("--downscale", type=opt.DOWNSCALE, default=1.0, help="divide the image size by this factor (default 1)")
+    p.add_argument("--seed", type=opt.SEED, default=0, help="random seed (default 0)")
+    p.add_argument("--checkpoint-every", type=opt.COUNT, default=d.albedo.checkpoint_every,
                    help=f"iterations between checkpoints (default {d.albedo.checkpoint_every})")
-    p.add_argument("--max-gaussians", type=int, default=None,
+    p.add_argument("--max-gaussians", type=opt.COUNT, default=None,
                    help="densification budget of each of the albedo and shading fields "
                         f"(default {d.albedo.densify.max_gaussians}; residual {d.residual.densify.max_gaussians})")
-    p.add_argument("--depth-weight", type=float, default=None,
+    p.add_argument("--depth-weight", type=opt.WEIGHT, default=None,
                    help=f"λ_d of the depth L1 (default {d.albedo.lambda_depth}; 0 = off)")
-    p.add_argument("--scale-weight", type=float, default=None,
+    p.add_argument("--scale-weight", type=opt.WEIGHT, default=None,
                    help=f"λ_s of the mean-scale term (default {d.albedo.lambda_scale}; 0 = off)")
-    p.add_argument("--gray-weight", type=float, default=d.lambda_gray,
+    p.add_argument("--gray-weight", type=opt.WEIGHT, default=d.lambda_gray,
                    help=f"weight of the gray regulariser on shading colours (default {d.lambda_gray}; 0 = off)")
     p.add_argument("--shading-geometry", choices=SHADING_GEOMETRIES, default=d.shading_geometry,
                    help="where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's "
                         "Gaussians, default) or 'points' (the SfM points, as in the paper)")
-    p.add_argument("--residual-points", type=int, default=d.spawn.points,
+    p.add_argument("--residual-points", type=opt.COUNT0, default=d.spawn.points,
                    help=f"residual Gaussians spawned at high-error pixels (default {d.spawn.points})")
     p.set_defaults(func=run_decompose)
 

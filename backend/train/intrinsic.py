@@ -47,7 +47,7 @@ from backend.splats.strategy import DensifyConfig, DensifyStrategy, scene_extent
 from backend.train.device import describe, resolve_device
 from backend.train.loop import LearningRates, Stage, TrainConfig, TrainResult, train
 from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
-from backend.train.views import View, load_views, to_space
+from backend.train.views import View, load_views, to_space, view_camera
 
 STAGES = ("albedo", "shading", "residual")
 STATE_DIR = "decompose"
@@ -435,16 +435,25 @@ def file_hash(path: Path) -> str | None:
 class DecomposeState:
     """``<ckpt>/state.json``: per stage, whether it finished, on which upstream layers, and its summary."""
 
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, restart: bool = False):
+        """``restart``: a corrupt file is dropped (the stages start over) instead of being an error."""
         self.path = Path(folder) / "state.json"
         self.data: dict[str, Any] = {}
         if self.path.exists():
             import json
 
             try:
-                self.data = json.loads(self.path.read_text())
-            except ValueError as e:
-                raise IGSError(f"{self.path}: unreadable ({e}); run with --restart") from e
+                data = json.loads(self.path.read_text())
+                problem = None if isinstance(data, dict) and all(isinstance(v, dict) for v in data.values()) \
+                    else "not an object of stage entries"
+            except (OSError, ValueError, RecursionError) as e:
+                data, problem = {}, f"unreadable ({type(e).__name__}: {e})"
+            if problem is None:
+                self.data = data
+            elif restart:
+                events.log(f"{self.path}: {problem}; discarded (--restart)")
+            else:
+                raise IGSError(f"{self.path}: {problem}; run with --restart to start the stages over")
 
     def get(self, stage: str) -> dict[str, Any]:
         return self.data.get(stage) or {}
@@ -495,6 +504,8 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
             raise IGSError(f"--{s}-iterations must be >= 1, got {cfg.stage(s).iterations}")
     capture = load_capture(workspace, need_albedo=True)
     ws = capture.workspace
+    for f in capture.frames:  # a --downscale that leaves no pixels fails here, before any work
+        view_camera(f.camera, cfg.downscale)
     train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
     if not train_frames:
         raise IGSError(f"{ws.root}: no training views")
@@ -587,7 +598,7 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
     t_start = time.perf_counter()
     setup = prepare_setup(workspace, cfg)
     ws = setup.capture.workspace
-    state = DecomposeState(setup.ckpt_root / STATE_DIR)
+    state = DecomposeState(setup.ckpt_root / STATE_DIR, restart=not resume)
     layers: dict[str, GaussianSet] = {}
     entries: dict[str, dict[str, Any]] = {}
 
@@ -595,7 +606,8 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
         ply = setup.layers_dir / f"{name}.ply"
         upstream = {u: file_hash(setup.layers_dir / f"{u}.ply") for u in UPSTREAM[name]}
         st = state.get(name)
-        finished = (st.get("done") and st.get("upstream") == upstream and st.get("ply") == file_hash(ply)
+        finished = (st.get("done") is True and isinstance(st.get("summary"), dict)
+                    and st.get("upstream") == upstream and st.get("ply") == file_hash(ply)
                     and st.get("config") == jsonable(asdict(cfg.stage(name))) and st.get("extra") == _extra(cfg, name))
         if name not in stages:
             needed = any(later in stages for later in STAGES[STAGES.index(name) + 1:])

@@ -207,7 +207,7 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     # Adam moves every colour by about the same step: scaling the shading parameter gives it the
     # three-set shading stage's colour rate while the albedo keeps the albedo stage's
     gain = cfg.shading.lr.colors / cfg.albedo.lr.colors
-    state = DecomposeState(setup.ckpt_root / "decompose")
+    state = DecomposeState(setup.ckpt_root / "decompose", restart=not resume)
     extra = jsonable({"phases": [cfg.albedo.iterations, cfg.shading.iterations, cfg.residual.iterations],
                        "lambda_gray": cfg.lambda_gray, "shading_init": cfg.shading_init, "downscale": cfg.downscale,
                        "hold_every": cfg.hold_every, "sh_degree": cfg.residual_sh_degree, "gain": gain,

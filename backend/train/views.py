@@ -7,6 +7,7 @@ the pipeline's space for compositing A * S + R).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,9 +84,16 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
     return np.where(w > 0.5, s / np.maximum(w, 1e-6), 0).astype(np.float32)
 
 
+MIN_VIEW_SIDE = 4  # pixels: below this a downscaled view holds nothing to fit
+
+
 def view_camera(camera: Camera, downscale: float) -> Camera:
-    if downscale <= 0:
-        raise IGSError(f"--downscale must be > 0, got {downscale}")
+    if not (math.isfinite(downscale) and downscale > 0):
+        raise IGSError(f"--downscale must be a finite number > 0, got {downscale}")
+    if min(camera.width, camera.height) / downscale < MIN_VIEW_SIDE - 0.5:
+        most = min(camera.width, camera.height) / MIN_VIEW_SIDE
+        raise IGSError(f"--downscale {downscale:g} leaves {camera.name} ({camera.width}x{camera.height}) under "
+                       f"{MIN_VIEW_SIDE} pixels a side; at most {most:g} for this capture")
     return camera if downscale == 1 else camera.scaled(1.0 / downscale)
 
 
