@@ -11,15 +11,20 @@ from __future__ import annotations
 
 import io
 import os
+import zlib
 from pathlib import Path
 
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # must precede the cv2 import
+# A corrupt header may claim any size; OpenCV would allocate it (up to 2^30 pixels) before failing.
+os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(1 << 28))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from backend.errors import IGSError  # noqa: E402
 from backend.io_utils import write_bytes, write_image_file  # noqa: E402
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
@@ -34,11 +39,50 @@ def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an 8/16-bit image as float32 RGB in [0,1] (still sRGB-encoded), shape (H, W, 3)."""
+MAX_SIDE = 32768  # pixels; larger declared sizes are corrupt headers, not photos
+
+
+def check_image_file(path: str | Path) -> None:
+    """Refuse, before any decoder sees it, a file that is a folder or a PNG whose chunks are corrupt
+    (bad length or CRC, no IHDR/IEND) or that declares an absurd size: libpng would first allocate
+    the declared size, then fail, taking seconds on a few flipped bytes."""
     path = Path(path)
     if not path.exists():
         raise IGSError(f"{path}: file not found")
+    if not path.is_file():
+        raise IGSError(f"{path}: is a folder, not an image file")
+    with open(path, "rb") as f:
+        if f.read(8) != PNG_SIGNATURE:
+            return
+        data = f.read()
+    pos, first, seen_end = 0, True, False
+    while pos + 12 <= len(data):
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        kind = data[pos + 4:pos + 8]
+        if length > len(data) - pos - 12:
+            raise IGSError(f"{path}: unreadable image (corrupt PNG: chunk {kind!r} runs past the end of the file)")
+        body = data[pos + 8:pos + 8 + length]
+        if zlib.crc32(kind + body) != int.from_bytes(data[pos + 8 + length:pos + 12 + length], "big"):
+            raise IGSError(f"{path}: unreadable image (corrupt PNG: bad checksum in chunk {kind!r})")
+        if first:
+            if kind != b"IHDR" or length != 13:
+                raise IGSError(f"{path}: unreadable image (corrupt PNG: no IHDR header)")
+            w, h = int.from_bytes(body[0:4], "big"), int.from_bytes(body[4:8], "big")
+            if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
+                raise IGSError(f"{path}: unreadable image (PNG header says {w}x{h} pixels)")
+            first = False
+        pos += 12 + length
+        if kind == b"IEND":
+            seen_end = True
+            break
+    if not seen_end:
+        raise IGSError(f"{path}: unreadable image (truncated PNG: no IEND chunk)")
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit image as float32 RGB in [0,1] (still sRGB-encoded), shape (H, W, 3)."""
+    path = Path(path)
+    check_image_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise IGSError(f"{path}: unreadable image (not a PNG/JPEG OpenCV can decode)")

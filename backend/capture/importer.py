@@ -28,6 +28,7 @@ import numpy as np
 from backend import events
 from backend.capture.cameras import Camera
 from backend.capture.colmap_io import check_camera, check_pose, check_rotations, colmap_error, write_model
+from backend.capture.imageio import check_image_file
 from backend.capture.sfm import SfMConfig, run_sfm, sparse_points
 from backend.capture.transforms_io import read_ply_points, read_transforms, write_transforms
 from backend.capture.undistort import FrameWarp, Intrinsics, Undistorter, make_undistorter
@@ -154,6 +155,7 @@ def _to_bgr8(img: np.ndarray) -> np.ndarray:
 
 
 def _read_bgr8(path: Path) -> np.ndarray:
+    check_image_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:
         raise IGSError(f"{path}: unreadable image")
@@ -176,6 +178,7 @@ def _convert_photos(files: list[Path], out_dir: Path, max_side: int) -> list[Raw
     with events.stage("convert photos", total=len(files), unit="image") as bar:
         for p, f in zip(files, frames):
             # IMREAD_COLOR applies the EXIF orientation, like a photo viewer (IMREAD_UNCHANGED would not).
+            check_image_file(p)
             img = cv2.imread(str(p), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
             if img is None:
                 raise IGSError(f"{p}: unreadable image")

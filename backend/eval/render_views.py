@@ -141,6 +141,8 @@ def read_path(path: str | Path) -> list[Camera]:
     cams = []
     for i, f in enumerate(frames):
         where = f"{path} frame {i}"
+        if not isinstance(f, dict):
+            raise IGSError(f"{where}: a frame must be a JSON object, got {f!r:.40}")
         merged = {**{k: v for k, v in data.items() if k != "frames"}, **f}
         try:
             c2w = np.asarray(merged["transform_matrix"], dtype=np.float64).reshape(4, 4)

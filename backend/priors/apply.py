@@ -25,6 +25,7 @@ import numpy as np
 from backend import events
 from backend.capture.cameras import Camera
 from backend.capture.colmap_io import check_camera, read_model
+from backend.capture.imageio import check_image_file
 from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
 from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, load_capture
 from backend.errors import IGSError
@@ -76,7 +77,7 @@ def _views(ws: Workspace, capture) -> list[_View]:
                               tuple(float(p) for p in ri["params"]))
             frame = PriorFrame(int(rec["index"]), f.name, str(rec.get("source", f.name)), Path(rec["raw"]),
                                None if rec.get("video_index") is None else int(rec["video_index"]))
-        except (KeyError, TypeError, ValueError) as e:
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise IGSError(f"{ws.capture_json}: the import record of {f.name} is malformed ({type(e).__name__}: {e}); "
                            "re-run `igs import`") from e
         check_camera(intr.model, intr.width, intr.height, intr.params, f"{ws.capture_json}: import record of {f.name}")
@@ -106,6 +107,7 @@ def make_predictors(config: PriorsConfig, gt: dict[str, Path | None], num_frames
 
 
 def _rgb(path: Path) -> np.ndarray:
+    check_image_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise IGSError(f"{path}: unreadable image")

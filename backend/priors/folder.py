@@ -78,8 +78,9 @@ class FolderMaps:
 def read_map(path: Path) -> np.ndarray:
     """A map file as float32: (H, W, 3) for colour images (values as stored, [0, 1] for 8/16-bit),
     (H, W) for single-channel images and .npy arrays; EXR keeps its linear values."""
-    from backend.capture.imageio import read_exr, read_image
+    from backend.capture.imageio import check_image_file, read_exr, read_image
 
+    check_image_file(path)
     suffix = path.suffix.lower()
     if suffix == ".npy":
         try:
