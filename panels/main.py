@@ -159,13 +159,14 @@ class IGS_PT_layers(_Panel, bpy.types.Panel):
         else:
             box.label(text="Show one layer:", icon="HIDE_OFF")
             col = box.column(align=True)
+            # The edits shown go into the albedo's own button: a line added below would make the panel
+            # grow after a bake, and Blender 5.2 then draws the next panel's header over it.
+            edited = [i.name for i in props.edits if i.visible and i.albedo is not None]
             for kind, obj in loaded.items():  # a radio list: the pressed one is the layer in the viewport
                 shown, total = len(obj.data.points), int(obj.get("igs_total", len(obj.data.points)))
-                text = f"{LAYER_LABELS[kind]}: {shown:,}" + (f" of {total:,}" if total != shown else "")
+                label = LAYER_LABELS[kind] + (f" + {', '.join(edited)}" if kind == "albedo" and edited else "")
+                text = f"{label}: {shown:,}" + (f" of {total:,}" if total != shown else "")
                 col.prop_enum(props, "layer_display", kind, text=text)
-            edited = [i.name for i in props.edits if i.visible and i.albedo is not None]
-            if edited and layers.shown_kind(props.layer_display) == "albedo":
-                box.label(text=f"Albedo with edit {', '.join(edited)}", icon="BRUSH_DATA")
         layout.operator("igs.export_layer", icon="EXPORT")
         if compat.native_splat_display() is None:
             _lines(layout, "Shown as points (no native splats in this Blender)", icon="INFO")

@@ -93,12 +93,22 @@ def invoke(op: str, area: str = "VIEW_3D", **kw) -> set:
 
 def wait_job(limit_s: float, mid_shot: str | None = None, mid_after_s: float = 4.0):
     """Yield until the add-on's running job ends (its modal operator has finished)."""
+    import sys
+
+    jobs = sys.modules[f"{MOD}.igs_blender.jobs"]
     t0 = time.time()
     shot_taken = mid_shot is None
+    finished_at = None
     while True:
         job_running = props().job_running
         if not job_running and time.time() - t0 > 0.5:
             return
+        job = jobs.current()
+        if job is not None and job.finished:
+            finished_at = finished_at or time.time()
+            if time.time() - finished_at > 15:  # the modal operator died: nothing follows the job
+                raise RuntimeError(f"the job '{props().job_label}' finished but its operator never "
+                                   "took it in (a Python error in the operator? see the console)")
         if not shot_taken and time.time() - t0 > mid_after_s:
             redraw()
             yield 0.3
@@ -164,7 +174,10 @@ def flow():
         xdo("click", "1")
         yield 1.5
         shot("00-splash-2")
-        # Then the regular splash (New File, Getting Started): Escape with the pointer over it.
+        # Then the regular splash (New File, Getting Started): Escape with the pointer over it. A
+        # second Escape closes the first splash too if the click missed its button (another layout).
+        xdo("key", "Escape")
+        yield 0.5
         xdo("key", "Escape")
     yield 1.0
 
@@ -301,7 +314,7 @@ def flow():
         s.data["border"] = [r.use_border, r.border_min_x, r.border_min_y, r.border_max_x, r.border_max_y]
         assert r.use_border, "Ctrl+B drew no render border"
         scroll_sidebar(26)  # down to the Edit panel
-    yield 0.5
+    yield 1.5  # the sidebar scrolls smoothly
     shot("10-rectangle")
     with Step("fit_plane") as s:
         pr = props()
@@ -327,7 +340,7 @@ def flow():
         s.data["baked"] = bool(item and item.baked)
         s.data["edited_albedo"] = item.albedo.name if item and item.albedo else None
         assert s.data["baked"], "the edit is not marked baked"
-    yield 0.5
+    yield 1.5
     shot("13-baked")
 
     # -- render ---------------------------------------------------------------------------------------

@@ -152,10 +152,12 @@ def test_step(session, name):
     assert step["ok"], f"{name} failed: {step.get('error', '')}\nreport: {step.get('report', '')}"
 
 
-def test_session_ran_to_the_end_on_blender_5_2(session):
+def test_session_ran_to_the_end_on_blender_5_2_or_later(session):
     res = session["results"]
     assert res.get("done"), res.get("fatal", "")
-    assert res["blender"].startswith("5.2"), res["blender"]
+    # Debian sid's Blender: 5.2.2 LTS when this was written; a root rebuilt later may hold a newer one.
+    major, minor = (int(x) for x in res["blender"].split()[0].split(".")[:2])
+    assert (major, minor) >= (5, 2), res["blender"]
     assert session["rc"] == 0, session["log"][-2000:]
 
 
