@@ -94,15 +94,20 @@ class BackendOperator:
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        if event.type != "TIMER":
+        # Loading a result can open a window (the rendered images), and Blender then runs this handler
+        # again, inside the first call, for a queued timer event: that one must not tick a second time.
+        if event.type != "TIMER" or getattr(self, "_ticking", False):
             return {"PASS_THROUGH"}
         status = {"CANCELLED"}
+        self._ticking = True
         try:
             status = self._tick(context)
         finally:
+            self._ticking = False
             if status != {"RUNNING_MODAL"}:
-                context.window_manager.event_timer_remove(self._timer)
-                self._timer = None
+                if getattr(self, "_timer", None) is not None:
+                    context.window_manager.event_timer_remove(self._timer)
+                    self._timer = None
                 scene_objects.tag_redraw(context)
         return status if status != {"RUNNING_MODAL"} else {"PASS_THROUGH"}
 

@@ -467,3 +467,27 @@ def test_turntable_defaults_to_the_capture_and_fits_cursor_orbits_to_it(scene, t
         bpy.ops.igs.render_sequence(mode="TURNTABLE")
     props.turntable_radius = 1.5  # an explicit radius needs no capture
     assert bpy.ops.igs.render_sequence(mode="TURNTABLE") == {"FINISHED"}, props.last_report
+
+
+def test_modal_handler_ignores_a_timer_event_that_arrives_while_it_finishes(addon):
+    """Loading a result may open a window (the rendered images); Blender then calls the modal handler
+    again from inside the first call. Seen in the real Blender 5.2 window: the inner call removed the
+    timer and the outer one raised on removing it again."""
+    job_mod = sys.modules[f"{MOD}.operators.job"]
+    removed = []
+    context = SimpleNamespace(window_manager=SimpleNamespace(event_timer_remove=removed.append, windows=[]))
+    timer = SimpleNamespace(type="TIMER")
+
+    class Finishing(job_mod.BackendOperator):
+        ticks = 0
+
+        def _tick(self, ctx):
+            self.ticks += 1
+            assert self.modal(ctx, timer) == {"PASS_THROUGH"}  # the re-entrant call
+            return {"FINISHED"}
+
+    op = Finishing()
+    op._timer = "the timer"
+    assert op.modal(context, timer) == {"FINISHED"}
+    assert op.ticks == 1 and removed == ["the timer"] and op._timer is None
+    assert op.modal(context, SimpleNamespace(type="MOUSEMOVE")) == {"PASS_THROUGH"}
