@@ -14,6 +14,8 @@ from backend.capture.colmap_io import write_model
 from backend.capture.imageio import write_depth, write_image
 from backend.capture.workspace import Workspace
 from backend.render import render
+from backend.splats.gaussians import GaussianSet
+from backend.splats.ply import write_ply
 
 
 def box_scene(n_per_face: int = 250, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -71,3 +73,19 @@ def make_workspace(root: Path, n_views: int = 12, width: int = 48, height: int =
     ws.write_capture_json({"source": {"kind": "test-box", "seed": seed}, "frames": [c.name for c in cams],
                            "size": [width, height]})
     return ws
+
+
+def make_layered_workspace(root: Path, n_per_face: int = 250) -> Path:
+    """``make_workspace`` (8 views, 32x24) with the box's three layers in ``layers/`` and the images
+    themselves as albedo priors: a decomposed workspace for command and reader tests."""
+    make_workspace(root, n_views=8, width=32, height=24)
+    s = box_scene(n_per_face=n_per_face)
+    for kind in ("albedo", "shading", "residual"):
+        rgb = s["colors"] if kind == "albedo" else torch.full((len(s["means"]), 3), 0.5)
+        g = GaussianSet.from_activated(kind, s["means"], rgb, s["log_scales"], s["opacities"], s["quats"],
+                                       **({} if kind == "albedo" else {"sh_degree": 0}))
+        write_ply(root / "layers" / f"{kind}.ply", g)
+    (root / "albedo").mkdir()
+    for img in (root / "images").iterdir():
+        (root / "albedo" / img.name).write_bytes(img.read_bytes())
+    return root

@@ -24,9 +24,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from _import_scene import write_capture
-from _train_scene import box_scene, make_workspace
+from _train_scene import make_layered_workspace
 
 from backend.capture.colmap_io import read_model
 from backend.capture.imageio import read_depth, read_image, write_image
@@ -38,8 +37,7 @@ from backend.edit.proxy import load_proxy, plane_proxy, save_proxy
 from backend.errors import IGSError
 from backend.eval.render_views import read_cameras, read_path
 from backend.priors.folder import read_map
-from backend.splats.gaussians import GaussianSet
-from backend.splats.ply import read_ply, write_ply
+from backend.splats.ply import read_ply
 from backend.train.intrinsic import DecomposeState
 
 SEED = 30  # the issue's number; every run mutates the same way
@@ -197,16 +195,7 @@ def base(tmp_path_factory):
     transforms.json (5 views, 48x36)."""
     root = tmp_path_factory.mktemp("fuzz")
     ws = root / "ws"
-    make_workspace(ws, n_views=8, width=32, height=24)
-    s = box_scene(n_per_face=40)
-    for kind in ("albedo", "shading", "residual"):
-        rgb = s["colors"] if kind == "albedo" else torch.full((len(s["means"]), 3), 0.5)
-        g = GaussianSet.from_activated(kind, s["means"], rgb, s["log_scales"], s["opacities"], s["quats"],
-                                       **({} if kind == "albedo" else {"sh_degree": 0}))
-        write_ply(ws / "layers" / f"{kind}.ply", g)
-    (ws / "albedo").mkdir()
-    for img in (ws / "images").iterdir():
-        (ws / "albedo" / img.name).write_bytes(img.read_bytes())
+    make_layered_workspace(ws, n_per_face=40)
     proj = root / "proj"
     cams = write_capture(proj, n=5, width=48, height=36)
     write_transforms(proj / "transforms.json", cams)

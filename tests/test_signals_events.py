@@ -10,12 +10,9 @@ import time
 from pathlib import Path
 
 import pytest
-import torch
-from _train_scene import box_scene, make_workspace
+from _train_scene import make_layered_workspace
 
 from backend.cli import main
-from backend.splats.gaussians import GaussianSet
-from backend.splats.ply import write_ply
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from igs_blender.client import JobState, parse_event  # noqa: E402
@@ -26,16 +23,7 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def box(tmp_path_factory):
     root = tmp_path_factory.mktemp("sig") / "box"
-    make_workspace(root, n_views=8, width=32, height=24)
-    s = box_scene()
-    for kind in ("albedo", "shading", "residual"):
-        rgb = s["colors"] if kind == "albedo" else torch.full((len(s["means"]), 3), 0.5)
-        g = GaussianSet.from_activated(kind, s["means"], rgb, s["log_scales"], s["opacities"], s["quats"],
-                                       **({} if kind == "albedo" else {"sh_degree": 0}))
-        write_ply(root / "layers" / f"{kind}.ply", g)
-    (root / "albedo").mkdir()
-    for img in (root / "images").iterdir():  # an albedo prior for decompose: the images themselves
-        (root / "albedo" / img.name).write_bytes(img.read_bytes())
+    make_layered_workspace(root)
     return root
 
 

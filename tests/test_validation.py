@@ -7,15 +7,13 @@ import shutil
 
 import numpy as np
 import pytest
-import torch
 from _import_scene import write_capture
-from _train_scene import box_scene, make_workspace
+from _train_scene import make_layered_workspace
 
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
 from backend.cli import main
 from backend.errors import IGSError
-from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 
 
@@ -46,16 +44,7 @@ def project(tmp_path_factory):
 @pytest.fixture(scope="module")
 def box(tmp_path_factory):
     root = tmp_path_factory.mktemp("valbox") / "box"
-    make_workspace(root, n_views=8, width=32, height=24)
-    s = box_scene()
-    for kind in ("albedo", "shading", "residual"):
-        rgb = s["colors"] if kind == "albedo" else torch.full((len(s["means"]), 3), 0.5)
-        g = GaussianSet.from_activated(kind, s["means"], rgb, s["log_scales"], s["opacities"], s["quats"],
-                                       **({} if kind == "albedo" else {"sh_degree": 0}))
-        write_ply(root / "layers" / f"{kind}.ply", g)
-    (root / "albedo").mkdir()
-    for img in (root / "images").iterdir():
-        (root / "albedo" / img.name).write_bytes(img.read_bytes())
+    make_layered_workspace(root)
     return root
 
 
