@@ -29,7 +29,7 @@ from ..igs_blender.props import MIN_SELECTED
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
 from .job import BackendOperator, backend_job, show_job
 from .layers import tell
-from .modes import leave_mode, mode_set, restore_mode, view3d_override
+from .modes import in_object_mode, leave_mode, mode_set, view3d_override
 
 FIT_SETTINGS = "Edit panel > Fit Settings"
 # The backend's fit errors name its command-line flags; the panel has settings for them instead.
@@ -377,16 +377,14 @@ class IGS_OT_load_edits(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
-        obj, mode = leave_mode(context)  # point clouds are made by converting meshes, in Object mode
         try:
-            ws = existing_workspace(props.workspace)
-            loaded, failed = edits.load_workspace_edits(props, ws, max_points=props.max_points,
-                                                        radius_scale=props.radius_scale)
+            with in_object_mode(context):
+                ws = existing_workspace(props.workspace)
+                loaded, failed = edits.load_workspace_edits(props, ws, max_points=props.max_points,
+                                                            radius_scale=props.radius_scale)
         except UserError as e:
             tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
-        finally:
-            restore_mode(context, obj, mode)
         if not loaded:
             why = "; ".join(failed) if failed else "none yet (Fit Plane / Fit Cylinder, or igs edit fit-plane)"
             tell(self, context, "ERROR" if failed else "WARNING", f"{ws / 'edits'}: no edit loaded: {why}")

@@ -15,7 +15,7 @@ import bpy
 from ..igs_blender import backend_env, jobs, preferences, scene_objects
 from ..igs_blender.client import BackendError, BackendJob
 from ..igs_blender.errors import UserError
-from .modes import leave_mode, restore_mode
+from .modes import in_object_mode
 
 
 def backend_job(context, args: list, label: str, expected_stages: int = 0) -> BackendJob:
@@ -128,15 +128,13 @@ class BackendOperator:
             return {"RUNNING_MODAL"}
         outcome = job.outcome
         if outcome == "ok":
-            obj, mode = leave_mode(context)  # loading layers converts meshes, which needs Object mode
             try:
-                msg = self.finish(context, job)
+                with in_object_mode(context):  # then back, e.g. to Texture Paint on the proxy
+                    msg = self.finish(context, job)
             except (UserError, OSError, RuntimeError) as e:  # RuntimeError: bpy could not load a result
-                restore_mode(context, obj, mode)
                 props.last_report = f"{job.state.label} finished, but loading its results failed: {e}"
                 self.report({"ERROR"}, props.last_report)
                 return {"CANCELLED"}
-            restore_mode(context, obj, mode)  # e.g. back to Texture Paint on the proxy
             props.last_report = msg
             props.job_status = msg
             self.report({getattr(self, "finish_level", "INFO")}, msg)

@@ -11,7 +11,7 @@ from ..igs_blender import edits, layers, scene_objects
 from ..igs_blender.errors import UserError
 from ..igs_blender.ply_io import write_splat_ply
 from ..igs_blender.workspace_files import existing_workspace, metrics_summary
-from .modes import leave_mode, restore_mode
+from .modes import in_object_mode
 
 
 def tell(op: bpy.types.Operator, context, level: str, message: str) -> None:
@@ -34,16 +34,14 @@ class IGS_OT_load_layers(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
-        obj, mode = leave_mode(context)  # point clouds are made by converting meshes, in Object mode
         try:
-            ws = existing_workspace(props.workspace)
-            objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
-                                                composite=props.build_composite)
+            with in_object_mode(context):
+                ws = existing_workspace(props.workspace)
+                objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
+                                                    composite=props.build_composite)
         except UserError as e:
             tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
-        finally:
-            restore_mode(context, obj, mode)
         props.metrics_info = metrics_summary(ws)
         edits.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"

@@ -6,6 +6,8 @@ The artist may be in Texture Paint on a proxy or in Edit Mode when a backend job
 
 from __future__ import annotations
 
+import contextlib
+
 import bpy
 
 
@@ -46,3 +48,14 @@ def restore_mode(context, obj: bpy.types.Object | None, mode: str) -> None:
     if context.view_layer.objects.active is not obj or obj.mode != "OBJECT":
         return
     mode_set(context, obj, mode)
+
+
+@contextlib.contextmanager
+def in_object_mode(context):
+    """Run the block in Object mode (point clouds are made by converting meshes), then put the active
+    object back in the mode it was in, whether the block succeeded or raised."""
+    obj, mode = leave_mode(context)
+    try:
+        yield
+    finally:
+        restore_mode(context, obj, mode)
