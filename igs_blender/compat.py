@@ -97,8 +97,9 @@ def extension_user_dir(package: str, sub: str) -> str:
 def _fit_when_drawn(window, area, image: bpy.types.Image, size: tuple[int, int] | None) -> None:
     """Zoom the Image Editor so the whole image fits (a small render otherwise sits at 1:1 in the middle).
 
-    The editor knows its size only once it has drawn, and an image sequence knows its own only once
-    a frame is shown, so this runs from a timer with the size the caller knows.
+    The editor knows its size only once it has drawn, and it resets its view when an image's first
+    frame loads, so this waits on a timer until both have happened; ``size`` is the fallback for an
+    image that never reports its own.
     """
     tries = [0]
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 import time
 import traceback
 from pathlib import Path
@@ -93,8 +94,6 @@ def invoke(op: str, area: str = "VIEW_3D", **kw) -> set:
 
 def wait_job(limit_s: float, mid_shot: str | None = None, mid_after_s: float = 4.0):
     """Yield until the add-on's running job ends (its modal operator has finished)."""
-    import sys
-
     jobs = sys.modules[f"{MOD}.igs_blender.jobs"]
     t0 = time.time()
     shot_taken = mid_shot is None
@@ -162,8 +161,6 @@ def scene_objects() -> dict:
 
 
 def flow():
-    import sys
-
     RESULTS["python"] = sys.version.split()[0]
     yield 2.0
     with Step("splash") as s:
