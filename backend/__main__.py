@@ -1,4 +1,4 @@
-from backend import signals
+from backend.core import signals
 
 signals.install()  # before the imports below: a Ctrl-C while they load is a cancel, not a traceback
 

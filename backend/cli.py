@@ -15,9 +15,10 @@ import time
 import traceback
 from typing import NoReturn
 
-from backend import __version__, events, signals
-from backend.errors import Cancelled, IGSError
-from backend.io_utils import os_error
+from backend import __version__
+from backend.core import events, signals
+from backend.core.atomic_io import os_error
+from backend.core.errors import Cancelled, IGSError
 
 # Errors of the machine rather than of the program (full disk, read-only or missing folder,
 # permissions): one line naming the file, like bad input.

@@ -12,10 +12,10 @@ import json
 import time
 from pathlib import Path
 
-from backend import events
 from backend import options as opt
-from backend.errors import IGSError
-from backend.io_utils import write_json
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
 
 DEFAULT_WORKSPACE = Path("workspaces") / "demo"
 DEMO_EDIT = "wall_decal"
@@ -58,9 +58,8 @@ def turntable_orbit(capture) -> tuple[str, float, float]:
 
 
 def run(args: argparse.Namespace) -> dict:
+    from backend.capture.load import capture_summary, load_capture
     from backend.capture.synth import synthesize
-    from backend.capture.workspace import capture_summary, load_capture
-
     ws = Path(args.workspace)
     iterations = args.iterations or ITERATIONS[args.preset]
     t0 = time.perf_counter()

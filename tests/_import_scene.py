@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import write_model
-from backend.capture.imageio import linear_to_srgb, write_depth, write_image
+from backend.core.cameras import Camera
+from backend.core.imageio import linear_to_srgb, write_depth, write_image
 
 ROOM_MIN = np.array([-3.0, -3.0, 0.0])
 ROOM_MAX = np.array([3.0, 3.0, 2.5])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.render import Splats
 
 PARAMS = ("means", "quats", "scales", "opacities", "colors")

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import write_model
-from backend.capture.imageio import write_depth, write_image
-from backend.capture.workspace import Workspace
+from backend.core.cameras import Camera
+from backend.core.imageio import write_depth, write_image
+from backend.core.workspace import Workspace
 from backend.render import render
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import write_ply

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from _train_scene import make_workspace
 
-from backend.capture.imageio import read_image, write_image
 from backend.cli import main
-from backend.errors import IGSError
-from backend.io_utils import clean_stale_tmp, is_tmp_name, write_bytes, write_image_file, write_json
+from backend.core.atomic_io import clean_stale_tmp, is_tmp_name, write_bytes, write_image_file, write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import read_image, write_image
 from backend.train.loop import load_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
@@ -93,7 +93,7 @@ def test_commands_on_a_full_or_read_only_disk_end_in_one_line(small_disk, condit
 
 _WRITER = """
 import sys, time
-from backend.io_utils import atomic_path
+from backend.core.atomic_io import atomic_path
 with atomic_path(sys.argv[1]) as tmp:
     with open(tmp, "wb") as f:
         f.write(b"partial checkpoint" * 1000)

@@ -162,8 +162,8 @@ def test_register_unregister_twice_in_process(addon):
 
 def check_cameras_match_colmap(scene, ws: Path, rng_points: np.ndarray) -> int:
     """Every SfM camera object: pose == COLMAP after conversion, and Blender projects points to COLMAP's pixels."""
-    from backend.capture.cameras import blender_matrix_world
     from backend.capture.colmap_io import read_model
+    from backend.core.cameras import blender_matrix_world
 
     model = read_model(ws / "sparse" / "0")
     objs = {o["igs_frame"]: o for o in bpy.data.objects if o.type == "CAMERA" and "igs_frame" in o}
@@ -445,7 +445,7 @@ def test_paint_explains_a_missing_edit_and_a_proxy_without_uvs(scene, tmp_path):
 def test_bake_sends_painted_pixels_of_packed_and_file_images(scene, tmp_path):
     import cv2
 
-    from backend.capture.imageio import read_image, read_linear
+    from backend.core.imageio import read_image, read_linear
 
     proxies = sub("proxies")
     bpy.ops.mesh.primitive_grid_add(calc_uvs=True)
@@ -1011,8 +1011,8 @@ def test_flow_4b_fit_a_cylinder_paint_over_the_projected_albedo_and_bake(addon, 
         pytest.skip("needs the decomposed workspace of step 3")
     import cv2
 
-    from backend.capture.imageio import read_linear, srgb_to_linear
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
+    from backend.core.imageio import read_linear, srgb_to_linear
     from backend.edit.bake import dilate, load_albedo, render_albedo
     from backend.edit.mesh_raster import rasterize_proxy
     from backend.edit.proxy import load_proxy

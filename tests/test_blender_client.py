@@ -199,8 +199,8 @@ def make_tiny_workspace(ws: Path, n_views: int = 3, size=(16, 12)) -> None:
     """A valid workspace of ``n_views`` small frames (COLMAP text model, images, capture.json)."""
     import cv2
 
-    from backend.capture.cameras import Camera
     from backend.capture.colmap_io import write_model
+    from backend.core.cameras import Camera
 
     w, h = size
     cams = [Camera.look_at(f"frame_{i:04d}.png", [2 * np.cos(i), 2 * np.sin(i), 0.5], [0, 0, 0], [0, 0, 1],

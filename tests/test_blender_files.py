@@ -131,8 +131,8 @@ def test_malformed_plys_are_rejected_with_the_file_and_reason(tmp_path, case, ma
 
 
 def test_colmap_text_model_reads_like_the_backend(tmp_path):
-    from backend.capture.cameras import Camera, blender_matrix_world
     from backend.capture.colmap_io import write_model
+    from backend.core.cameras import Camera, blender_matrix_world
 
     cams = [Camera.look_at(f"frame_{i:04d}.png", [3 * np.cos(i), 3 * np.sin(i), 1.0], [0, 0, 0.2], [0, 0, 1],
                            64, 48, 55 + i) for i in range(4)]

@@ -1,15 +1,14 @@
 import numpy as np
 import pytest
 
-from backend.capture.cameras import (
+from backend.capture.colmap_io import read_model, write_model
+from backend.core.cameras import (
     Camera,
     blender_matrix_world,
     from_blender_matrix_world,
-    qvec_to_rotmat,
-    rotmat_to_qvec,
 )
-from backend.capture.colmap_io import read_model, write_model
-from backend.errors import IGSError
+from backend.core.errors import IGSError
+from backend.core.rotations import qvec_to_rotmat, rotmat_to_qvec
 
 
 def random_rotation(rng):
@@ -22,6 +21,18 @@ def test_quaternion_round_trip():
     for _ in range(50):
         R = random_rotation(rng)
         np.testing.assert_allclose(qvec_to_rotmat(rotmat_to_qvec(R)), R, atol=1e-10)
+
+
+def test_quaternions_batched_match_one_at_a_time():
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(20, 4))
+    R = qvec_to_rotmat(q)
+    assert R.shape == (20, 3, 3)
+    for qi, Ri in zip(q, R):
+        np.testing.assert_allclose(qvec_to_rotmat(qi), Ri, atol=1e-12)
+    back = rotmat_to_qvec(R)
+    assert back.shape == (20, 4) and (back[:, 0] >= 0).all()
+    np.testing.assert_allclose(np.abs((back * (q / np.linalg.norm(q, axis=1, keepdims=True))).sum(1)), 1.0, atol=1e-9)
 
 
 def test_look_at_projects_target_to_image_centre_and_keeps_up_up():

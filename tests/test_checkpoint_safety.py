@@ -9,7 +9,7 @@ import pytest
 import torch
 from _train_scene import make_workspace
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.loop import TrainConfig, load_checkpoint
 

@@ -86,7 +86,8 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert cap["layers"]["three-set"]["layers"]["shading"]["encoding"] == "rgb"
 
     # the residual lowers the full-image loss on the training views (I vs A*S and vs A*S + R)
-    from backend.capture.workspace import load_capture, split_frames
+    from backend.capture.load import load_capture
+    from backend.core.workspace import split_frames
     from backend.eval.layer_metrics import ground_truth, render_frame
 
     train_frames, _ = split_frames(load_capture(ws).frames)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from backend.capture.cameras import Camera
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.eval import report
 from backend.eval.layer_metrics import channel_scale
 from backend.splats.init import from_points
@@ -184,7 +184,7 @@ def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_qua
 def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
     import pytest
 
-    from backend.errors import IGSError
+    from backend.core.errors import IGSError
     from backend.eval.bench_decompose import configs, scaled_iterations, targets
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from backend.capture.imageio import read_image
 from backend.cli import main
+from backend.core.imageio import read_image
 from backend.edit.bake import BakeConfig, bake_edit, render_albedo
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import load_proxy, plane_proxy, save_proxy
@@ -38,7 +38,7 @@ def ws(tmp_path_factory):
 
 
 def face_rect(ws, view, lo=-0.5, hi=0.5):
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
     cam = load_capture(ws).frame(view).camera
     corners = np.array([[1.0, y, z] for y in (lo, hi) for z in (lo, hi)])
     uv, _ = cam.project(corners)
@@ -68,7 +68,7 @@ def test_bad_inputs_fail_with_clear_errors(ws, tmp_path, capsys):
     _bad(["edit", "fit-plane", str(ws), "--view", EDIT_VIEW, "--rect", "500", "500", "600", "600"], capsys,
          "--rect", "outside")
     # A plane through the optical axis, tilted 5 degrees towards the camera: seen edge-on.
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
     cam = load_capture(ws).frame("frame_0000.png").camera
     tilt = np.radians(5.0)
     normal = np.cos(tilt) * cam.R[0] - np.sin(tilt) * cam.R[2]
@@ -87,7 +87,7 @@ def test_bad_inputs_fail_with_clear_errors(ws, tmp_path, capsys):
 
 
 def test_bake_changes_the_edit_and_keeps_the_rest(ws):
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
     proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
                         color=[0.9, 0.05, 0.9], name="magenta")
     cfg = BakeConfig(view=EDIT_VIEW, views=4, iterations=120, anchor_views=4)
@@ -124,7 +124,8 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
 
 
 def test_capture_views_are_training_views_that_see_the_proxy(ws):
-    from backend.capture.workspace import load_capture, split_frames
+    from backend.capture.load import load_capture
+    from backend.core.workspace import split_frames
     from backend.edit.bake import capture_views_seeing
 
     capture = load_capture(ws)
@@ -180,7 +181,8 @@ def test_turntable_defaults_follow_the_capture_cameras_in_a_tilted_world():
     rotation Q, give the up Q z, the orbit inside their path, and turntable frames level around it.
     A third of a loop of cameras all looking down (their mean up axis leans 15° there) still gives the
     vertical, and so does a camera that never turned."""
-    from backend.capture.cameras import Camera, qvec_to_rotmat
+    from backend.core.cameras import Camera
+    from backend.core.rotations import qvec_to_rotmat
     from backend.eval.render_views import capture_orbit, capture_up, turntable
 
     Q = qvec_to_rotmat(np.array([0.8, 0.3, -0.4, 0.2]))
@@ -221,8 +223,7 @@ def test_render_and_layer_evaluation_hold_torch_at_one_thread(ws, tmp_path, monk
     evaluation run; torch's thread count is back to the caller's afterwards."""
     import backend.eval.layer_metrics as lm
     import backend.eval.render_views as rv
-    from backend.capture.workspace import load_capture
-
+    from backend.capture.load import load_capture
     seen = []
 
     def spy(render):
@@ -252,8 +253,8 @@ def test_render_and_layer_evaluation_hold_torch_at_one_thread(ws, tmp_path, monk
 def test_edit_scales_scores_a_baked_albedo_at_several_distances(ws, tmp_path, capsys):
     """The edit_scales benchmark on a ground truth made from the box's own albedo: the box itself scores
     high at 1x, a recoloured box low, and bad inputs are named."""
-    from backend.capture.imageio import write_image, write_linear_as_srgb
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
+    from backend.core.imageio import write_image, write_linear_as_srgb
     from backend.eval import edit_scales
 
     face = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
@@ -296,10 +297,10 @@ def _box_depth(cam) -> np.ndarray:
 def test_fits_grow_on_the_depth_priors_of_the_training_views(ws, tmp_path, capsys):
     import shutil
 
-    from backend.capture.imageio import write_depth
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
+    from backend.core.errors import IGSError
+    from backend.core.imageio import write_depth
     from backend.edit.surface_points import depth_prior_points, grow_points
-    from backend.errors import IGSError
 
     copy = tmp_path / "exact"
     shutil.copytree(ws, copy)
@@ -339,7 +340,7 @@ def test_fits_grow_on_the_depth_priors_of_the_training_views(ws, tmp_path, capsy
 
 
 def test_bake_stage_skips_frozen_gaussians_outside_each_window_without_changing_the_render(ws):
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
     from backend.edit.bake import BakeStage
     from backend.train.loop import TrainConfig
     from backend.train.views import View

@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from backend.capture.cameras import Camera, qvec_to_rotmat
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.rotations import qvec_to_rotmat
 from backend.edit.composite import CompositeConfig, composite_over_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.mesh_raster import RasterConfig, rasterize_proxy
@@ -35,7 +37,6 @@ from backend.edit.views import (
     rect_to_pixels,
     spawn_points_on_proxy,
 )
-from backend.errors import IGSError
 
 
 def unit(v):

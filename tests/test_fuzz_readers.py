@@ -28,13 +28,13 @@ from _import_scene import write_capture
 from _train_scene import make_layered_workspace
 
 from backend.capture.colmap_io import read_model
-from backend.capture.imageio import read_depth, read_image, write_image
 from backend.capture.importer import ImportConfig, import_capture
+from backend.capture.load import image_file_size, load_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
-from backend.capture.workspace import image_file_size, load_capture
 from backend.cli import main
+from backend.core.errors import IGSError
+from backend.core.imageio import read_depth, read_image, write_image
 from backend.edit.proxy import load_proxy, plane_proxy, save_proxy
-from backend.errors import IGSError
 from backend.eval.render_views import read_cameras, read_path
 from backend.priors.folder import read_map
 from backend.splats.ply import read_ply

@@ -12,9 +12,18 @@ import numpy as np
 import pytest
 from _import_scene import render, write_capture
 
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import read_model, write_model
-from backend.capture.imageio import (
+from backend.capture.import_commands import import_with_priors
+from backend.capture.importer import ImportConfig, import_capture
+from backend.capture.load import load_capture
+from backend.capture.pose_eval import compare_cameras
+from backend.capture.sfm import SfMConfig
+from backend.capture.transforms_io import cv_w2c_to_opengl_c2w, read_transforms, write_transforms
+from backend.capture.undistort import Intrinsics, make_undistorter
+from backend.capture.video import FrameSelection
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.imageio import (
     linear_to_srgb,
     read_depth,
     read_image,
@@ -22,15 +31,6 @@ from backend.capture.imageio import (
     write_depth,
     write_image,
 )
-from backend.capture.import_commands import import_with_priors
-from backend.capture.importer import ImportConfig, import_capture
-from backend.capture.pose_eval import compare_cameras
-from backend.capture.sfm import SfMConfig
-from backend.capture.transforms_io import cv_w2c_to_opengl_c2w, read_transforms, write_transforms
-from backend.capture.undistort import Intrinsics, make_undistorter
-from backend.capture.video import FrameSelection
-from backend.capture.workspace import load_capture
-from backend.errors import IGSError
 from backend.priors.apply import PriorsConfig
 from backend.priors.depth import DepthOptions
 
@@ -301,8 +301,8 @@ def test_sfm_that_registers_too_few_frames_is_one_clear_error(scene, tmp_path):
 
 
 def test_cancel_during_sfm_stops_with_cancelled(scene, tmp_path):
-    from backend import events
-    from backend.errors import Cancelled
+    from backend.core import events
+    from backend.core.errors import Cancelled
 
     root, _ = scene
     events.request_cancel()  # as SIGINT/SIGTERM would, while pycolmap works in C++

@@ -6,7 +6,7 @@ import pytest
 
 from backend.capture.importer import ImportConfig, detect_kind, import_capture
 from backend.capture.video import FrameSelection, extract_frames, sharpness
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 
 def textured(seed: int, size=(96, 128)) -> np.ndarray:

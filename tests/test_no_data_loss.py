@@ -10,10 +10,10 @@ import pytest
 from _import_scene import write_capture
 
 from backend.capture.importer import ImportConfig, import_capture
-from backend.capture.workspace import load_capture
+from backend.capture.load import load_capture
 from backend.cli import main
-from backend.errors import IGSError
-from backend.staging import Staging, recover
+from backend.core.errors import IGSError
+from backend.core.staging import Staging, recover
 
 
 def snapshot(root: Path) -> dict[str, bytes]:

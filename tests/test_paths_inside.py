@@ -9,11 +9,11 @@ import pytest
 from _import_scene import write_capture
 
 from backend.capture.importer import ImportConfig, import_capture
+from backend.capture.load import load_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
-from backend.capture.workspace import load_capture
 from backend.cli import main
-from backend.errors import IGSError
-from backend.paths import inside, plain_name, relative_name
+from backend.core.errors import IGSError
+from backend.core.paths import inside, plain_name, relative_name
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.priors.brick import BrickConfig, brick_schedule
 
 LENGTHS = [1, 2, 8, 9, 56, 57, 58, 64, 65, 89, 90, 96, 97, 100, 128, 200, 300, 1000]

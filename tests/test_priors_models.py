@@ -10,8 +10,8 @@ from _import_scene import write_capture
 
 from backend.capture.import_commands import import_with_priors
 from backend.capture.importer import ImportConfig
-from backend.capture.workspace import load_capture
-from backend.errors import IGSError
+from backend.capture.load import load_capture
+from backend.core.errors import IGSError
 from backend.priors.albedo import AlbedoOptions, MarigoldAlbedo, make_albedo_predictor
 from backend.priors.apply import PriorsConfig, compute_priors
 from backend.priors.depth import DepthAnythingV2, make_depth_predictor

@@ -7,7 +7,7 @@ import pytest
 import torch
 from _render_scenes import make_camera, random_splats, with_grad
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.render import gsplat_available, render
 
 needs_gsplat = pytest.mark.skipif(not gsplat_available(), reason="needs CUDA and gsplat")

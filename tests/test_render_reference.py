@@ -7,7 +7,7 @@ import pytest
 import torch
 from _render_scenes import make_camera, random_splats
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.render import Splats, render
 from backend.render.projection import CameraTensors, depth_order, project
 from backend.render.reference import rasterize

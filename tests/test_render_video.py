@@ -6,7 +6,7 @@ import av
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.eval.render_views import render_views
 from backend.eval.video import Mp4Writer
 from backend.splats.gaussians import GaussianSet

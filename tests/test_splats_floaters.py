@@ -4,7 +4,7 @@ solid object in front of it stay."""
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.render import render
 from backend.splats.gaussians import GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy, floater_scores

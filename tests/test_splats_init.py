@@ -1,7 +1,7 @@
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.splats.init import (
     InitConfig,
     backproject,

@@ -3,7 +3,7 @@ import pytest
 import torch
 from plyfile import PlyData, PlyElement
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.splats.gaussians import C0, GaussianSet
 from backend.splats.ply import ply_header_comments, read_ply, write_ply
 

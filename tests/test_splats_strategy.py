@@ -2,8 +2,9 @@ import math
 
 import torch
 
+from backend.render.projection import quat_to_rotmat
 from backend.splats.gaussians import GaussianSet
-from backend.splats.strategy import DensifyConfig, DensifyStrategy, quat_to_rotmat
+from backend.splats.strategy import DensifyConfig, DensifyStrategy
 
 
 def make_set(n=4, log_scale=-5.0):

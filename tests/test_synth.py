@@ -15,16 +15,16 @@ import cv2
 import numpy as np
 import pytest
 
-from backend import events
 from backend.capture import synth_textures
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import read_model
 from backend.capture.exr_layers import passes, read_multilayer_exr
-from backend.capture.imageio import read_exr, read_image, srgb_to_linear
+from backend.capture.load import load_capture
 from backend.capture.synth import Renderer, SynthSettings, synthesize
 from backend.capture.synth_scene import build_scene, camera_path, mask_aov
-from backend.capture.workspace import load_capture
-from backend.errors import Cancelled, IGSError
+from backend.core import events
+from backend.core.cameras import Camera
+from backend.core.errors import Cancelled, IGSError
+from backend.core.imageio import read_exr, read_image, srgb_to_linear
 
 pytest.importorskip("bpy")
 

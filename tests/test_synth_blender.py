@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from backend.capture import synth_blender
-from backend.capture.imageio import read_exr
 from backend.capture.synth import synthesize
-from backend.errors import IGSError
+from backend.core.errors import IGSError
+from backend.core.imageio import read_exr
 
 pytest.importorskip("bpy")
 

@@ -82,7 +82,7 @@ def test_decompose_single_set_and_bake_on_cuda(box, tmp_path):
     assert summary["device"].startswith("cuda")
     before, _ = read_ply(gpu / "layers" / "albedo.ply", kind="albedo")
     after, _ = read_ply(gpu / "edits" / "magenta" / "albedo.ply", kind="albedo")
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
     cam = load_capture(gpu).frame("frame_0000.png").camera  # looks straight at the +x face
     inner = rasterize_proxy(proxy, cam).mask
     a0 = render_albedo(before, cam, "cpu").color.numpy()

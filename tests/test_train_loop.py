@@ -8,9 +8,10 @@ import pytest
 import torch
 from _train_scene import make_workspace
 
-from backend import events
-from backend.capture.workspace import load_capture, split_frames
-from backend.errors import Cancelled, IGSError
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.errors import Cancelled, IGSError
+from backend.core.workspace import split_frames
 from backend.splats.ply import read_ply
 from backend.train.baseline import BaselineConfig, initial_gaussians, train_3dgs
 from backend.train.loop import TrainConfig, load_checkpoint

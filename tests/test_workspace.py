@@ -5,12 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from backend.capture import imageio
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import write_model
-from backend.capture.workspace import Workspace, load_capture, split_frames
+from backend.capture.load import load_capture
 from backend.cli import main
-from backend.errors import IGSError
+from backend.core import imageio
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.workspace import Workspace, split_frames
 
 W, H = 20, 12
 

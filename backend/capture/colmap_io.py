@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.capture.cameras import Camera, rotmat_to_qvec
-from backend.errors import IGSError
-from backend.io_utils import write_text
-from backend.paths import relative_name
+from backend.core.atomic_io import write_text
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.paths import relative_name
+from backend.core.rotations import rotmat_to_qvec
 
 MAX_SIDE = 16384  # pixels
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from backend import events
 from backend import options as opt
+from backend.core import events
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

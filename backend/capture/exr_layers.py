@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 _MAGIC = 20000630
 _MULTIPART_FLAG = 0x1000

@@ -13,7 +13,7 @@ from backend import options as opt
 from backend.capture.importer import SOURCE_KINDS, ImportConfig, gt_dir_for, import_capture
 from backend.capture.sfm import MATCHING, SfMConfig
 from backend.capture.video import FrameSelection
-from backend.io_utils import write_json
+from backend.core.atomic_io import write_json
 from backend.priors.apply import PriorsConfig, compute_priors, make_predictors
 from backend.priors.commands import add_prior_arguments, priors_config_from_args
 

@@ -25,10 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend import events
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import check_camera, check_pose, check_rotations, colmap_error, write_model
-from backend.capture.imageio import check_image_file
+from backend.capture.load import image_file_size
 from backend.capture.sfm import SfMConfig, run_sfm, sparse_points
 from backend.capture.transforms_io import read_ply_points, read_transforms, write_transforms
 from backend.capture.undistort import FrameWarp, Intrinsics, Undistorter, make_undistorter
@@ -39,11 +37,14 @@ from backend.capture.video import (
     resize_max_side,
     select_windows,
 )
-from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, image_file_size
-from backend.errors import IGSError
-from backend.io_utils import write_image_file, write_json
-from backend.paths import inside
-from backend.staging import Staging
+from backend.core import events
+from backend.core.atomic_io import write_image_file, write_json
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.imageio import check_image_file
+from backend.core.paths import inside
+from backend.core.staging import Staging
+from backend.core.workspace import CAPTURE_SCHEMA, Workspace
 
 SOURCE_KINDS = ("auto", "video", "photos", "colmap", "transforms")
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")

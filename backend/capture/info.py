@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from backend import events
-from backend.capture.workspace import capture_summary, load_capture
+from backend.capture.load import capture_summary, load_capture
+from backend.core import events
 
 
 def register(sub: argparse._SubParsersAction) -> None:

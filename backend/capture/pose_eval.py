@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from backend import events
-from backend.errors import Cancelled, IGSError
-from backend.io_utils import write_json
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.errors import Cancelled, IGSError
 
 MATCHING = ("auto", "sequential", "exhaustive")
 

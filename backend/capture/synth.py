@@ -44,22 +44,22 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from backend import events
 from backend.capture import synth_blender, synth_scene
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import write_model
 from backend.capture.exr_layers import passes, read_multilayer_exr
-from backend.capture.imageio import (
+from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
+from backend.core import events
+from backend.core.atomic_io import atomic_path, write_json
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.imageio import (
     linear_to_srgb,
     read_image,
     write_depth,
     write_exr,
     write_image,
 )
-from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
-from backend.capture.workspace import Workspace
-from backend.errors import IGSError
-from backend.io_utils import atomic_path, write_json
+from backend.core.workspace import Workspace
 
 SETTINGS_FILE = "gt/synth_settings.json"
 POINTS_DIR = "gt/synth_points"

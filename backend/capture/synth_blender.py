@@ -32,13 +32,13 @@ from typing import Any
 
 import numpy as np
 
-from backend import events
 from backend.capture import synth_blender_protocol as wire
 from backend.capture import synth_scene, synth_textures
-from backend.capture.cameras import Camera
 from backend.capture.exr_layers import passes, read_multilayer_exr
 from backend.capture.synth_blender_cycles import CyclesParams
-from backend.errors import IGSError
+from backend.core import events
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 
 RENDERERS = ("auto", "module", "binary")
 WORKER = Path(__file__).with_name("synth_blender_worker.py")

@@ -3,7 +3,7 @@
 This is the part of a synthetic render that talks to Blender. It runs in the backend's process when
 that has the bpy module (``--renderer module``) and inside a Blender binary's own Python otherwise
 (:mod:`backend.capture.synth_blender_worker`), so it imports only numpy, bpy/mathutils and
-:mod:`backend.capture.cameras`. Both renderers then read the EXR with
+:mod:`backend.core.cameras`. Both renderers then read the EXR with
 :func:`backend.capture.exr_layers.read_multilayer_exr`.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from backend.capture.cameras import Camera, blender_matrix_world
+from backend.core.cameras import Camera, blender_matrix_world
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from backend.capture import synth_scene
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 
 _LENGTH = struct.Struct("<I")
 POLL_S = 0.2

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from backend.capture import synth_textures as tex
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 
 # Room extents in metres: x in [-3, 3], y in [-2.5, 2.5], floor at z = 0, ceiling at z = 2.8.
 ROOM_HALF_X, ROOM_HALF_Y, ROOM_HEIGHT = 3.0, 2.5, 2.8

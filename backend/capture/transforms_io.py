@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.capture.cameras import Camera
 from backend.capture.undistort import Intrinsics
-from backend.errors import IGSError
-from backend.io_utils import write_json
-from backend.paths import inside
+from backend.core.atomic_io import write_json
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.paths import inside
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 MAX_SIDE = 16384  # pixels
@@ -98,8 +98,7 @@ def _side(spec: dict, key: str, where: str) -> int:
 
 
 def _intrinsics(spec: dict, image: Path, where: str) -> Intrinsics:
-    from backend.capture.workspace import image_file_size
-
+    from backend.capture.load import image_file_size
     size = image_file_size(image)
     w = _side(spec, "w", where) if spec.get("w") is not None else size[0]
     h = _side(spec, "h", where) if spec.get("h") is not None else size[1]

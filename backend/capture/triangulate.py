@@ -14,11 +14,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend import events
 from backend.capture.sfm import SfMConfig, token_watching_cancel
 from backend.capture.undistort import Intrinsics
-from backend.errors import Cancelled, IGSError
-from backend.io_utils import write_image_file
+from backend.core import events
+from backend.core.atomic_io import write_image_file
+from backend.core.errors import Cancelled, IGSError
 
 
 def _dlt(P: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from backend.capture.cameras import Camera
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 

@@ -14,9 +14,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend import events
-from backend.errors import IGSError
-from backend.io_utils import write_image_file, write_json
+from backend.core import events
+from backend.core.atomic_io import write_image_file, write_json
+from backend.core.errors import IGSError
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".mts", ".m2ts", ".3gp")
 

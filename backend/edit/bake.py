@@ -38,10 +38,14 @@ import cv2
 import numpy as np
 import torch
 
-from backend import events
-from backend.capture.cameras import Camera
-from backend.capture.imageio import linear_to_srgb
-from backend.capture.workspace import Capture, Workspace, load_capture, split_frames
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb
+from backend.core.paths import plain_name
+from backend.core.workspace import Capture, Workspace, split_frames
 from backend.edit.composite import composite_over_albedo
 from backend.edit.mesh_raster import ProxyRender, RasterConfig, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, load_proxy, save_proxy
@@ -52,9 +56,6 @@ from backend.edit.views import (
     proxy_target,
     spawn_points_on_proxy,
 )
-from backend.errors import IGSError
-from backend.io_utils import write_json
-from backend.paths import plain_name
 from backend.render import RenderOutput, render
 from backend.render.projection import EPS2D
 from backend.splats.gaussians import FILTER, GaussianSet

@@ -24,10 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from backend import events
 from backend import options as opt
-from backend.capture.imageio import read_linear
-from backend.capture.workspace import load_capture
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import read_linear
+from backend.core.paths import plain_name
 from backend.edit.bake import (
     EDIT_JSON,
     BakeConfig,
@@ -42,9 +45,6 @@ from backend.edit.proxy import ProxyMesh, load_proxy, plane_proxy, save_proxy
 from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.texture import textured_from_view
-from backend.errors import IGSError
-from backend.io_utils import write_json
-from backend.paths import plain_name
 from backend.train.device import add_device_argument
 from backend.train.views import view_camera
 

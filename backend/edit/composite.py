@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.edit.mesh_raster import GRAZING_COS, ProxyRender
 
 

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.edit.mesh_raster import GRAZING_COS, pixel_rays
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
 from backend.edit.ransac import (
@@ -44,7 +45,6 @@ from backend.edit.ransac import (
     robust_size,
 )
 from backend.edit.views import PixelRect, check_proxy_visible, rect_to_pixels
-from backend.errors import IGSError
 
 DEFAULT_COLOR = (0.5, 0.5, 0.5)
 MIN_SELECTED = 20

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.edit.proxy import ProxyMesh
 
 GRAZING_COS = 0.15

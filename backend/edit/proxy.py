@@ -71,9 +71,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from backend.capture.imageio import linear_to_srgb, read_linear
-from backend.errors import IGSError
-from backend.io_utils import write_image_file, write_json
+from backend.core.atomic_io import write_image_file, write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, read_linear
 
 PROXY_SCHEMA = 1
 DEGENERATE_AREA_RATIO = 1e-10

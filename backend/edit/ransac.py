@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 AUTO_THRESHOLD_RATIO = 0.02
 MIN_PLANE_POINTS = 3

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from backend.capture.imageio import read_depth
-from backend.capture.workspace import Capture, split_frames
+from backend.core.errors import IGSError
+from backend.core.imageio import read_depth
+from backend.core.workspace import Capture, split_frames
 from backend.edit.views import unproject
-from backend.errors import IGSError
 
 GROW_ON = ("auto", "depth", "centres")
 EDGE_REL = 0.05

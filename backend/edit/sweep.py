@@ -19,11 +19,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import ProxyMesh
 from backend.edit.texture import textured_from_view
-from backend.errors import IGSError
 
 
 @dataclass(frozen=True)

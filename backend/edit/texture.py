@@ -15,10 +15,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.edit.mesh_raster import ProxyRender, RasterConfig, rasterize_proxy, sample_texture
 from backend.edit.proxy import ProxyMesh
-from backend.errors import IGSError
 
 
 def uv_surface_points(proxy: ProxyMesh, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.edit.mesh_raster import GRAZING_COS, ProxyRender, RasterConfig, pixel_rays, rasterize_proxy
 from backend.edit.proxy import ProxyMesh
-from backend.errors import IGSError
 
 # ----------------------------------------------------------------------------------------------
 # The rectangle

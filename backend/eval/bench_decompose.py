@@ -31,9 +31,9 @@ from typing import Any
 
 import torch
 
-from backend import events
-from backend.errors import IGSError
-from backend.io_utils import write_json
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
 from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations

@@ -38,15 +38,16 @@ from typing import Any
 
 import numpy as np
 
-from backend.capture.imageio import linear_to_srgb, read_exr, read_image, read_linear, srgb_to_linear
-from backend.capture.workspace import load_capture, split_frames
+from backend.capture.load import load_capture
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, read_exr, read_image, read_linear, srgb_to_linear
+from backend.core.workspace import split_frames
 from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load_albedo, render_albedo
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
 from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
-from backend.errors import IGSError
-from backend.io_utils import write_json
 
 EDITS = ("wall_decal", "rug_recolor", "column_decal")
 

@@ -30,10 +30,10 @@ from pathlib import Path
 import numba
 import torch
 
-from backend import events
-from backend.errors import IGSError
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
 from backend.eval.bench_scene import room_camera, room_gaussians, room_layers
-from backend.io_utils import write_json
 from backend.render import Splats, gsplat_available, render, render_layers
 from backend.render import cpu as cpu_backend
 from backend.render import threads as render_threads
@@ -143,7 +143,7 @@ def _to(s: Splats, device: torch.device) -> Splats:
 def workspace_scene(root: str, n: int, width: int, seed: int) -> tuple[Splats, object]:
     """A random subset of ``n`` Gaussians of a trained albedo layer, and the first camera of the
     capture scaled to ``width`` (the capture's aspect ratio is kept)."""
-    from backend.capture.workspace import load_capture
+    from backend.capture.load import load_capture
     from backend.splats.ply import read_ply
 
     g, _ = read_ply(Path(root) / "layers" / "albedo.ply")

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
+from backend.core.rotations import rotmat_to_qvec
 from backend.render.api import Splats
 
 ROOM = (3.0, 2.5, 2.8)  # half x, half y, height (metres), as the demo room
@@ -79,23 +80,6 @@ def _frame(n: np.ndarray) -> np.ndarray:
     t /= np.linalg.norm(t, axis=1, keepdims=True)
     b = np.cross(n, t)
     return np.stack([t, b, n], axis=2)
-
-
-def _rotmats_to_quats(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices (M, 3, 3) -> unit quaternions (M, 4) wxyz (batched Bar-Itzhack eigenvector)."""
-    K = np.zeros((len(R), 4, 4))
-    K[:, 0, 0] = R[:, 0, 0] - R[:, 1, 1] - R[:, 2, 2]
-    K[:, 1, 0] = K[:, 0, 1] = R[:, 1, 0] + R[:, 0, 1]
-    K[:, 1, 1] = R[:, 1, 1] - R[:, 0, 0] - R[:, 2, 2]
-    K[:, 2, 0] = K[:, 0, 2] = R[:, 2, 0] + R[:, 0, 2]
-    K[:, 2, 1] = K[:, 1, 2] = R[:, 2, 1] + R[:, 1, 2]
-    K[:, 2, 2] = R[:, 2, 2] - R[:, 0, 0] - R[:, 1, 1]
-    K[:, 3, 0] = K[:, 0, 3] = R[:, 2, 1] - R[:, 1, 2]
-    K[:, 3, 1] = K[:, 1, 3] = R[:, 0, 2] - R[:, 2, 0]
-    K[:, 3, 2] = K[:, 2, 3] = R[:, 1, 0] - R[:, 0, 1]
-    K[:, 3, 3] = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
-    vecs = np.linalg.eigh(K / 3.0)[1][:, :, -1]  # eigenvector of the largest eigenvalue: (x, y, z, w)
-    return np.concatenate([vecs[:, 3:], vecs[:, :3]], axis=1)
 
 
 def _surface_samples(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,7 +142,7 @@ def room_gaussians(n: int, seed: int = 0, kind: str = "albedo") -> Splats:
     c, s = np.cos(spin), np.sin(spin)
     Rz = np.zeros((len(pos), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1
-    quats = _rotmats_to_quats(R @ Rz)
+    quats = rotmat_to_qvec(R @ Rz)
     scales = np.stack([s_u, s_v, s_n], axis=1)
     # Trained surfaces: most Gaussians nearly opaque, a long tail of translucent ones.
     opac = np.where(rng.uniform(size=len(pos)) < 0.6, rng.beta(8, 1, len(pos)), rng.beta(1.2, 2.5, len(pos)))

@@ -17,10 +17,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend.capture.imageio import linear_to_srgb, read_exr, read_image, srgb_to_linear
-from backend.capture.workspace import load_capture, split_frames
-from backend.errors import IGSError
-from backend.io_utils import write_json
+from backend.capture.load import load_capture
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, read_exr, read_image, srgb_to_linear
+from backend.core.workspace import split_frames
 
 
 def ceilings(ws: Path, edit: str, sigmas: list[float]) -> dict[str, float]:

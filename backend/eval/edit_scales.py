@@ -17,11 +17,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend.capture.imageio import linear_to_srgb, read_image, srgb_to_linear
-from backend.capture.workspace import load_capture, split_frames
+from backend.capture.load import load_capture
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
+from backend.core.workspace import split_frames
 from backend.edit.bake import render_albedo
-from backend.errors import IGSError
-from backend.io_utils import write_json
 from backend.splats.ply import read_ply
 from backend.train.views import view_camera
 

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend.capture.imageio import read_exr, read_image, srgb_to_linear
-from backend.capture.workspace import Frame
+from backend.core.imageio import read_exr, read_image, srgb_to_linear
+from backend.core.workspace import Frame
 from backend.eval.metrics import image_metrics, mean_metrics, psnr
 from backend.render import Splats, render_layers
 from backend.render.threads import torch_threads

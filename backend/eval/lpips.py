@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 _CHANNELS = (64, 192, 384, 256, 256)
 # LPIPS's input normalisation for inputs in [-1, 1]

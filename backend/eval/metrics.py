@@ -14,9 +14,9 @@ from typing import Any
 
 import torch
 
-from backend.errors import IGSError
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
 from backend.eval.lpips import load_lpips
-from backend.io_utils import write_json
 from backend.train.losses import ssim as _ssim
 
 

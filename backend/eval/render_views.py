@@ -33,14 +33,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend import events
 from backend import options as opt
-from backend.capture.cameras import Camera, from_blender_matrix_world
-from backend.capture.imageio import linear_to_srgb, write_image
-from backend.capture.workspace import load_capture
-from backend.errors import IGSError
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.cameras import Camera, from_blender_matrix_world
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, write_image
+from backend.core.paths import plain_name
 from backend.eval.video import Mp4Writer
-from backend.paths import plain_name
 from backend.render import render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend.capture.imageio import write_image
+from backend.core.imageio import write_image
 
 Row = tuple[str, Sequence[tuple[str, "np.ndarray | None"]]]
 _FONT = cv2.FONT_HERSHEY_SIMPLEX

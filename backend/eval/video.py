@@ -15,8 +15,8 @@ from pathlib import Path
 import av
 import numpy as np
 
-from backend.errors import IGSError
-from backend.io_utils import os_error
+from backend.core.atomic_io import os_error
+from backend.core.errors import IGSError
 
 CRF = 18
 """x264 constant rate factor: 18 is visually lossless for renders, about 1/10 of the PNGs' size."""

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.capture.imageio import linear_to_srgb
-from backend.errors import IGSError
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb
 from backend.priors.folder import FolderMaps, PriorFrame, read_map
 
 ALBEDO_SPECS = "none, gt, folder:<path>, marigold:<model dir>"

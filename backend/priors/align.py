@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.capture.cameras import Camera
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 
 PRED_KINDS = ("depth", "disparity")
 FIT_MODELS = ("scale", "scale_shift")

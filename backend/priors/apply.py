@@ -22,19 +22,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend import events
-from backend.capture.cameras import Camera
 from backend.capture.colmap_io import check_camera, read_model
-from backend.capture.imageio import check_image_file
+from backend.capture.load import load_capture
 from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
-from backend.capture.workspace import CAPTURE_SCHEMA, Workspace, load_capture
-from backend.errors import IGSError
-from backend.io_utils import atomic_path, write_image_file, write_json
+from backend.core import events
+from backend.core.atomic_io import atomic_path, write_image_file, write_json
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.imageio import check_image_file
+from backend.core.staging import Staging
+from backend.core.workspace import CAPTURE_SCHEMA, Workspace
 from backend.priors.albedo import AlbedoOptions, AlbedoPredictor, make_albedo_predictor
 from backend.priors.align import AlignConfig, align_depth, points_in_view
 from backend.priors.depth import DepthOptions, DepthPredictor, make_depth_predictor
 from backend.priors.folder import PriorFrame
-from backend.staging import Staging
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 
 @dataclass(frozen=True)

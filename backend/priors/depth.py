@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.priors.folder import FolderMaps, PriorFrame, read_map
 
 DEPTH_SPECS = "none, gt, folder:<path>, depth-anything:<model dir>"

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 MAP_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".npy", ".webp", ".bmp")
 
@@ -78,7 +78,7 @@ class FolderMaps:
 def read_map(path: Path) -> np.ndarray:
     """A map file as float32: (H, W, 3) for colour images (values as stored, [0, 1] for 8/16-bit),
     (H, W) for single-channel images and .npy arrays; EXR keeps its linear values."""
-    from backend.capture.imageio import check_image_file, read_exr, read_image
+    from backend.core.imageio import check_image_file, read_exr, read_image
 
     check_image_file(path)
     suffix = path.suffix.lower()

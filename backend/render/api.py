@@ -3,7 +3,7 @@ sets for one camera in a single fused pass), with the ``reference``, ``cpu`` and
 
 Conventions: world-to-camera ``x_cam = R x + t`` with OpenCV axes (x right, y down, +z forward);
 pixel ``(i, j)`` is evaluated at ``(i + 0.5, j + 0.5)`` in the coordinates of
-:meth:`backend.capture.cameras.Camera.project`; Gaussians with ``z <= near`` are culled. Quaternions
+:meth:`backend.core.cameras.Camera.project`; Gaussians with ``z <= near`` are culled. Quaternions
 are wxyz (any norm), opacities are in [0, 1] (activated), scales are activated unless
 ``log_scales=True``. Colours are (N, C) features (any C) or, with ``sh_degree``, (N, K, C) spherical
 harmonics evaluated from the camera centre as ``max(SH + 0.5, 0)`` (3DGS).
@@ -19,8 +19,8 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from backend.capture.cameras import Camera
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.render import cpu as cpu_backend
 from backend.render import cpu_sh, reference
 from backend.render.projection import EPS2D, CameraTensors, check_gaussians, project

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import torch
 
-from backend.capture.cameras import Camera
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 from backend.render.projection import EPS2D
 
 

@@ -3,7 +3,7 @@
 Shared by the ``reference`` and ``cpu`` backends. It is O(N) and cheap; the expensive part is the
 per-pixel blending in ``reference.py`` / ``cpu_kernel.py``.
 
-Conventions (the same as :meth:`backend.capture.cameras.Camera.project`, 3DGS and gsplat):
+Conventions (the same as :meth:`backend.core.cameras.Camera.project`, 3DGS and gsplat):
 a camera point ``(x, y, z)`` lands at ``u = fx * x / z + cx``, ``v = fy * y / z + cy`` in continuous
 pixel coordinates, and pixel ``(i, j)`` (column i, row j) is evaluated at its centre
 ``(i + 0.5, j + 0.5)``. Gaussians with ``z <= near`` or ``z >= far`` are culled.
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from backend.capture.cameras import Camera
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
 
 ALPHA_MIN = 1.0 / 255.0  # contributions below this alpha are skipped (3DGS)
 EPS2D = 0.3  # low-pass dilation added to the 2D covariance, in pixels^2 (3DGS)

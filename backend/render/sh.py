@@ -11,7 +11,7 @@ import math
 import torch
 from torch import Tensor
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 # Normalisation constants of the real SH basis: sqrt((2l+1)/(4 pi) * (l-|m|)!/(l+|m|)!) with the
 # Condon-Shortley sign folded in, as every 3DGS-compatible viewer uses them.

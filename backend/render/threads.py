@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 _lock = threading.Lock()
 _state: dict = {"threads": None, "executor": None, "helpers": 0}

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
 from backend.splats.gaussians import GaussianSet
 
 

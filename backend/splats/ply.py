@@ -33,8 +33,8 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
-from backend.errors import IGSError
-from backend.io_utils import write_bytes
+from backend.core.atomic_io import write_bytes
+from backend.core.errors import IGSError
 from backend.splats.gaussians import C0, FILTER, KINDS, SH_KINDS, GaussianSet, sh_coeffs
 
 ENCODINGS = {"albedo": "rgb01", "shading": "rgb", "residual": "sh", "radiance": "sh"}

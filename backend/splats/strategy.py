@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
+from backend.core.cameras import Camera
+from backend.render.projection import quat_to_rotmat
 from backend.splats.gaussians import GaussianSet
 
 # render_features(camera, colors (N, C)) -> object with .color (H, W, C) and .alpha (H, W)
@@ -232,7 +233,7 @@ class DensifyStrategy:
         k = cfg.split_samples
         parent = {name: v[split] for name, v in raw.items()}
         scales = torch.exp(parent["log_scales"])
-        rot = quat_to_rotmat(torch.nn.functional.normalize(parent["quats"], dim=-1))
+        rot = quat_to_rotmat(parent["quats"])  # normalises
         # drawn on the CPU generator on every device: one random stream, saved in checkpoints
         noise = torch.randn(k, *scales.shape).to(scales.device) * scales
         child_means = (parent["means"] + torch.einsum("nij,knj->kni", rot, noise)).reshape(-1, 3)
@@ -320,16 +321,6 @@ def floater_scores(gaussians: GaussianSet, cameras: Sequence[Camera], render_fea
         flagged += torch.where(front, cover, torch.zeros_like(cover))
         seen += cover
     return flagged, seen
-
-
-def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    """(N, 4) unit wxyz quaternions -> (N, 3, 3) rotation matrices."""
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(*q.shape[:-1], 3, 3)
 
 
 def scene_extent(cameras: Sequence[Camera]) -> float:

@@ -14,10 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from backend import events
-from backend.capture.imageio import read_depth, read_image
-from backend.capture.workspace import Capture, load_capture, split_frames
-from backend.errors import IGSError
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.errors import IGSError
+from backend.core.imageio import read_depth, read_image
+from backend.core.workspace import Capture, split_frames
 from backend.eval.metrics import merge_metrics
 from backend.splats.gaussians import GaussianSet
 from backend.splats.init import (

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from backend import events
 from backend import options as opt
-from backend.errors import IGSError
+from backend.core import events
+from backend.core.errors import IGSError
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
 from backend.train.loop import TrainConfig

@@ -6,9 +6,9 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
-from backend import events
 from backend import options as opt
-from backend.errors import IGSError
+from backend.core import events
+from backend.core.errors import IGSError
 from backend.train.device import add_device_argument
 from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations
 from backend.train.single_set import SCHEDULES, decompose_single_set

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 from backend.render import gsplat_available
 
 DEVICES = ("auto", "cpu", "cuda")

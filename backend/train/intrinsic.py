@@ -31,14 +31,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend import events
-from backend.capture.cameras import Camera
-from backend.capture.workspace import Capture, Frame, capture_summary, load_capture, split_frames
-from backend.errors import IGSError
+from backend.capture.load import capture_summary, load_capture
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.workspace import Capture, Frame, split_frames
 from backend.eval.layer_metrics import evaluate_layers, report_rows
 from backend.eval.metrics import merge_metrics
 from backend.eval.report import write_report
-from backend.io_utils import write_json
 from backend.render import RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.splats.init import InitConfig, backproject, from_points

@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend import events
-from backend.errors import Cancelled, IGSError
+from backend.core import events
+from backend.core.atomic_io import clean_stale_tmp, os_error, write_bytes, write_json
+from backend.core.errors import Cancelled, IGSError
 from backend.eval.metrics import image_metrics, mean_metrics
-from backend.io_utils import clean_stale_tmp, os_error, write_bytes, write_json
 from backend.render import RenderOutput, render
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import SH_KINDS, GaussianSet
@@ -389,7 +389,7 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     ``resume``: continue from the checkpoint in ``ckpt_dir`` when there is one (otherwise it is
     deleted and the run starts over). ``stop_after``: return once this many iterations are done
     (after writing a checkpoint), as if the process had been stopped there — used by tests.
-    Cancel (SIGINT/SIGTERM via :mod:`backend.events`) writes a checkpoint and raises :class:`Cancelled`.
+    Cancel (SIGINT/SIGTERM via :mod:`backend.core.events`) writes a checkpoint and raises :class:`Cancelled`.
     Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
     """
     with torch_threads():

@@ -35,8 +35,8 @@ from typing import Any
 import torch
 from torch import nn
 
-from backend import events
-from backend.errors import IGSError
+from backend.core import events
+from backend.core.errors import IGSError
 from backend.render import RenderOutput, render
 from backend.render.sh import sh_to_color
 from backend.splats.gaussians import GEOMETRY, GaussianSet, rgb_to_color_params

@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import torch
 
-from backend.capture.cameras import Camera
-from backend.capture.imageio import linear_to_srgb, read_depth, read_image, srgb_to_linear
-from backend.capture.workspace import Frame
-from backend.errors import IGSError
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, read_depth, read_image, srgb_to_linear
+from backend.core.workspace import Frame
 
 COLOR_SPACES = ("srgb", "linear")
 

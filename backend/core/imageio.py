@@ -21,8 +21,8 @@ os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(1 << 28))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from backend.errors import IGSError  # noqa: E402
-from backend.io_utils import write_bytes, write_image_file  # noqa: E402
+from backend.core.atomic_io import write_bytes, write_image_file  # noqa: E402
+from backend.core.errors import IGSError  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -153,7 +153,7 @@ def write_depth(path: str | Path, depth: np.ndarray) -> None:
 
 
 def npy_bytes(array: np.ndarray) -> bytes:
-    """``array`` in the .npy format, in memory (written with :func:`backend.io_utils.write_bytes`)."""
+    """``array`` in the .npy format, in memory (written with :func:`backend.core.atomic_io.write_bytes`)."""
     buf = io.BytesIO()
     np.save(buf, array, allow_pickle=False)
     return buf.getvalue()

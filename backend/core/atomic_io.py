@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 TMP_MARK = ".tmp"
 _TMP_RE = re.compile(r"^\..+\.(?:(\d+)-)?[A-Za-z0-9_]{8}\.tmp(?:\.[^.]*)?$")

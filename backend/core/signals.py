@@ -1,7 +1,7 @@
 """SIGINT/SIGTERM as cancel requests, installable before any heavy import.
 
 The first signal sets :data:`cancel_event`; long loops check it and stop at their next checkpoint
-(:func:`backend.events.check_cancel`). A second signal stops the process at once with exit code
+(:func:`backend.core.events.check_cancel`). A second signal stops the process at once with exit code
 130: writes are atomic, so nothing half-written is left in place. This module imports only the
 standard library, so ``python -m backend`` installs it first and a Ctrl-C while torch and the
 commands load is a cancel, not a KeyboardInterrupt traceback.

@@ -91,31 +91,6 @@ class Camera:
         return Camera(name, width, height, fx, fx, width / 2, height / 2, R, -R @ eye)
 
 
-def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) to a 3x3 rotation matrix."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
-    """3x3 rotation matrix to a unit quaternion (w, x, y, z) with w >= 0."""
-    R = np.asarray(R, dtype=np.float64)
-    K = np.array([
-        [R[0, 0] - R[1, 1] - R[2, 2], 0, 0, 0],
-        [R[1, 0] + R[0, 1], R[1, 1] - R[0, 0] - R[2, 2], 0, 0],
-        [R[2, 0] + R[0, 2], R[2, 1] + R[1, 2], R[2, 2] - R[0, 0] - R[1, 1], 0],
-        [R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], R[0, 0] + R[1, 1] + R[2, 2]],
-    ]) / 3.0
-    vals, vecs = np.linalg.eigh(K)
-    x, y, z, w = vecs[:, np.argmax(vals)]
-    q = np.array([w, x, y, z])
-    return -q if q[0] < 0 else q
-
-
 # OpenCV/COLMAP camera axes (y down, looking +z) vs Blender's (y up, looking -z).
 CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 

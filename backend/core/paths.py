@@ -12,7 +12,7 @@ import os
 import re
 from pathlib import Path
 
-from backend.errors import IGSError
+from backend.core.errors import IGSError
 
 _PLAIN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\- ]*$")
 

@@ -29,8 +29,8 @@ from typing import Any
 
 from tqdm import tqdm
 
-from backend import signals
-from backend.errors import Cancelled
+from backend.core import signals
+from backend.core.errors import Cancelled
 
 _state = {"json": False}
 _cancel = signals.cancel_event
@@ -100,7 +100,7 @@ def check_cancel() -> None:
 
 def install_signal_handlers() -> None:
     """SIGINT/SIGTERM set the cancel flag; long loops call :func:`check_cancel` and stop cleanly;
-    a second signal ends the process at once with 130 (:mod:`backend.signals`)."""
+    a second signal ends the process at once with 130 (:mod:`backend.core.signals`)."""
     try:  # importing pycolmap installs glog's C-level SIGTERM handler over Python's: import it first
         import pycolmap  # noqa: F401
     except ImportError:

@@ -15,8 +15,8 @@ import os
 import shutil
 from pathlib import Path
 
-from backend.errors import IGSError
-from backend.io_utils import write_json
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
 
 STAGING_DIR = ".staging"
 JOURNAL = "journal.json"
