@@ -22,7 +22,7 @@ import torch
 
 from backend.core.cameras import Camera
 from backend.core.rotations import rotmat_to_qvec
-from backend.render.api import Splats
+from backend.render import Splats
 
 ROOM = (3.0, 2.5, 2.8)  # half x, half y, height (metres), as the demo room
 LAYER_SHARE = {"albedo": 0.61, "shading": 0.36, "residual": 0.03}

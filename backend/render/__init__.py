@@ -6,15 +6,8 @@ fused pass. Backends: ``reference`` (pure torch, the oracle), ``cpu`` (compiled 
 hand-written backward), ``gsplat`` (CUDA); ``auto`` picks gsplat on CUDA when installed, else cpu.
 """
 
-from backend.render.api import (
-    BACKENDS,
-    RenderOutput,
-    Splats,
-    gsplat_available,
-    render,
-    render_layers,
-    resolve_backend,
-)
+from backend.render.api import gsplat_available, render, render_layers, resolve_backend
+from backend.render.types import BACKENDS, Backend, RenderOutput, Splats
 
-__all__ = ["BACKENDS", "RenderOutput", "Splats", "gsplat_available", "render", "render_layers",
+__all__ = ["BACKENDS", "Backend", "RenderOutput", "Splats", "gsplat_available", "render", "render_layers",
            "resolve_backend"]

@@ -17,7 +17,9 @@ import torch
 
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
+from backend.render.fused import render_fused
 from backend.render.projection import EPS2D
+from backend.render.types import Background, RenderOutput, Splats, over_background
 
 
 def _require_gsplat():
@@ -32,14 +34,12 @@ def _require_gsplat():
     return gsplat
 
 
-def render_splats(splats, camera: Camera, background, near: float, far: float, return_ids: bool,
-                  eps2d: float | torch.Tensor = EPS2D):
-    """Render one :class:`backend.render.api.Splats` with gsplat. Returns a RenderOutput.
+def render_splats(splats: Splats, camera: Camera, background: Background, near: float, far: float,
+                  return_ids: bool, eps2d: float | torch.Tensor = EPS2D) -> RenderOutput:
+    """Render one set of Gaussians with gsplat.
 
     eps2d: the low-pass variance of every Gaussian (gsplat takes one per call); a (N,) tensor of
     different values is refused (``auto`` renders those with the reference backend instead)."""
-    from backend.render.api import RenderOutput, _background  # noqa: PLC0415 (api imports this module lazily)
-
     gsplat = _require_gsplat()
     means = splats.means
     if means.device.type != "cuda":
@@ -48,7 +48,7 @@ def render_splats(splats, camera: Camera, background, near: float, far: float, r
         raise IGSError("backend 'gsplat' takes one screen-space low-pass per render; these Gaussians carry "
                        "several (an edit's sharp Gaussians): use backend 'auto' or 'reference'")
     dtype = torch.float32
-    scales = torch.exp(splats.scales) if splats.log_scales else splats.scales
+    scales = splats.activated_scales
     viewmats = torch.as_tensor(camera.world_to_cam, device=means.device, dtype=dtype)[None]
     Ks = torch.as_tensor(camera.K, device=means.device, dtype=dtype)[None]
     colors = splats.colors.to(dtype)
@@ -58,12 +58,9 @@ def render_splats(splats, camera: Camera, background, near: float, far: float, r
         eps2d=float(eps2d), sh_degree=splats.sh_degree, packed=False, tile_size=16, backgrounds=None,
         render_mode="RGB+ED", rasterize_mode="classic")
     n_ch = colors.shape[-1]
-    color = render_colors[0, ..., :n_ch]
     depth = render_colors[0, ..., n_ch]
     alpha = render_alphas[0, ..., 0]
-    bg = _background(background, n_ch, means.device, dtype, 0)
-    if bg is not None:
-        color = color + (1.0 - alpha)[..., None] * bg
+    color = over_background(render_colors[0, ..., :n_ch], alpha, background, 0)
     node = meta["means2d"]  # (1, N, 2) in pixels; keep the graph node so its .grad fills in
     if node.requires_grad:
         node.retain_grad()
@@ -75,10 +72,10 @@ def render_splats(splats, camera: Camera, background, near: float, far: float, r
 
 
 @torch.no_grad()
-def _reference_ids(splats, camera: Camera, near: float, far: float) -> torch.Tensor:
-    from backend.render.api import _render_fused  # noqa: PLC0415
-
-    plain = type(splats)(splats.means, splats.quats, splats.scales, splats.opacities,
-                         splats.colors[..., :1] if splats.sh_degree is None else splats.colors[:, :1, :1],
-                         0 if splats.sh_degree is not None else None, splats.log_scales, splats.eps2d)
-    return _render_fused([plain], camera, [None], near, far, "reference", True)[0].ids
+def _reference_ids(splats: Splats, camera: Camera, near: float, far: float) -> torch.Tensor:
+    """(H, W) max-contributor ids from the reference rasterizer; the colours do not matter, so one
+    channel (or the SH DC term) is blended."""
+    plain = Splats(splats.means, splats.quats, splats.scales, splats.opacities,
+                   splats.colors[..., :1] if splats.sh_degree is None else splats.colors[:, :1, :1],
+                   0 if splats.sh_degree is not None else None, splats.log_scales, splats.eps2d)
+    return render_fused([plain], camera, [None], near, far, "reference", True)[0].ids

@@ -1,0 +1,123 @@
+"""What the renderer takes and gives back, shared by its backends: :class:`Splats` (one set of
+Gaussians), :class:`RenderOutput` (one rendered set), the backend names and the background expansion."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal, get_args
+
+import torch
+from torch import Tensor
+
+from backend.core.errors import IGSError
+from backend.render.projection import EPS2D
+
+Backend = Literal["auto", "reference", "cpu", "gsplat"]
+BACKENDS: tuple[Backend, ...] = get_args(Backend)
+
+Background = Tensor | float | Sequence[float] | None
+"""A background colour: (C,) values, one value for every channel, or None (0)."""
+
+
+@dataclass
+class Splats:
+    """One set of Gaussians as plain tensors."""
+
+    means: Tensor
+    """(N, 3) world-space centres."""
+    quats: Tensor
+    """(N, 4) rotations as quaternions (w, x, y, z), not necessarily normalised."""
+    scales: Tensor
+    """(N, 3) per-axis standard deviations, or their logarithms when ``log_scales``."""
+    opacities: Tensor
+    """(N,) opacities in [0, 1]."""
+    colors: Tensor
+    """(N, C) features, or (N, K, C) SH coefficients when ``sh_degree`` is set."""
+    sh_degree: int | None = None
+    """SH bands to evaluate (0..3, the first (d+1)^2 of K coefficients); None: ``colors`` are features."""
+    log_scales: bool = False
+    """``scales`` hold log-scales (the raw 3DGS parameters)."""
+    eps2d: Tensor | float | None = None
+    """Screen-space low-pass: the variance (pixels^2) added to each projected covariance, one value or
+    (N,) per Gaussian; None: :data:`EPS2D` (0.3, as 3DGS and gsplat). Gaussians fitted to sharp detail
+    (an edit's texture) carry a smaller one."""
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def num_channels(self) -> int:
+        return self.colors.shape[-1]
+
+    @property
+    def activated_scales(self) -> Tensor:
+        """(N, 3) standard deviations, whichever form ``scales`` holds."""
+        return torch.exp(self.scales) if self.log_scales else self.scales
+
+    def low_pass(self, layer: int) -> Tensor | float:
+        """The checked ``eps2d``: a float when every Gaussian has the same value (the common case, and
+        the only one gsplat takes), else (N,). ``layer`` names the set in error messages."""
+        e = self.eps2d
+        if e is None:
+            return EPS2D
+        if torch.is_tensor(e) and e.numel() == 1:
+            e = e.reshape(-1)[0].item()
+        if not torch.is_tensor(e):
+            e = float(e)
+            if not e >= 0.0:
+                raise IGSError(f"layer {layer}: eps2d must be >= 0, got {e}")
+            return e
+        if tuple(e.shape) != (len(self),):
+            raise IGSError(f"layer {layer}: eps2d must be a scalar or ({len(self)},) to match means, "
+                           f"got {tuple(e.shape)}")
+        e = e.detach()
+        if bool((e < 0).any()) or not bool(torch.isfinite(e).all()):
+            raise IGSError(f"layer {layer}: eps2d must be finite and >= 0")
+        if len(self) == 0 or bool((e == e[0]).all()):
+            return float(e[0]) if len(self) else EPS2D
+        return e
+
+
+@dataclass
+class RenderOutput:
+    """What one render returns (one layer of :func:`backend.render.render_layers`)."""
+
+    color: Tensor
+    """(H, W, C) blended colour with the background behind: sum_i w_i c_i + (1 - alpha) * background."""
+    depth: Tensor
+    """(H, W) expected camera z: sum_i w_i z_i / alpha (0 where alpha is 0)."""
+    alpha: Tensor
+    """(H, W) accumulated opacity, 1 - final transmittance."""
+    ids: Tensor | None
+    """(H, W) int64 index of the Gaussian with the largest blending weight, -1 for none; None unless asked."""
+    means2d: Tensor
+    """(N, 2) projected centres in pixels. Its gradient (``means2d_grad`` after backward) is the
+    screen-space gradient densification uses, in pixel units."""
+    radii: Tensor
+    """(N,) int32 screen-space radius in pixels (0: culled or off-screen)."""
+    _means2d_node: Tensor | None = field(default=None, repr=False)
+
+    @property
+    def visible(self) -> Tensor:
+        """(N,) bool: the Gaussian reached at least one pixel's bounding box."""
+        return self.radii > 0
+
+    @property
+    def means2d_grad(self) -> Tensor | None:
+        """(N, 2) d loss / d means2d after ``backward()`` (None before, or without gradients)."""
+        node = self.means2d if self._means2d_node is None else self._means2d_node
+        return None if node.grad is None else node.grad.reshape(-1, 2)
+
+
+def over_background(color: Tensor, alpha: Tensor, background: Background, layer: int) -> Tensor:
+    """``color`` (H, W, C) with ``background`` behind it where ``alpha`` (H, W) leaves it visible.
+
+    ``layer`` names the set in the error for a background of the wrong size."""
+    if background is None:
+        return color
+    b = torch.as_tensor(background, device=color.device, dtype=color.dtype).reshape(-1)
+    n_channels = color.shape[-1]
+    if b.numel() not in (1, n_channels):
+        raise IGSError(f"background of layer {layer} must have 1 or {n_channels} values, got {b.numel()}")
+    return color + (1.0 - alpha)[..., None] * b
