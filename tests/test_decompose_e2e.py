@@ -17,7 +17,7 @@ from _synth_capture import needs_synth_renderer
 
 from backend.cli import main
 from backend.splats.ply import read_ply
-from backend.train.intrinsic import inverse_photometric
+from backend.train.intrinsic.stages import inverse_photometric
 from backend.train.loop import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,8 +12,10 @@ from backend.eval import report
 from backend.eval.layer_metrics import channel_scale
 from backend.splats.init import from_points
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
-from backend.train import intrinsic
-from backend.train.intrinsic import DecomposeConfig, ShadingStage, spawn_residual
+from backend.train.intrinsic import config, initial, stages
+from backend.train.intrinsic.config import DecomposeConfig
+from backend.train.intrinsic.initial import spawn_residual
+from backend.train.intrinsic.stages import ShadingStage
 from backend.train.loop import TrainConfig, make_optimizer, train
 from backend.train.single_set import LayeredGaussians, SingleSetStage
 from backend.train.views import View
@@ -34,8 +36,8 @@ def test_frozen_albedo_is_rendered_once_per_view_not_per_iteration(monkeypatch, 
     albedo = from_points(pts, cols, "albedo")
     views = [View(i, c, torch.full((c.height, c.width, 3), 0.3)) for i, c in enumerate(cams)]
     calls = []
-    real = intrinsic.render_layers
-    monkeypatch.setattr(intrinsic, "render_layers", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = stages.render_layers
+    monkeypatch.setattr(stages, "render_layers", lambda *a, **k: calls.append(1) or real(*a, **k))
     cfg = TrainConfig(iterations=12, checkpoint_every=100, backend="cpu")
     shading = from_points(pts, np.ones_like(cols), "shading")
     stage = ShadingStage("shading", shading, views[:3], views[3:], cfg, 2.0, albedo=albedo, lambda_gray=0.1,
@@ -82,7 +84,7 @@ def test_shading_starts_on_an_opacity_weighted_subset_of_the_albedo_field_at_the
         v.extras["A"] = torch.full((c.height, c.width, 3), 0.3)
         views.append(v)
     cfg = DecomposeConfig(shading_from_albedo=0.25)
-    g, how = intrinsic.shading_from_albedo(albedo, views, cfg)
+    g, how = initial.shading_from_albedo(albedo, views, cfg)
     assert g.kind == "shading" and len(g) == 50 and "50 of the albedo's 200" in how
     rows = [int(np.argmin(np.linalg.norm(pts - m, axis=1))) for m in g.means.detach().numpy()]
     assert max(rows) < 100  # drawn by opacity: the near-transparent half is (almost surely) never taken
@@ -93,7 +95,7 @@ def test_shading_starts_on_an_opacity_weighted_subset_of_the_albedo_field_at_the
     assert torch.allclose(g.colors.detach()[seen], torch.full((int(seen.sum()), 3), 2.0), atol=1e-4)
     for bad in (0.0, 1.5):
         with pytest.raises(IGSError, match="shading_from_albedo"):
-            intrinsic.shading_from_albedo(albedo, views, DecomposeConfig(shading_from_albedo=bad))
+            initial.shading_from_albedo(albedo, views, DecomposeConfig(shading_from_albedo=bad))
 
 
 def test_single_set_colours_follow_densification_and_checkpoints(tmp_path):
@@ -174,10 +176,10 @@ def test_bench_targets_without_the_single_set_report_its_target_as_not_measured(
 
 
 def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_quarters():
-    assert intrinsic.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
-    assert intrinsic.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
+    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
+    assert config.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
     cfg = DecomposeConfig()
-    assert {s: cfg.stage(s).iterations for s in intrinsic.STAGES} == intrinsic.split_iterations(cfg.albedo.iterations)
+    assert {s: cfg.stage(s).iterations for s in config.STAGES} == config.split_iterations(cfg.albedo.iterations)
     assert cfg.shading.densify.grad_threshold < cfg.albedo.densify.grad_threshold
 
 
@@ -193,7 +195,7 @@ def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
     assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 750, 500]
     assert scaled_iterations(dec, 1.0) is dec
     # --gray-weight reaches the decomposition config only when given
-    from backend.train.intrinsic import DecomposeConfig
+    from backend.train.intrinsic.config import DecomposeConfig
     assert dec.lambda_gray == DecomposeConfig().lambda_gray
     _, dec_g = configs(1000, 1.0, 5000, "cpu", 100, "cpu", gray_weight=0.02)
     assert dec_g.lambda_gray == 0.02 and dec_g.stage("shading").densify.max_gaussians == 5000

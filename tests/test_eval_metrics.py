@@ -2,8 +2,8 @@ import math
 
 import torch
 
-from backend.eval import lpips as lpips_mod
-from backend.eval.metrics import image_metrics, lpips_or_none, mean_metrics, psnr
+from backend.train import lpips as lpips_mod
+from backend.train.image_metrics import image_metrics, lpips_or_none, mean_metrics, psnr
 
 
 def test_psnr_of_known_error():

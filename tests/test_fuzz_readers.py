@@ -38,7 +38,7 @@ from backend.edit.proxy import load_proxy, plane_proxy, save_proxy
 from backend.eval.render_views import read_cameras, read_path
 from backend.priors.folder import read_map
 from backend.splats.ply import read_ply
-from backend.train.intrinsic import DecomposeState
+from backend.train.intrinsic.state import DecomposeState
 
 SEED = 30  # the number; every run mutates the same way
 TOTALS: dict[str, Tally] = {}

@@ -12,6 +12,7 @@ from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.errors import Cancelled, IGSError
 from backend.core.workspace import split_frames
+from backend.eval.baseline import record_train_3dgs
 from backend.splats.ply import read_ply
 from backend.train.baseline import BaselineConfig, initial_gaussians, train_3dgs
 from backend.train.loop import TrainConfig, load_checkpoint
@@ -103,12 +104,12 @@ def test_resume_with_other_settings_is_refused(box_ws):
 
 def test_metrics_json_keeps_other_keys(box_ws):
     box_ws.metrics_json.write_text(json.dumps({"decompose": {"psnr": 1.0}}))
-    train_3dgs(box_ws.root, small_config(8), resume=False)
+    record_train_3dgs(box_ws.root, train_3dgs(box_ws.root, small_config(8), resume=False))
     data = json.loads(box_ws.metrics_json.read_text())
     assert data["decompose"] == {"psnr": 1.0} and data["train_3dgs"]["iterations"] == 8
     box_ws.metrics_json.write_text("{broken")
     with pytest.raises(IGSError, match="metrics.json.*not valid JSON"):
-        train_3dgs(box_ws.root, small_config(8), resume=True)
+        record_train_3dgs(box_ws.root, train_3dgs(box_ws.root, small_config(8), resume=True))
     box_ws.metrics_json.unlink()
 
 

@@ -34,19 +34,29 @@ import torch
 from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.eval.baseline import record_train_3dgs
+from backend.eval.decomposition import evaluate_decomposition
+from backend.render import BACKENDS, Backend
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
-from backend.train.intrinsic import SHADING_GEOMETRIES, STAGES, DecomposeConfig, decompose, split_iterations
+from backend.train.intrinsic.config import (
+    SHADING_GEOMETRIES,
+    STAGES,
+    DecomposeConfig,
+    ShadingGeometry,
+    split_iterations,
+)
+from backend.train.intrinsic.run import decompose
 from backend.train.loop import TrainConfig
-from backend.train.single_set import SCHEDULES, decompose_single_set
+from backend.train.single_set import SCHEDULES, Schedule, decompose_single_set
 
 DEFAULT_WS = "demo"
 
 
-def configs(iterations: int, downscale: float, max_gaussians: int, backend: str,
+def configs(iterations: int, downscale: float, max_gaussians: int, backend: Backend,
             residual_points: int, device: str = "auto",
             gray_weight: float | None = None,
-            shading_geometry: str | None = None) -> tuple[BaselineConfig, DecomposeConfig]:
+            shading_geometry: ShadingGeometry | None = None) -> tuple[BaselineConfig, DecomposeConfig]:
     base = TrainConfig(iterations=iterations, backend=backend, checkpoint_every=max(iterations, 1))
     base.densify.max_gaussians = max_gaussians
     vanilla = BaselineConfig(train=base, downscale=downscale, device=device)
@@ -80,25 +90,26 @@ def _num(x: Any) -> float | None:
     return float(x) if isinstance(x, (int, float)) else None
 
 
-def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend: str,
+def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend: Backend,
         residual_points: int, single_set: bool = True, device: str = "auto",
         single_set_fraction: float = 1.0, gray_weight: float | None = None,
-        single_set_schedules: tuple[str, ...] = ("joint",),
-        shading_geometry: str | None = None) -> dict[str, Any]:
+        single_set_schedules: tuple[Schedule, ...] = ("joint",),
+        shading_geometry: ShadingGeometry | None = None) -> dict[str, Any]:
     vanilla_cfg, dec_cfg = configs(iterations, downscale, max_gaussians, backend, residual_points, device,
                                    gray_weight, shading_geometry)
     single_cfg = scaled_iterations(dec_cfg, single_set_fraction)
     t0 = time.perf_counter()
     events.log(f"bench_decompose: vanilla 3DGS, {iterations} iterations")
-    vanilla = train_3dgs(ws, vanilla_cfg, resume=False)
+    vanilla = record_train_3dgs(ws, train_3dgs(ws, vanilla_cfg, resume=False))
     events.log("bench_decompose: three-set decomposition "
                + ", ".join(f"{s} {dec_cfg.stage(s).iterations}" for s in STAGES))
-    three = decompose(ws, dec_cfg, resume=False)
+    three = evaluate_decomposition(decompose(ws, dec_cfg, resume=False))
     singles: dict[str, dict[str, Any]] = {}
     for schedule in single_set_schedules if single_set else ():
         events.log(f"bench_decompose: single-set baseline ({schedule}), "
                    + ", ".join(f"{s} {single_cfg.stage(s).iterations}" for s in STAGES))
-        singles[schedule] = decompose_single_set(ws, single_cfg, resume=False, schedule=schedule)
+        singles[schedule] = evaluate_decomposition(decompose_single_set(ws, single_cfg, resume=False,
+                                                                        schedule=schedule))
     total = time.perf_counter() - t0
 
     v_time = float(vanilla["train_seconds"])
@@ -240,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--single-set-schedule", default="joint", choices=(*SCHEDULES, "both"),
                    help="the single set's loss schedule: joint (default; the albedo loss in every phase, the "
                         "target is judged against it), sequential (each loss as long as in the three sets) or both")
-    p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"))
+    p.add_argument("--backend", default="auto", choices=BACKENDS)
     add_device_argument(p)
     args = p.parse_args(argv)
     if args.iterations < 4:

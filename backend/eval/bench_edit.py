@@ -43,11 +43,16 @@ from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_exr, read_image, read_linear, srgb_to_linear
 from backend.core.workspace import split_frames
-from backend.edit.bake import BakeConfig, bake_edit, dilate, edited_albedo, load_albedo, render_albedo
+from backend.edit.albedo_render import edited_albedo, render_albedo
+from backend.edit.bake import bake_edit
+from backend.edit.bake_config import BakeConfig
+from backend.edit.change_metrics import dilate
 from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_rect
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
 from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
+from backend.edit.workspace_edits import load_albedo
+from backend.train.intrinsic.composite import compose
 
 EDITS = ("wall_decal", "rug_recolor", "column_decal")
 
@@ -218,7 +223,7 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         orig_img = srgb_to_linear(read_image(f.image))
         a0 = render_albedo(original, cam, backend).color.clamp(0, 1).numpy()
         outside = ~dilate(mask, margin)
-        acc.add("oracle/image", _srgb(srgb_to_linear(gt_alb) * shading + residual), gt_img, mask)
+        acc.add("oracle/image", _srgb(compose(srgb_to_linear(gt_alb), shading, residual)), gt_img, mask)
         # image-space baselines: the depth-tested proxy colour where it covers the pixel
         comp, pm, _ = edited_albedo(original, proxy, cam, backend, supersample=BakeConfig.supersample)
         colour = np.where(pm[..., None], comp.astype(np.float64), 0.0)  # float64 under numpy 1 and 2 (NEP 50)
@@ -229,7 +234,7 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         for key, g in variants.items():
             a = render_albedo(g, cam, backend).color.clamp(0, 1).numpy()
             acc.add(f"{key}/albedo", _srgb(a), gt_alb, mask)
-            acc.add(f"{key}/image", _srgb(a * shading + residual), gt_img, mask)
+            acc.add(f"{key}/image", _srgb(compose(a, shading, residual)), gt_img, mask)
             acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
         acc.add("unedited/albedo", _srgb(a0), gt_alb, mask)
     return acc.psnr()

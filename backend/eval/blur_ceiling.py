@@ -22,6 +22,7 @@ from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_exr, read_image, srgb_to_linear
 from backend.core.workspace import split_frames
+from backend.train.intrinsic.composite import compose
 
 
 def ceilings(ws: Path, edit: str, sigmas: list[float]) -> dict[str, float]:
@@ -43,7 +44,7 @@ def ceilings(ws: Path, edit: str, sigmas: list[float]) -> dict[str, float]:
         residual = read_exr(ws / "gt" / "residual" / f"{stem}.exr")[..., :3]
         for s in sigmas:
             a = albedo if s == 0 else cv2.GaussianBlur(albedo, (0, 0), s)
-            img = linear_to_srgb(np.clip(a * shading + residual, 0.0, 1.0))
+            img = linear_to_srgb(np.clip(compose(a, shading, residual), 0.0, 1.0))
             se[s] += float(((img - gt)[mask] ** 2).sum())
         n += int(mask.sum()) * 3
     if n == 0:

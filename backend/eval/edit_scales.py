@@ -22,7 +22,7 @@ from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
 from backend.core.workspace import split_frames
-from backend.edit.bake import render_albedo
+from backend.edit.albedo_render import render_albedo
 from backend.splats.ply import read_ply
 from backend.train.views import view_camera
 

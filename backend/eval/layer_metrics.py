@@ -25,10 +25,12 @@ import torch
 
 from backend.core.imageio import read_exr, read_image, srgb_to_linear
 from backend.core.workspace import Frame
-from backend.eval.metrics import image_metrics, mean_metrics, psnr
-from backend.render import Splats, render_layers
+from backend.render import render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
+from backend.train.image_metrics import image_metrics, mean_metrics, psnr
+from backend.train.intrinsic.composite import compose
+from backend.train.intrinsic.stages import layer_splats
 from backend.train.views import resize_image, to_display, view_camera
 
 ORDER = ("albedo", "shading", "residual")
@@ -43,11 +45,11 @@ def render_frame(layers: Mapping[str, GaussianSet], frame: Frame, downscale: flo
     cam = view_camera(frame.camera, downscale)
     kinds = [k for k in ORDER if k in layers]
     with torch.no_grad():
-        outs = render_layers([Splats(**layers[k].render_args()) for k in kinds], cam, backend=backend)
+        outs = render_layers([layer_splats(layers[k]) for k in kinds], cam, backend=backend)
     got = {k: o.color.cpu() for k, o in zip(kinds, outs)}
     if "albedo" in got and "shading" in got:
-        got["diffuse"] = got["albedo"] * got["shading"]
-        got["full"] = got["diffuse"] + got["residual"] if "residual" in got else got["diffuse"]
+        got["diffuse"] = compose(got["albedo"], got["shading"])
+        got["full"] = compose(got["albedo"], got["shading"], got.get("residual"))
     return got
 
 

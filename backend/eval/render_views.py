@@ -45,7 +45,8 @@ from backend.render import render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
-from backend.train.intrinsic import layer_splats
+from backend.train.intrinsic.composite import compose
+from backend.train.intrinsic.stages import layer_splats
 
 LAYERS = ("A", "S", "R", "full")
 MAX_SIDE = 16384  # pixels: larger images would not fit a render buffer
@@ -265,7 +266,7 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
                 img = {k: o.color.clamp_min(0).numpy() for k, o in zip(kinds, outs)}
                 for w in wanted:
                     if w == "full":
-                        lin = img["albedo"] * img["shading"] + img["residual"]
+                        lin = compose(img["albedo"], img["shading"], img["residual"])
                     else:
                         lin = img[NEEDS[w][0]]
                     srgb = linear_to_srgb(np.clip(lin, 0.0, 1.0))

@@ -1,8 +1,9 @@
 """Vanilla 3DGS: one radiance field (SH up to degree 3) on the input images.
 
 The baseline every comparison needs: full-image quality (held-out PSNR/SSIM/LPIPS, every 8th view
-held out) and training time. Outputs: ``<ws>/layers/radiance.ply``, ``<ws>/metrics.json`` key
-``train_3dgs``, checkpoints and the resolved config in ``<ws>/checkpoints/train_3dgs/``.
+held out) and training time. Outputs: ``<ws>/layers/radiance.ply``, checkpoints and the resolved
+config in ``<ws>/checkpoints/train_3dgs/``; the entry it returns becomes the ``train_3dgs`` key of
+``<ws>/metrics.json`` in the eval room (``record_train_3dgs``).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -19,7 +20,6 @@ from backend.core import events
 from backend.core.errors import IGSError
 from backend.core.imageio import read_depth, read_image
 from backend.core.workspace import Capture, split_frames
-from backend.eval.metrics import merge_metrics
 from backend.splats.gaussians import GaussianSet
 from backend.splats.init import (
     InitConfig,
@@ -32,7 +32,15 @@ from backend.splats.ply import write_ply
 from backend.splats.strategy import DensifyStrategy, scene_extent
 from backend.train.device import describe, resolve_device
 from backend.train.loop import Stage, TrainConfig, train
-from backend.train.views import check_space, load_views, resize_depth, resize_image, to_space, view_camera
+from backend.train.views import (
+    ColorSpace,
+    check_space,
+    load_views,
+    resize_depth,
+    resize_image,
+    to_space,
+    view_camera,
+)
 
 STAGE = "train_3dgs"
 
@@ -45,9 +53,9 @@ class BaselineConfig:
     """Optimisation settings (iterations, learning rates, densification...)."""
     init: InitConfig = field(default_factory=InitConfig)
     """Initial Gaussians."""
-    sh_degree: int = 3
+    sh_degree: Literal[0, 1, 2, 3] = 3
     """Highest SH degree of the radiance field."""
-    color_space: str = "srgb"
+    color_space: ColorSpace = "srgb"
     """Space the images are fitted in: srgb (as vanilla 3DGS) or linear."""
     downscale: float = 1.0
     """Divide image sizes by this factor (1 = full resolution)."""
@@ -84,7 +92,8 @@ def initial_gaussians(capture: Capture, frames, cfg: BaselineConfig, kind: str =
 
 def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume: bool = True,
                stop_after: int | None = None) -> dict[str, Any]:
-    """Train vanilla 3DGS on a workspace; returns the metrics entry written to metrics.json."""
+    """Train vanilla 3DGS on a workspace; returns its metrics.json entry (held-out metrics, times, settings),
+    or ``{"step", "finished": False}`` when ``stop_after`` ended it early."""
     cfg = cfg or BaselineConfig()
     check_space(cfg.color_space)
     if cfg.train.iterations < 1:
@@ -115,7 +124,7 @@ def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume:
     ply = write_ply(ws.layers / "radiance.ply", result.gaussians, space=cfg.color_space)
     events.output("layer", ply)
     m = result.metrics
-    entry = {
+    return {
         "psnr": m.get("psnr", "n/a"), "ssim": m.get("ssim", "n/a"), "lpips": m.get("lpips", "n/a"),
         "initial": m.get("initial"),
         "held_out_views": m.get("views", 0),
@@ -134,12 +143,3 @@ def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume:
         "config": asdict(cfg),
         "layer": str(ply),
     }
-    merge_metrics(ws.metrics_json, STAGE, entry)
-    events.output("metrics", ws.metrics_json)
-    psnr = entry["psnr"]
-    shown = f"{psnr:.2f} dB" if isinstance(psnr, float) else psnr
-    init = (entry["initial"] or {}).get("psnr")
-    events.log(f"{STAGE}: held-out PSNR {shown} (iteration 0: {init:.2f} dB), {entry['gaussians']} Gaussians, "
-               f"{entry['train_seconds']:.0f} s training" if isinstance(init, float) else
-               f"{STAGE}: held-out PSNR {shown}, {entry['gaussians']} Gaussians, {entry['train_seconds']:.0f} s")
-    return entry

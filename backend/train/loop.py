@@ -29,13 +29,13 @@ import torch
 from backend.core import events
 from backend.core.atomic_io import clean_stale_tmp, os_error, write_bytes, write_json
 from backend.core.errors import Cancelled, IGSError
-from backend.eval.metrics import image_metrics, mean_metrics
-from backend.render import RenderOutput, render
+from backend.render import Backend, RenderOutput, render
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
+from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
-from backend.train.views import View, to_display
+from backend.train.views import ColorSpace, View, to_display
 
 CHECKPOINT_VERSION = 1
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -72,7 +72,7 @@ class TrainConfig:
     """Seeds torch, numpy and Python's RNGs (view order, split sampling)."""
     checkpoint_every: int = 500
     """Write a resumable checkpoint every this many iterations (and at the end and on cancel)."""
-    backend: str = "auto"
+    backend: Backend = "auto"
     """Renderer backend: auto, cpu, reference or gsplat."""
     lambda_dssim: float = 0.2
     """Weight of the D-SSIM term in the photometric loss."""
@@ -100,6 +100,11 @@ class TrainConfig:
         return max(1, round(self.sh_up_every * self.iterations / 30_000))
 
 
+def sum_terms(terms: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+    """(the loss: the sum of the named scalar ``terms``, each term as a float for progress and logs)."""
+    return sum(terms.values()), {k: float(v.detach()) for k, v in terms.items()}
+
+
 class Stage:
     """What one optimisation run trains. Subclass and override the hooks to build another stage.
 
@@ -116,7 +121,7 @@ class Stage:
 
     def __init__(self, name: str, gaussians: GaussianSet, train_views: Sequence[View], test_views: Sequence[View],
                  config: TrainConfig, scene_extent: float, strategy: DensifyStrategy | None = None,
-                 color_space: str = "srgb", background: Sequence[float] | None = None):
+                 color_space: ColorSpace = "srgb", background: Sequence[float] | None = None):
         if not train_views:
             raise IGSError(f"stage {name}: no training views")
         self.name = name
@@ -181,8 +186,7 @@ class Stage:
             terms["depth"] = cfg.lambda_depth * depth_l1(d, view.depth)
         if cfg.lambda_scale > 0:
             terms["scale"] = cfg.lambda_scale * scale_reg(self.gaussians.scales)
-        total = sum(terms.values())
-        return total, {k: float(v.detach()) for k, v in terms.items()}
+        return sum_terms(terms)
 
     def display(self, view: View, pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(prediction, target) as sRGB-encoded (H, W, 3) in [0, 1]."""

@@ -30,7 +30,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import torch
 from torch import nn
@@ -42,27 +42,20 @@ from backend.render.sh import sh_to_color
 from backend.splats.gaussians import GEOMETRY, GaussianSet, rgb_to_color_params
 from backend.splats.ply import write_ply
 from backend.splats.strategy import DensifyStrategy
-from backend.train.intrinsic import (
-    STAGES,
-    DecomposeConfig,
-    DecomposeState,
-    depth_term,
-    finish,
-    initial_albedo,
-    initial_shading,
-    inverse_photometric,
-    jsonable,
-    prepare_setup,
-    record_layers,
-    stage_entry,
-)
-from backend.train.loop import Stage, TrainConfig, train
+from backend.train.intrinsic.composite import compose
+from backend.train.intrinsic.config import STAGES, DecomposeConfig
+from backend.train.intrinsic.initial import initial_albedo, initial_shading
+from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
+from backend.train.intrinsic.setup import prepare_setup
+from backend.train.intrinsic.stages import depth_term, inverse_photometric
+from backend.train.intrinsic.state import STATE_DIR, DecomposeState, jsonable
+from backend.train.loop import Stage, TrainConfig, sum_terms, train
 from backend.train.losses import gray_reg, photometric, scale_reg
 from backend.train.views import View
 
 NAME = "single_set"
-METRICS_KEY = f"decompose_{NAME}"
-SCHEDULES = ("joint", "sequential")
+Schedule = Literal["joint", "sequential"]
+SCHEDULES: tuple[Schedule, ...] = get_args(Schedule)
 
 
 def run_name(schedule: str) -> str:
@@ -159,7 +152,7 @@ class SingleSetStage(Stage):
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         c = out.color
-        return c[..., 0:3] * c[..., 3:6] + c[..., 6:9]
+        return compose(c[..., 0:3], c[..., 3:6], c[..., 6:9])
 
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         cfg, g, phase = self.config, self.gaussians, self.phase()
@@ -168,7 +161,7 @@ class SingleSetStage(Stage):
         if not self.albedo_frozen():
             terms["albedo"] = photometric(c[..., 0:3], view.extras["albedo"], cfg.lambda_dssim)
         if phase >= 1:
-            model = c[..., 0:3] * c[..., 3:6] + (c[..., 6:9] if phase == 2 else 0.0)
+            model = compose(c[..., 0:3], c[..., 3:6], c[..., 6:9] if phase == 2 else None)
             terms["photo"] = inverse_photometric(model, view.image, cfg.lambda_dssim)
             if self.lambda_gray > 0:
                 terms["gray"] = self.lambda_gray * gray_reg(g.shading)
@@ -176,7 +169,7 @@ class SingleSetStage(Stage):
             terms["depth"] = d
         if cfg.lambda_scale > 0:
             terms["scale"] = cfg.lambda_scale * scale_reg(g.scales)
-        return sum(terms.values()), {k: float(v.detach()) for k, v in terms.items()}
+        return sum_terms(terms)
 
 
 def single_set_config(cfg: DecomposeConfig) -> TrainConfig:
@@ -190,9 +183,9 @@ def single_set_config(cfg: DecomposeConfig) -> TrainConfig:
 
 
 def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None = None, *,
-                         resume: bool = True, schedule: str = "joint") -> dict[str, Any]:
+                         resume: bool = True, schedule: Schedule = "joint") -> DecompositionRun:
     """Train the single-set baseline on a workspace with a loss ``schedule`` (module docstring);
-    returns the summary written to metrics.json. ``joint`` writes ``layers/single_set/``, the key
+    returns the run for the held-out evaluation. ``joint`` writes ``layers/single_set/``, the key
     ``decompose_single_set`` and ``report_single_set.png``; ``sequential`` the same names with
     ``_sequential`` appended."""
     name = run_name(schedule)
@@ -207,7 +200,7 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     # Adam moves every colour by about the same step: scaling the shading parameter gives it the
     # three-set shading stage's colour rate while the albedo keeps the albedo stage's
     gain = cfg.shading.lr.colors / cfg.albedo.lr.colors
-    state = DecomposeState(setup.ckpt_root / "decompose", restart=not resume)
+    state = DecomposeState(setup.ckpt_root / STATE_DIR, restart=not resume)
     extra = jsonable({"phases": [cfg.albedo.iterations, cfg.shading.iterations, cfg.residual.iterations],
                        "lambda_gray": cfg.lambda_gray, "shading_init": cfg.shading_init, "downscale": cfg.downscale,
                        "hold_every": cfg.hold_every, "sh_degree": cfg.residual_sh_degree, "gain": gain,
@@ -236,7 +229,7 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
                f"residual {cfg.residual.iterations} iterations")
     setup_seconds = time.perf_counter() - t0
     initial_n = len(init)  # densification edits the set in place
-    result = train(stage, setup.ckpt_root / f"decompose_{name}", resume=resume and not stale, device=setup.device)
+    result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume and not stale, device=setup.device)
     g: LayeredGaussians = result.gaussians
     layers = {k: g.layer(k) for k in STAGES}
     for k, layer in layers.items():
@@ -245,13 +238,12 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     entry = stage_entry(result, tcfg, setup_seconds, 0.0, how, initial_n,
                         {"phases": list(phases), "schedule": schedule})
     state.set(name, {"done": True, "extra": extra, "summary": entry})
-    # one set: the three layer files hold the same Gaussians
+    wall = time.perf_counter() - t_start
     mode = name.replace("_", "-")
-    summary = finish(setup, cfg, layers, {name: entry}, mode=mode,
-                     report_path=ws.root / f"report_{name}.png", metrics_key=f"decompose_{name}",
-                     wall=time.perf_counter() - t_start, counts={name: len(g)})
     record_layers(setup, layers, mode)
-    return summary
+    # one set: the three layer files hold the same Gaussians, counted once
+    return DecompositionRun(setup, cfg, layers, {name: entry}, mode, f"decompose_{name}", ws.root / f"report_{name}.png",
+                            wall, {name: len(g)})
 
 
 def _as_albedo_view(v: View) -> View:

@@ -11,6 +11,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -21,7 +22,8 @@ from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_depth, read_image, srgb_to_linear
 from backend.core.workspace import Frame
 
-COLOR_SPACES = ("srgb", "linear")
+ColorSpace = Literal["srgb", "linear"]
+COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
 
 
 @dataclass
@@ -53,12 +55,12 @@ def check_space(space: str) -> None:
         raise IGSError(f"colour space must be one of {', '.join(COLOR_SPACES)}, got {space!r}")
 
 
-def to_space(srgb: np.ndarray, space: str) -> np.ndarray:
+def to_space(srgb: np.ndarray, space: ColorSpace) -> np.ndarray:
     """sRGB-encoded values -> the working colour space."""
     return srgb_to_linear(srgb) if space == "linear" else np.asarray(srgb, dtype=np.float32)
 
 
-def to_display(img: torch.Tensor, space: str) -> torch.Tensor:
+def to_display(img: torch.Tensor, space: ColorSpace) -> torch.Tensor:
     """Working-space (H, W, 3) -> sRGB-encoded in [0, 1], for metrics and previews."""
     img = img.detach().clamp(0.0, 1.0)
     if space == "linear":
@@ -97,7 +99,7 @@ def view_camera(camera: Camera, downscale: float) -> Camera:
     return camera if downscale == 1 else camera.scaled(1.0 / downscale)
 
 
-def load_views(frames: Sequence[Frame], indices: Sequence[int], space: str = "srgb", downscale: float = 1.0,
+def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpace = "srgb", downscale: float = 1.0,
                with_depth: bool = False, image_of=None) -> list[View]:
     """Load the images (and depth maps) of ``frames``.
 

@@ -3,21 +3,20 @@
 Images are (H, W, 3) tensors with values in [0, 1] (display-referred, sRGB-encoded as 3DGS
 papers report them); predictions are clipped to [0, 1] first. LPIPS is never faked: without
 weights :func:`lpips_or_none` returns None and reports write "n/a".
+
+They live with training because the loop scores its held-out views with them at iteration 0 and at
+the end (those numbers go into checkpoints and stage summaries); the evaluation room uses the same
+functions for the decomposed layers.
 """
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
-from typing import Any
 
 import torch
 
-from backend.core.atomic_io import write_json
-from backend.core.errors import IGSError
-from backend.eval.lpips import load_lpips
 from backend.train.losses import ssim as _ssim
+from backend.train.lpips import load_lpips
 
 
 def psnr(pred: torch.Tensor, target: torch.Tensor, data_range: float = 1.0) -> float:
@@ -59,22 +58,3 @@ def mean_metrics(per_view: list[dict[str, float | None]]) -> dict[str, float | s
             out[key] = float(sum(vals) / len(vals))
     return out
 
-
-def merge_metrics(path: str | Path, key: str, entry: dict[str, Any]) -> dict[str, Any]:
-    """Set ``key`` in the JSON file at ``path`` to ``entry``, keeping the other keys (atomic write).
-
-    Other commands write other keys of the same metrics.json; an unreadable file is an error rather
-    than something to overwrite silently.
-    """
-    path = Path(path)
-    data: dict[str, Any] = {}
-    if path.exists():
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise IGSError(f"{path}: not valid JSON ({e}); fix or delete it") from e
-        if not isinstance(data, dict):
-            raise IGSError(f"{path}: expected a JSON object at the top level")
-    data[key] = entry
-    write_json(path, data)
-    return data

@@ -1,0 +1,115 @@
+"""Settings of the decomposition: the stages, their training configs and the per-stage budget split."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal, get_args
+
+from backend.core.errors import IGSError
+from backend.splats.init import InitConfig
+from backend.splats.strategy import DensifyConfig
+from backend.train.loop import LearningRates, TrainConfig
+
+StageName = Literal["albedo", "shading", "residual"]
+STAGES: tuple[StageName, ...] = get_args(StageName)
+# what each stage is trained on: the layers before it
+UPSTREAM: dict[StageName, tuple[StageName, ...]] = {"albedo": (), "shading": ("albedo",),
+                                                    "residual": ("albedo", "shading")}
+ShadingGeometry = Literal["albedo", "points"]
+"""Where the shading Gaussians start (DecomposeConfig.shading_geometry)."""
+SHADING_GEOMETRIES: tuple[ShadingGeometry, ...] = get_args(ShadingGeometry)
+ShadingInit = Literal["ratio", "gray"]
+"""Initial shading colour (DecomposeConfig.shading_init)."""
+SHADING_INITS: tuple[ShadingInit, ...] = get_args(ShadingInit)
+
+
+def _albedo_train() -> TrainConfig:
+    # floater removal before every densification step (paper), on 4 views each time (cycled through all).
+    # The albedo colours are sigmoid logits, whose steps shrink by s(1 - s) <= 1/4: at 3DGS's 2.5e-3 the
+    # texture edges were still soft after 2000 iterations (held-out albedo 31.1 dB on the demo capture,
+    # 31.9 at 1e-2, 31.8 at 2e-2), and the soft edges leaked texture into the shading.
+    return TrainConfig(iterations=7_000, lambda_depth=0.05, lambda_scale=0.01, lr=LearningRates(colors=1e-2),
+                       densify=DensifyConfig(floaters=True, floater_views=4))
+
+
+def _shading_train() -> TrainConfig:
+    # raw shading reaches several times 1 in lit areas: a faster colour rate than 3DGS's SH DC rate.
+    # The inverse-domain loss scales gradients by 1 / (1 + x)^2 (a quarter where the image is at 1), so
+    # 3DGS's densification threshold left the shading at ~26k Gaussians with blurred shadow edges: half it.
+    return TrainConfig(iterations=5_250, lambda_depth=0.05, lambda_scale=0.01, lr=LearningRates(colors=1e-2),
+                       densify=DensifyConfig(grad_threshold=1e-4))
+
+
+def _residual_train() -> TrainConfig:
+    # the residual is sparse (alpha well below 1 in most pixels): its depth term is on the expected depth
+    return TrainConfig(iterations=3_500, lambda_depth=0.05, lambda_scale=0.01, depth_normalized=True,
+                       densify=DensifyConfig(max_gaussians=200_000))
+
+
+@dataclass
+class SpawnConfig:
+    """Where the residual Gaussians start (paper 3.2.3: at high-error pixels of the diffuse model)."""
+
+    points: int = 20_000
+    """Residual Gaussians spawned in all, spread evenly over the training views."""
+    top_fraction: float = 0.1
+    """Candidate pixels: this fraction of each view's pixels with the largest |I - A * S|."""
+
+
+@dataclass
+class DecomposeConfig:
+    """Settings of ``igs decompose`` (saved in metrics.json and beside each stage's checkpoint)."""
+
+    albedo: TrainConfig = field(default_factory=_albedo_train)
+    """Albedo stage: iterations, depth/scale weights, densification with floater removal."""
+    shading: TrainConfig = field(default_factory=_shading_train)
+    """Shading stage."""
+    residual: TrainConfig = field(default_factory=_residual_train)
+    """Residual stage."""
+    lambda_gray: float = 0.03
+    """Weight of the gray regulariser max(c) - min(c) on shading colours (paper eq. 6; the paper
+    gives no value). 0.03 rather than 0.1: on the demo capture the full image gains ~0.06-0.1 dB and
+    A*S ~0.5 dB for ~0.17 dB of shading PSNR (bench_decompose --gray-weight, README)."""
+    residual_sh_degree: int = 3
+    """Highest SH degree of the residual (bands switched on progressively)."""
+    spawn: SpawnConfig = field(default_factory=SpawnConfig)
+    """Residual spawning."""
+    init: InitConfig = field(default_factory=InitConfig)
+    """Initial albedo and shading Gaussians (from the SfM points)."""
+    shading_init: ShadingInit = "ratio"
+    """Initial shading colour: 'ratio' (gray, image / albedo luminance at the point) or 'gray' (1.0)."""
+    shading_geometry: ShadingGeometry = "albedo"
+    """Where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians:
+    positions, shapes and opacities) or 'points' (the SfM points, as the paper does)."""
+    shading_from_albedo: float = 0.4
+    """With shading_geometry 'albedo': the fraction of the albedo's Gaussians taken (drawn by opacity);
+    densification adds the rest where shadow edges need them."""
+    downscale: float = 1.0
+    """Divide image sizes by this factor (1 = full resolution)."""
+    hold_every: int = 8
+    """Every this-many-th view (0, 8, 16, ...) is held out for evaluation (0 = none)."""
+    report_views: int = 3
+    """Held-out views shown in report.png."""
+    device: str = "auto"
+    """Where the stages train: auto (CUDA when gsplat is installed), cpu, cuda or cuda:N."""
+
+    def stage(self, name: str) -> TrainConfig:
+        return getattr(self, name)
+
+    def set_all(self, **changes: Any) -> DecomposeConfig:
+        """The same config with ``changes`` applied to every stage's :class:`TrainConfig`."""
+        return replace(self, **{s: replace(self.stage(s), **changes) for s in STAGES})
+
+
+def split_iterations(total: int) -> dict[StageName, int]:
+    """Per-stage iterations for ``--iterations N``: albedo N, shading 3N / 4, residual N / 2.
+
+    The albedo field carries the geometry and gets vanilla 3DGS's budget. The shading starts on that
+    geometry and only has to draw the light, shadow edges included: on the demo capture at N = 2000
+    the full image was 27.23 / 27.20 / 27.13 dB with the shading at N, 3N / 4 and N / 2, for 160 / 119
+    / 81 s of shading. A residual iteration renders only the residual's few Gaussians over the cached
+    A * S, so N / 2 of them cost little (at N / 4 the full image lost 0.3 dB).
+    """
+    if total < 1:
+        raise IGSError(f"--iterations must be >= 1, got {total}")
+    return {"albedo": total, "shading": max(1, round(0.75 * total)), "residual": max(1, total // 2)}

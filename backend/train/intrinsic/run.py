@@ -1,0 +1,146 @@
+"""``decompose``: the albedo, shading and residual stages in order, each skipped, resumed or trained.
+
+Between stages the finished layer is written to ``<ws>/layers/<kind>.ply`` and recorded in
+state.json (:mod:`.state`); the run returns a :class:`DecompositionRun` for the held-out evaluation.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from backend.core import events
+from backend.core.errors import IGSError
+from backend.splats.gaussians import GaussianSet
+from backend.splats.ply import read_ply, write_ply
+from backend.splats.strategy import DensifyStrategy
+from backend.train.intrinsic.config import SHADING_GEOMETRIES, STAGES, UPSTREAM, DecomposeConfig, StageName
+from backend.train.intrinsic.initial import (
+    initial_albedo,
+    initial_shading,
+    shading_from_albedo,
+    spawn_residual,
+)
+from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
+from backend.train.intrinsic.setup import Setup, prepare_setup
+from backend.train.intrinsic.stages import ResidualStage, ShadingStage
+from backend.train.intrinsic.state import STATE_DIR, DecomposeState, file_hash, jsonable, stage_settings
+from backend.train.loop import Stage, train
+from backend.train.views import View
+
+MODE = "three-set"
+METRICS_KEY = "decompose"
+
+
+def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
+                     train_views: list[View], test_views: list[View]) -> tuple[Stage, GaussianSet, str]:
+    """The stage ``name`` with its initial Gaussians in place: (stage, initial set, how it was made)."""
+    tcfg = cfg.stage(name)
+    common = dict(config=tcfg, scene_extent=setup.extent, color_space="linear",
+                  strategy=DensifyStrategy(tcfg.resolved_densify(), setup.extent))
+    if name == "albedo":
+        init, how = initial_albedo(setup.capture, train_views, cfg)
+        return Stage("albedo", init, train_views, test_views, **common), init, how
+    if name == "shading":
+        if cfg.shading_geometry not in SHADING_GEOMETRIES:  # before the albedo cache is built
+            raise IGSError(f"shading_geometry must be one of {', '.join(SHADING_GEOMETRIES)}, "
+                           f"got {cfg.shading_geometry!r}")
+        stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
+                             albedo=layers["albedo"], lambda_gray=cfg.lambda_gray, **common).to(setup.device)
+        stage.prepare()  # the albedo cache feeds the ratio initialisation too
+        if cfg.shading_geometry == "albedo":
+            init, how = shading_from_albedo(layers["albedo"], train_views, cfg)
+        else:
+            init, how = initial_shading(setup.capture, train_views, cfg)
+    else:
+        stage = ResidualStage("residual", GaussianSet.empty("residual", cfg.residual_sh_degree), train_views,
+                              test_views, albedo=layers["albedo"], shading=layers["shading"],
+                              **common).to(setup.device)
+        stage.prepare()
+        init = spawn_residual(train_views, cfg)
+        how = f"{len(init)} spawned at high |I - A*S| pixels"
+    stage.gaussians = init
+    return stage, init, how
+
+
+def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
+              resume: bool) -> tuple[GaussianSet, dict[str, Any]]:
+    """Train one stage (resuming its checkpoint when ``resume``); returns the set and its summary."""
+    tcfg = cfg.stage(name)
+    t0 = time.perf_counter()
+    with_depth = tcfg.lambda_depth > 0
+    target = "albedo" if name == "albedo" else "image"
+    train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual")
+    test_views = setup.views(setup.test_frames, target, cfg.downscale, False)
+    stage, init, how = _stage_with_init(name, setup, cfg, layers, train_views, test_views)
+    initial_n = len(init)
+    events.log(f"{name}: {len(train_views)} training / {len(test_views)} held-out views at "
+               f"{train_views[0].camera.width}x{train_views[0].camera.height}, {initial_n} initial Gaussians ({how})")
+    setup_seconds = time.perf_counter() - t0
+    result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device)
+    cache_seconds = getattr(stage, "cache_seconds", 0.0)
+    return result.gaussians, stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
+
+
+def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, stages: Sequence[str] = STAGES,
+              resume: bool = True) -> DecompositionRun:
+    """Run the decomposition stages on a workspace; returns the run for the held-out evaluation.
+
+    ``stages``: the stages to run (in order); earlier stages must have finished before (their
+    layers are read from ``<ws>/layers``). ``resume``: continue from checkpoints and skip stages
+    that finished on the same inputs; ``False`` restarts the stages run here (and, because their
+    inputs change, the later ones next time they run).
+    """
+    cfg = config or DecomposeConfig()
+    unknown = [s for s in stages if s not in STAGES]
+    if unknown:
+        raise IGSError(f"unknown stage {unknown[0]!r} (one of {', '.join(STAGES)})")
+    stages = [s for s in STAGES if s in stages]
+    t_start = time.perf_counter()
+    setup = prepare_setup(workspace, cfg)
+    ws = setup.capture.workspace
+    state = DecomposeState(setup.ckpt_root / STATE_DIR, restart=not resume)
+    layers: dict[str, GaussianSet] = {}
+    entries: dict[str, dict[str, Any]] = {}
+
+    for name in STAGES:
+        ply = setup.layers_dir / f"{name}.ply"
+        upstream = {u: file_hash(setup.layers_dir / f"{u}.ply") for u in UPSTREAM[name]}
+        config = jsonable(asdict(cfg.stage(name)))
+        settings = stage_settings(cfg, name)
+        finished = state.finished(name, upstream, ply, config, settings)
+        st = state.get(name)
+        if name not in stages:
+            needed = any(later in stages for later in STAGES[STAGES.index(name) + 1:])
+            if ply.exists() and (finished or needed):
+                layers[name], _ = read_ply(ply, kind=name)
+                if finished:
+                    entries[name] = st["summary"]
+            elif needed:
+                raise IGSError(f"{ply}: the {name} layer is missing; run `igs decompose {ws.root} --stage {name}` "
+                               "(or without --stage to run every stage) first")
+            continue
+        if resume and finished:
+            events.log(f"{name}: finished earlier on the same inputs and settings ({ply}); skipped")
+            layers[name], _ = read_ply(ply, kind=name)
+            entries[name] = st["summary"]
+            continue
+        # a stage whose inputs changed since its checkpoint starts over
+        stale = bool(st) and (st.get("upstream") != upstream or st.get("extra") != settings)
+        state.set(name, {"done": False, "upstream": upstream, "extra": settings})
+        g, entry = run_stage(name, setup, cfg, layers, resume=resume and not stale)
+        write_ply(ply, g, space="linear")
+        events.output("layer", ply)
+        # later stages see the layer as stored (as after a resume), not the in-memory copy
+        layers[name], _ = read_ply(ply, kind=name)
+        entries[name] = entry
+        state.set(name, {"done": True, "upstream": upstream, "ply": file_hash(ply), "extra": settings,
+                         "config": config, "summary": entry})
+
+    wall = time.perf_counter() - t_start
+    record_layers(setup, layers, MODE)
+    return DecompositionRun(setup, cfg, layers, entries, MODE, METRICS_KEY, ws.report_png, wall,
+                            {k: len(g) for k, g in layers.items()})

@@ -1,0 +1,127 @@
+"""The shading and residual stages: the layers before them frozen and rendered once per view into a cache.
+
+The albedo stage is a plain :class:`backend.train.loop.Stage` on the albedo maps. The shading stage
+fits ``I = A * S`` with the cached ``A``; the residual stage fits ``I = A * S + R`` with the cached
+``A * S``. Both put the photometric loss on the inverse domain ``1 / (1 + x)`` (paper eq. 5).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import torch
+
+from backend.core import events
+from backend.render import RenderOutput, Splats, render_layers
+from backend.splats.gaussians import GaussianSet
+from backend.train.intrinsic.composite import compose
+from backend.train.loop import Stage, TrainConfig, sum_terms
+from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
+from backend.train.views import View
+
+
+def inverse_photometric(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float) -> torch.Tensor:
+    """Paper eq. 5 on the inverse domain: (1-λ) L1 + λ D-SSIM between 1/(1+pred) and 1/(1+target)."""
+    return photometric(inverse_domain(pred), inverse_domain(target), lambda_dssim)
+
+
+def depth_term(cfg: TrainConfig, view: View, out: RenderOutput) -> torch.Tensor | None:
+    """λ_d |D~ - D|_1 against the view's depth prior, or None when off or without a prior.
+
+    ``RenderOutput.depth`` is the expected depth sum(w z) / alpha; the paper's rendered depth
+    sum(w z) is ``depth * alpha``, right for layers that cover the scene (albedo, shading). A sparse
+    layer (residual) uses the expected depth where it is at least partly opaque.
+    """
+    if cfg.lambda_depth <= 0 or view.depth is None:
+        return None
+    if cfg.depth_normalized:
+        return cfg.lambda_depth * depth_l1(out.depth, view.depth, valid=out.alpha.detach() > 0.1)
+    return cfg.lambda_depth * depth_l1(out.depth * out.alpha, view.depth)
+
+
+def layer_splats(g: GaussianSet) -> Splats:
+    """The render arguments of a set as :class:`Splats` (for the fused :func:`render_layers`)."""
+    return Splats(**g.render_args())
+
+
+def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: str, what: str) -> float:
+    """Render the frozen layers once per view into ``view.extras`` (no re-render per iteration).
+
+    ``frozen`` is [G_A] (caches ``A``) or [G_A, G_S] (caches ``AS`` = A * S, one fused pass), each
+    (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) (spawning falls back on it
+    without a depth prior). Returns the seconds spent.
+    """
+    key = "A" if len(frozen) == 1 else "AS"
+    todo = [v for v in views if key not in v.extras]
+    t0 = time.perf_counter()
+    if not todo:
+        return 0.0
+    splats = [layer_splats(g) for g in frozen]
+    with torch.no_grad(), events.stage(f"cache {what}", len(todo), unit="view") as bar:
+        for v in todo:
+            outs = render_layers(splats, v.camera, backend=backend)
+            albedo = outs[0].color
+            v.extras[key] = (albedo if len(outs) == 1 else compose(albedo, outs[1].color)).contiguous()
+            v.extras["depth_A"] = outs[0].depth
+            bar.update(1)
+    return time.perf_counter() - t0
+
+
+class ShadingStage(Stage):
+    """G_S with G_A frozen: ``I = A * S``, loss on the inverse domain + gray + depth + scale."""
+
+    def __init__(self, *args, albedo: GaussianSet, lambda_gray: float, **kw):
+        super().__init__(*args, **kw)
+        self.albedo = albedo
+        self.lambda_gray = lambda_gray
+        self.cache_seconds = 0.0
+
+    def frozen_sets(self) -> list[GaussianSet]:
+        return [self.albedo]
+
+    def prepare(self) -> None:
+        self.cache_seconds += cache_frozen(self.train_views + self.test_views, [self.albedo],
+                                           self.config.backend, "albedo")
+
+    def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
+        return compose(view.extras["A"], out.color)
+
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        cfg = self.config
+        terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim)}
+        if self.lambda_gray > 0:
+            terms["gray"] = self.lambda_gray * gray_reg(self.gaussians.colors)
+        if (d := depth_term(cfg, view, out)) is not None:
+            terms["depth"] = d
+        if cfg.lambda_scale > 0:
+            terms["scale"] = cfg.lambda_scale * scale_reg(self.gaussians.scales)
+        return sum_terms(terms)
+
+
+class ResidualStage(Stage):
+    """G_R with G_A and G_S frozen (cached as A * S): ``I = A * S + R``, only G_R updated."""
+
+    def __init__(self, *args, albedo: GaussianSet, shading: GaussianSet, **kw):
+        super().__init__(*args, **kw)
+        self.frozen = [albedo, shading]
+        self.cache_seconds = 0.0
+
+    def frozen_sets(self) -> list[GaussianSet]:
+        return list(self.frozen)
+
+    def prepare(self) -> None:
+        self.cache_seconds += cache_frozen(self.train_views + self.test_views, self.frozen,
+                                           self.config.backend, "albedo x shading")
+
+    def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
+        return view.extras["AS"] + out.color  # the cached A * S of compose(), plus R
+
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        cfg = self.config
+        terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim)}
+        if (d := depth_term(cfg, view, out)) is not None:
+            terms["depth"] = d
+        if cfg.lambda_scale > 0 and len(self.gaussians):
+            terms["scale"] = cfg.lambda_scale * scale_reg(self.gaussians.scales)
+        return sum_terms(terms)

@@ -1,0 +1,86 @@
+"""``<ws>/checkpoints/decompose/state.json``: which stages finished, on which inputs and settings.
+
+A rerun skips a stage only when its layer file, the layers it was trained on (by hash), its
+:class:`TrainConfig` and the settings outside it (:func:`stage_settings`) are all as recorded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from backend.core import events
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
+from backend.train.intrinsic.config import DecomposeConfig
+
+STATE_DIR = "decompose"
+"""Folder of state.json under ``<ws>/checkpoints`` (the stages' checkpoints are ``decompose_<stage>``)."""
+
+
+def file_hash(path: Path) -> str | None:
+    """First 16 hex digits of the file's SHA-256, None when there is no file."""
+    if not path.exists():
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()[:16]
+
+
+def jsonable(x: Any) -> Any:
+    """``x`` as it reads back from JSON (tuples become lists), so that it compares with state.json."""
+    return json.loads(json.dumps(x))
+
+
+def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
+    """Settings outside a stage's TrainConfig that change its result (resume must match them)."""
+    common = {"downscale": cfg.downscale, "hold_every": cfg.hold_every, "init": asdict(cfg.init)}
+    if name == "shading":
+        return jsonable({**common, "lambda_gray": cfg.lambda_gray, "shading_init": cfg.shading_init,
+                         "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo})
+    if name == "residual":
+        return jsonable({**common, "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn)})
+    return jsonable(common)
+
+
+class DecomposeState:
+    """``<ckpt>/state.json``: per stage, whether it finished, on which upstream layers, and its summary."""
+
+    def __init__(self, folder: Path, restart: bool = False):
+        """``restart``: a corrupt file is dropped (the stages start over) instead of being an error."""
+        self.path = Path(folder) / "state.json"
+        self.data: dict[str, Any] = {}
+        if self.path.exists():
+            try:
+                data = json.loads(self.path.read_text())
+                problem = None if isinstance(data, dict) and all(isinstance(v, dict) for v in data.values()) \
+                    else "not an object of stage entries"
+            except (OSError, ValueError, RecursionError) as e:
+                data, problem = {}, f"unreadable ({type(e).__name__}: {e})"
+            if problem is None:
+                self.data = data
+            elif restart:
+                events.log(f"{self.path}: {problem}; discarded (--restart)")
+            else:
+                raise IGSError(f"{self.path}: {problem}; run with --restart to start the stages over")
+
+    def get(self, stage: str) -> dict[str, Any]:
+        return self.data.get(stage) or {}
+
+    def set(self, stage: str, entry: dict[str, Any]) -> None:
+        self.data[stage] = entry
+        write_json(self.path, self.data)
+
+    def finished(self, stage: str, upstream: dict[str, str | None], ply: Path, config: dict[str, Any],
+                 settings: dict[str, Any]) -> bool:
+        """Whether ``stage`` finished with a summary and its recorded inputs are these: the upstream
+        layers' hashes, the hash of its own layer file ``ply``, its (jsonable) TrainConfig and settings."""
+        st = self.get(stage)
+        return (st.get("done") is True and isinstance(st.get("summary"), dict)
+                and st.get("upstream") == upstream and st.get("ply") == file_hash(ply)
+                and st.get("config") == config and st.get("extra") == settings)
