@@ -1013,10 +1013,12 @@ def test_flow_4b_fit_a_cylinder_paint_over_the_projected_albedo_and_bake(addon, 
 
     from backend.capture.load import load_capture
     from backend.core.imageio import read_linear, srgb_to_linear
-    from backend.edit.bake import dilate, load_albedo, render_albedo
+    from backend.edit.albedo_render import render_albedo
+    from backend.edit.change_metrics import dilate
     from backend.edit.mesh_raster import rasterize_proxy
     from backend.edit.proxy import load_proxy
     from backend.edit.texture import texture_from_view
+    from backend.edit.workspace_edits import load_albedo
     from backend.splats.ply import read_ply
     from backend.train.views import view_camera
 

@@ -11,7 +11,9 @@ import torch
 
 from backend.cli import main
 from backend.core.imageio import read_image
-from backend.edit.bake import BakeConfig, bake_edit, render_albedo
+from backend.edit.albedo_render import render_albedo
+from backend.edit.bake import bake_edit
+from backend.edit.bake_config import BakeConfig
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import load_proxy, plane_proxy, save_proxy
 from backend.splats.gaussians import GaussianSet
@@ -126,7 +128,7 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
 def test_capture_views_are_training_views_that_see_the_proxy(ws):
     from backend.capture.load import load_capture
     from backend.core.workspace import split_frames
-    from backend.edit.bake import capture_views_seeing
+    from backend.edit.view_selection import capture_views_seeing
 
     capture = load_capture(ws)
     proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
@@ -134,7 +136,7 @@ def test_capture_views_are_training_views_that_see_the_proxy(ws):
     edit = capture.frame(EDIT_VIEW).camera
     edit_pixels = int(rasterize_proxy(proxy, edit).mask.sum())
     train, held = split_frames(capture.frames)
-    every = capture_views_seeing(capture, proxy, edit, edit_pixels, BakeConfig(capture_views=100))
+    every = capture_views_seeing(capture, proxy, edit, edit_pixels, 100)
     names = [c.name for c in every]
     assert names and EDIT_VIEW not in names
     assert not set(names) & {f.name for f in held}  # held-out views never supervise a bake
@@ -142,12 +144,12 @@ def test_capture_views_are_training_views_that_see_the_proxy(ws):
         assert rasterize_proxy(proxy, c).mask.sum() >= 0.3 * edit_pixels
     # views that miss the face (the box is seen from all round) are not candidates
     assert len(every) < len(train) - 1
-    two = capture_views_seeing(capture, proxy, edit, edit_pixels, BakeConfig(capture_views=2))
+    two = capture_views_seeing(capture, proxy, edit, edit_pixels, 2)
     assert [c.name for c in two] == [names[0], names[-1]]  # spread over the candidates
 
 
 def _grow(mask, px):
-    from backend.edit.bake import dilate
+    from backend.edit.change_metrics import dilate
     return dilate(mask, px)
 
 
@@ -341,7 +343,7 @@ def test_fits_grow_on_the_depth_priors_of_the_training_views(ws, tmp_path, capsy
 
 def test_bake_stage_skips_frozen_gaussians_outside_each_window_without_changing_the_render(ws):
     from backend.capture.load import load_capture
-    from backend.edit.bake import BakeStage
+    from backend.edit.bake_stage import BakeStage
     from backend.train.loop import TrainConfig
     from backend.train.views import View
 

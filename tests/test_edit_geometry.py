@@ -27,16 +27,10 @@ from backend.edit.ransac import (
     grow_plane,
     orthonormal_axes,
 )
+from backend.edit.spawn import flattened_gaussians, spawn_points_on_proxy
 from backend.edit.sweep import shifted, sweep_offset
 from backend.edit.texture import texture_from_view, textured_from_view
-from backend.edit.views import (
-    check_proxy_visible,
-    flattened_gaussians,
-    hemisphere_views,
-    proxy_target,
-    rect_to_pixels,
-    spawn_points_on_proxy,
-)
+from backend.edit.views import check_proxy_visible, hemisphere_views, proxy_target, rect_to_pixels
 
 
 def unit(v):

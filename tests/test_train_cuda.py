@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from backend.cli import main
-from backend.edit.bake import BakeConfig, bake_edit, render_albedo
+from backend.edit.albedo_render import render_albedo
+from backend.edit.bake import bake_edit
+from backend.edit.bake_config import BakeConfig
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import plane_proxy
 from backend.render import gsplat_available

@@ -21,9 +21,11 @@ import numpy as np
 
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
+from backend.edit.albedo_render import render_albedo
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import ProxyMesh
 from backend.edit.texture import textured_from_view
+from backend.edit.view_selection import capture_views_seeing
 
 
 @dataclass(frozen=True)
@@ -139,12 +141,10 @@ def sweep_fitted(capture, albedo, proxy: ProxyMesh, edit_camera: Camera, backend
     """:func:`sweep_offset` with the albedo field ``albedo`` rendered in ``edit_camera`` and in up
     to ``views`` training views of ``capture`` that see the surface (held-out views never); returns the
     surface moved by the chosen offset (``proxy`` itself when the sweep is not accepted) and the result."""
-    from backend.edit.bake import BakeConfig, capture_views_seeing, render_albedo
-
     edit = render_albedo(albedo, edit_camera, backend).color.clamp(0, 1).numpy()
     seen = int(rasterize_proxy(proxy, edit_camera).mask.sum())
     others = []
-    for cam in capture_views_seeing(capture, proxy, edit_camera, seen, BakeConfig(capture_views=views)):
+    for cam in capture_views_seeing(capture, proxy, edit_camera, seen, views):
         out = render_albedo(albedo, cam, backend)
         others.append((cam, out.color.clamp(0, 1).numpy(), out.depth.numpy()))
     result = sweep_offset(proxy, edit_camera, edit, others, config)

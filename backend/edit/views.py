@@ -1,4 +1,4 @@
-"""Views and samples of the edit: the rectangle, the visibility check, hemisphere views, spawned Gaussians.
+"""Views of the edit: the rectangle, the visibility check, the covered pixels, hemisphere views.
 
 - :func:`rect_to_pixels` validates ``--rect x0 y0 x1 y1``: corners in continuous pixel coordinates
   (origin at the image's top-left corner, x right, y down; any corner order). It selects the pixels
@@ -8,8 +8,6 @@
   near plane, or not at all.
 - :func:`hemisphere_views` samples the virtual views of the bake on a spherical cap around the edit
   view (paper section 3.4).
-- :func:`spawn_points_on_proxy` / :func:`flattened_gaussians` give the new albedo Gaussians on 20 %
-  of the edit pixels of the edit view, as plain arrays.
 """
 
 from __future__ import annotations
@@ -119,10 +117,15 @@ def unproject(camera: Camera, rows: np.ndarray, cols: np.ndarray, depth: np.ndar
     return (xc - camera.t) @ camera.R  # R^T (x - t), row-wise
 
 
+def covered_pixels(render: ProxyRender, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(rows (P,), cols (P,)) of the pixels the proxy covers in ``render``, within ``mask`` (H, W) when given."""
+    m = render.mask if mask is None else (np.asarray(mask, bool) & render.mask)
+    return np.nonzero(m)
+
+
 def proxy_target(camera: Camera, render: ProxyRender, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(target (3,), normal (3,)): mean world point and mean normal (towards the camera) of the covered pixels."""
-    m = render.mask if mask is None else (np.asarray(mask, bool) & render.mask)
-    rows, cols = np.nonzero(m)
+    rows, cols = covered_pixels(render, mask)
     if len(rows) == 0:
         raise IGSError(f"view '{camera.name}': the proxy covers no pixel")
     pts = unproject(camera, rows, cols, render.depth[rows, cols])
@@ -211,87 +214,3 @@ def hemisphere_views(edit_camera: Camera, target_point, surface_normal=None, cou
         views.append(_look_at_with_intrinsics(edit_camera, f"{edit_camera.name}_hemi_{k:03d}",
                                               target + radius * d, target, up))
     return views
-
-
-# ----------------------------------------------------------------------------------------------
-# New Gaussians on the proxy
-
-
-@dataclass
-class SpawnPoints:
-    """Samples of the proxy surface at edit pixels of the edit view."""
-
-    positions: np.ndarray
-    """(M, 3) float64 world points (pixel centre rays at the proxy depth)."""
-    normals: np.ndarray
-    """(M, 3) float64 unit surface normals, towards the edit camera."""
-    colors: np.ndarray
-    """(M, 3) float32 linear proxy colour at those pixels."""
-    pixels: np.ndarray
-    """(M, 2) int64 (row, col) of the sampled pixels."""
-    depth: np.ndarray
-    """(M,) float64 camera z."""
-    cos: np.ndarray
-    """(M,) float64 |cos| between the view ray and the normal."""
-
-
-def spawn_points_on_proxy(edit_camera: Camera, render: ProxyRender, fraction: float = 0.2, seed: int = 0,
-                          mask: np.ndarray | None = None) -> SpawnPoints:
-    """Sample ``round(fraction * P)`` of the P edit pixels (``mask``, default the proxy's coverage) without
-    replacement and unproject them with the proxy depth (paper: 20 % of the edit pixels)."""
-    if not (np.isfinite(fraction) and 0.0 < fraction <= 1.0):
-        raise IGSError(f"--spawn-fraction must be in (0, 1], got {fraction}")
-    m = render.mask if mask is None else (np.asarray(mask, bool) & render.mask)
-    rows, cols = np.nonzero(m)
-    if len(rows) == 0:
-        raise IGSError(f"view '{edit_camera.name}': the edit covers no pixel of the proxy; nothing to spawn")
-    count = max(1, int(round(fraction * len(rows))))
-    pick = np.sort(np.random.default_rng(seed).choice(len(rows), count, replace=False))
-    rows, cols = rows[pick], cols[pick]
-    depth = render.depth[rows, cols].astype(np.float64)
-    return SpawnPoints(
-        positions=unproject(edit_camera, rows, cols, depth),
-        normals=render.normal[rows, cols].astype(np.float64),
-        colors=render.color[rows, cols].astype(np.float32),
-        pixels=np.stack([rows, cols], axis=1).astype(np.int64),
-        depth=depth,
-        cos=render.cos[rows, cols].astype(np.float64),
-    )
-
-
-def quats_z_to(normals: np.ndarray) -> np.ndarray:
-    """(M, 4) unit quaternions (w, x, y, z) of the shortest rotations taking +z to ``normals`` (M, 3)."""
-    n = np.asarray(normals, dtype=np.float64)
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
-    # q = (1 + z.n, z x n) normalised; z x n = (-n_y, n_x, 0).
-    q = np.stack([1.0 + n[:, 2], -n[:, 1], n[:, 0], np.zeros(len(n))], axis=1)
-    flip = q[:, 0] < 1e-9  # n = -z: any half-turn about an axis in the xy plane
-    q[flip] = [0.0, 1.0, 0.0, 0.0]
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
-def flattened_gaussians(points: SpawnPoints, camera: Camera, fraction: float = 0.2, spacing_scale: float = 1.0,
-                        thickness_ratio: float = 0.02, opacity: float = 0.9) -> dict[str, np.ndarray]:
-    """Flat Gaussians at ``points``: disc-shaped, local z along the surface normal.
-
-    In-plane scale (std-dev) = ``spacing_scale`` x the mean spacing of the samples on the surface,
-    ``z / (f * sqrt(fraction * cos))``: pixel footprint ``z/f``, stretched by ``1/cos`` along the
-    slope (the geometric mean ``1/sqrt(cos)`` is used), samples ``1/sqrt(fraction)`` pixels apart.
-    With the default 1.0 the spawned set renders hole-free (alpha >= 0.9 inside the edit with the
-    default opacity; 0.5 leaves holes at 20 % sampling) — the re-optimisation then sharpens it.
-    Normal-axis scale = ``thickness_ratio`` x the in-plane one. Returns float32 arrays: ``means``
-    (M, 3), ``quats`` (M, 4) wxyz, ``log_scales`` (M, 3), ``opacities`` (M,) activated, ``colors``
-    (M, 3) the linear albedo target (apply the albedo layer's inverse activation when storing raw
-    parameters).
-    """
-    f = np.sqrt(camera.fx * camera.fy)
-    cos = np.clip(points.cos, GRAZING_COS, 1.0)
-    sigma = spacing_scale * points.depth / (f * np.sqrt(fraction * cos))
-    scales = np.stack([sigma, sigma, thickness_ratio * sigma], axis=1)
-    return {
-        "means": points.positions.astype(np.float32),
-        "quats": quats_z_to(points.normals).astype(np.float32),
-        "log_scales": np.log(scales).astype(np.float32),
-        "opacities": np.full(len(sigma), opacity, np.float32),
-        "colors": np.clip(points.colors, 0.0, 1.0).astype(np.float32),
-    }
