@@ -22,7 +22,9 @@ point-to-surface distance (axis direction, axis position, radius) uses positions
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -116,6 +118,47 @@ def _needed_iterations(inlier_ratio: float, sample_size: int, confidence: float)
     return np.log(1.0 - confidence) / np.log(1.0 - good)
 
 
+Batch = tuple[np.ndarray, Callable[[int], Any]]
+"""A batch of hypotheses: (N, m) distances of the N points to each, and the k-th hypothesis' model."""
+
+
+def _msac(n_pts: int, iterations: int, sample_size: int, confidence: float, thr: float,
+          hypotheses: Callable[[int], Batch | None]) -> Any:
+    """The search both fits share: batches of ``m`` hypotheses drawn by ``hypotheses(m)`` (None when no
+    sample of the batch gave one) are scored by their truncated squared distances, until ``iterations``
+    samples or the adaptive bound at ``confidence``; returns the best model, None if there was none."""
+    chunk = int(max(8, min(256, 4_000_000 // n_pts)))  # keeps the (N, m) distance matrix small
+    best_cost, best = np.inf, None
+    done, needed = 0, float(iterations)
+    while done < min(iterations, needed):
+        m = int(min(chunk, iterations - done))
+        batch = hypotheses(m)
+        done += m
+        if batch is None:
+            continue
+        dist, model = batch
+        cost = np.minimum(dist * dist, thr * thr).sum(axis=0)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            best_cost, best = cost[k], model(k)
+            needed = _needed_iterations(float((dist[:, k] < thr).mean()), sample_size, confidence)
+    return best
+
+
+def _refit(p: np.ndarray, model: Any, thr: float, rounds: int, min_points: int,
+           residual: Callable[[np.ndarray, Any], np.ndarray], refit: Callable[[np.ndarray, Any], Any]) -> tuple[Any, np.ndarray]:
+    """(model, inlier mask (N,)) after up to ``rounds`` least-squares refits of ``model`` on its inliers
+    among ``p`` (N, 3) (``|residual| < thr``), the inliers re-selected after each; it stops when fewer
+    than ``min_points`` are left."""
+    inl = np.abs(residual(p, model)) < thr
+    for _ in range(rounds):
+        if inl.sum() < min_points:
+            break
+        model = refit(p[inl], model)
+        inl = np.abs(residual(p, model)) < thr
+    return model, inl
+
+
 def orthonormal_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (u, v) with u x v = ``normal`` (unit)."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -149,12 +192,9 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
     thr = _auto_threshold(p, threshold, what)
     rng = np.random.default_rng(seed)
     n_pts = len(p)
-    chunk = int(max(8, min(256, 4_000_000 // n_pts)))
-    best_cost, best = np.inf, None
-    done, needed = 0, float(iterations)
     scale = max(robust_size(p), 1e-300)
-    while done < min(iterations, needed):
-        m = int(min(chunk, iterations - done))
+
+    def planes(m: int) -> Batch | None:  # planes through m point triples: (point, unit normal)
         if n_pts < 64:  # few points: avoid wasting samples on repeated indices
             idx = np.stack([rng.choice(n_pts, 3, replace=False) for _ in range(m)])
         else:
@@ -163,26 +203,17 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
         nrm = np.cross(b - a, c - a)
         length = np.linalg.norm(nrm, axis=1)
         ok = length > 1e-9 * scale * scale  # three (almost) collinear samples give no plane
-        done += m
         if not ok.any():
-            continue
-        nrm = nrm[ok] / length[ok, None]
-        d = np.abs(p @ nrm.T - np.sum(a[ok] * nrm, axis=1))  # (N, m') point-to-plane distances
-        cost = np.minimum(d * d, thr * thr).sum(axis=0)
-        k = int(np.argmin(cost))
-        if cost[k] < best_cost:
-            best_cost, best = cost[k], (a[ok][k], nrm[k])
-            ratio = float((d[:, k] < thr).mean())
-            needed = _needed_iterations(ratio, 3, confidence)
+            return None
+        a, nrm = a[ok], nrm[ok] / length[ok, None]
+        d = np.abs(p @ nrm.T - np.sum(a * nrm, axis=1))  # (N, m') point-to-plane distances
+        return d, lambda k: (a[k], nrm[k])
+
+    best = _msac(n_pts, iterations, 3, confidence, thr, planes)
     if best is None:
         raise IGSError(f"{what}: all sampled point triples are collinear; the points do not span a plane")
-    center, normal = best
-    inl = np.abs((p - center) @ normal) < thr
-    for _ in range(3):  # least-squares refit, then re-select the inliers
-        if inl.sum() < 3:
-            break
-        center, normal = _plane_lsq(p[inl], what)
-        inl = np.abs((p - center) @ normal) < thr
+    (center, normal), inl = _refit(p, best, thr, 3, MIN_PLANE_POINTS, lambda q, m: (q - m[0]) @ m[1],
+                                   lambda q, m: _plane_lsq(q, what))
     ratio = float(inl.mean())
     if inl.sum() < 3 or ratio < min_inlier_ratio:
         raise IGSError(f"{what}: only {ratio:.0%} of the {n_pts} selected points lie within {thr:.3g} of one plane "
@@ -309,6 +340,18 @@ def _refine_cylinder(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius:
     return pt, ax, abs(r)
 
 
+def _unit_normals(normals, raw: np.ndarray, sub: np.ndarray, what: str) -> np.ndarray:
+    """The caller's ``normals`` (N, 3) of the finite rows of ``raw`` (N, 3), subsampled by ``sub``, as unit vectors."""
+    nrm = np.asarray(normals, dtype=np.float64)
+    if nrm.shape != raw.shape:
+        raise IGSError(f"{what}: normals must have the same shape as points {raw.shape}, got {nrm.shape}")
+    nrm = nrm[np.isfinite(raw).all(axis=1)][sub]
+    length = np.linalg.norm(nrm, axis=1, keepdims=True)
+    if not (np.isfinite(nrm).all() and (length > 0).all()):
+        raise IGSError(f"{what}: normals must be finite and non-zero")
+    return nrm / length
+
+
 def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, iterations: int = 3000,
                         seed: int = 0, confidence: float = 0.999, min_inlier_ratio: float = 0.2,
                         max_points: int = 4000, knn: int = 16) -> CylinderFit:
@@ -322,55 +365,33 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
     what = "cylinder fit"
     raw = np.asarray(points, dtype=np.float64)
     p_all = _as_points(raw, what, MIN_CYLINDER_POINTS)
-    finite = np.isfinite(raw).all(axis=1)
     thr = _auto_threshold(p_all, threshold, what)
     rng = np.random.default_rng(seed)
     sub = rng.choice(len(p_all), max_points, replace=False) if len(p_all) > max_points else np.arange(len(p_all))
     p = p_all[sub]
-    if normals is None:
-        nrm = estimate_normals(p, knn)
-    else:
-        nrm = np.asarray(normals, dtype=np.float64)
-        if nrm.shape != raw.shape:
-            raise IGSError(f"{what}: normals must have the same shape as points {raw.shape}, got {nrm.shape}")
-        nrm = nrm[finite][sub]
-        length = np.linalg.norm(nrm, axis=1, keepdims=True)
-        if not (np.isfinite(nrm).all() and (length > 0).all()):
-            raise IGSError(f"{what}: normals must be finite and non-zero")
-        nrm = nrm / length
+    nrm = estimate_normals(p, knn) if normals is None else _unit_normals(normals, raw, sub, what)
     size = robust_size(p_all)
     n_pts = len(p)
-    chunk = int(max(8, min(256, 4_000_000 // n_pts)))
-    best_cost, best = np.inf, None
-    done, needed = 0, float(iterations)
-    while done < min(iterations, needed):
-        m = int(min(chunk, iterations - done))
+
+    def cylinders(m: int) -> Batch | None:  # cylinders through m point pairs: (axis point, axis, radius)
         i, j = rng.integers(0, n_pts, size=m), rng.integers(0, n_pts, size=m)
         axis, centre, radius, ok = _two_point_cylinders(p[i], nrm[i], p[j], nrm[j])
         ok &= (i != j) & (radius < 100.0 * size)
-        done += m
         if not ok.any():
-            continue
+            return None
         axis, centre, radius = axis[ok], centre[ok], radius[ok]
         # Distance to each hypothesis' axis: |q|^2 - (q.a)^2 with q = x - c, for all points at once.
         along = p @ axis.T - np.sum(centre * axis, axis=1)  # (N, m')
         q2 = np.sum(p * p, 1)[:, None] - 2.0 * p @ centre.T + np.sum(centre * centre, 1)[None, :]
         dist = np.abs(np.sqrt(np.maximum(q2 - along * along, 0.0)) - radius[None, :])
-        cost = np.minimum(dist * dist, thr * thr).sum(axis=0)
-        k = int(np.argmin(cost))
-        if cost[k] < best_cost:
-            best_cost, best = cost[k], (centre[k], axis[k], float(radius[k]))
-            needed = _needed_iterations(float((dist[:, k] < thr).mean()), 2, confidence)
+        return dist, lambda k: (centre[k], axis[k], float(radius[k]))
+
+    best = _msac(n_pts, iterations, 2, confidence, thr, cylinders)
     if best is None:
         raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
                        "the selection looks planar; use fit-plane)")
-    point, axis, radius = best
-    inl = np.abs(cylinder_residuals(p, point, axis, radius)) < thr
-    for _ in range(2):
-        if inl.sum() < MIN_CYLINDER_POINTS:
-            break
-        point, axis, radius = _refine_cylinder(p[inl], point, axis, radius)
-        inl = np.abs(cylinder_residuals(p, point, axis, radius)) < thr
+    (point, axis, radius), _ = _refit(p, best, thr, 2, MIN_CYLINDER_POINTS, lambda q, m: cylinder_residuals(q, *m),
+                                      lambda q, m: _refine_cylinder(q, *m))
     if radius > 50.0 * size:
         raise IGSError(f"{what}: the best cylinder has radius {radius:.3g}, far larger than the selection "
                        f"({size:.3g}); the points look planar, use fit-plane")
