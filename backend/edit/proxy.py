@@ -340,6 +340,50 @@ def _read_texture(path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None
     return rgb, alpha
 
 
+def _json_mesh(data: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(vertices (V, 3), faces (F, 3), corner UVs (3F, 2), matrix_world (4, 4)) of a proxy.json object."""
+    vertices = _json_array(data, "vertices", where, np.float64, 3)
+    faces = _json_array(data, "faces", where, np.int64, 3)
+    if "uvs" not in data or data["uvs"] is None or data["uvs"] == []:
+        raise IGSError(f"{where}: the mesh has no UVs ('uvs' missing or empty); unwrap it in Blender (U > Unwrap)")
+    uv_flat = _json_array(data, "uvs", where, np.float64, 2)
+    if len(uv_flat) != 3 * len(faces):
+        raise IGSError(f"{where}: 'uvs' must hold 3 corner UVs per face: {len(faces)} faces need "
+                       f"{3 * len(faces)} [u, v], got {len(uv_flat)}")
+    if "matrix_world" not in data:
+        raise IGSError(f"{where}: missing key 'matrix_world' (4x4, row-major, object -> world)")
+    try:
+        matrix = np.array(data["matrix_world"], dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise IGSError(f"{where}: 'matrix_world' must be 4 rows of 4 numbers ({e})") from e
+    if matrix.shape != (4, 4):
+        raise IGSError(f"{where}: 'matrix_world' must be 4 rows of 4 numbers, got shape {matrix.shape}")
+    return vertices, faces, uv_flat, matrix
+
+
+def _json_appearance(data: dict, path: Path, where: str
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, Path | None]:
+    """(texture (H, W, 3) linear, its alpha (H, W), flat colour (3,), the texture's file) of a proxy.json
+    object: exactly one of a texture (read from a path relative to ``path``'s folder) and a colour."""
+    tex_ref, color_ref = data.get("texture"), data.get("color")
+    if (tex_ref is None) == (color_ref is None):
+        raise IGSError(f"{where}: exactly one of 'texture' and 'color' must be non-null "
+                       f"(got {'both' if tex_ref is not None else 'neither'})")
+    if tex_ref is not None:
+        if not isinstance(tex_ref, str) or not tex_ref:
+            raise IGSError(f"{where}: 'texture' must be a file path string")
+        tex_path = Path(tex_ref) if Path(tex_ref).is_absolute() else path.parent / tex_ref
+        texture, alpha = _read_texture(tex_path, where)
+        return texture, alpha, None, tex_path
+    try:
+        color = np.array(color_ref, dtype=np.float32)
+    except (TypeError, ValueError) as e:
+        raise IGSError(f"{where}: 'color' must be [r, g, b] ({e})") from e
+    if color.shape != (3,):
+        raise IGSError(f"{where}: 'color' must be [r, g, b], got {color_ref!r}")
+    return None, None, color, None
+
+
 def load_proxy(path: str | os.PathLike) -> ProxyMesh:
     """Read and validate a ``proxy.json`` (format in the module docstring); textures are loaded linear."""
     path = Path(path)
@@ -359,39 +403,8 @@ def load_proxy(path: str | os.PathLike) -> ProxyMesh:
         raise IGSError(f"{where}: 'name' must be a non-empty string")
     if "primitive" not in data:
         raise IGSError(f"{where}: missing key 'primitive' (use {{\"type\": \"mesh\"}} for any mesh)")
-    vertices = _json_array(data, "vertices", where, np.float64, 3)
-    faces = _json_array(data, "faces", where, np.int64, 3)
-    if "uvs" not in data or data["uvs"] is None or data["uvs"] == []:
-        raise IGSError(f"{where}: the mesh has no UVs ('uvs' missing or empty); unwrap it in Blender (U > Unwrap)")
-    uv_flat = _json_array(data, "uvs", where, np.float64, 2)
-    if len(uv_flat) != 3 * len(faces):
-        raise IGSError(f"{where}: 'uvs' must hold 3 corner UVs per face: {len(faces)} faces need "
-                       f"{3 * len(faces)} [u, v], got {len(uv_flat)}")
-    if "matrix_world" not in data:
-        raise IGSError(f"{where}: missing key 'matrix_world' (4x4, row-major, object -> world)")
-    try:
-        matrix = np.array(data["matrix_world"], dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise IGSError(f"{where}: 'matrix_world' must be 4 rows of 4 numbers ({e})") from e
-    if matrix.shape != (4, 4):
-        raise IGSError(f"{where}: 'matrix_world' must be 4 rows of 4 numbers, got shape {matrix.shape}")
-    tex_ref, color_ref = data.get("texture"), data.get("color")
-    if (tex_ref is None) == (color_ref is None):
-        raise IGSError(f"{where}: exactly one of 'texture' and 'color' must be non-null "
-                       f"(got {'both' if tex_ref is not None else 'neither'})")
-    texture = alpha = color = tex_path = None
-    if tex_ref is not None:
-        if not isinstance(tex_ref, str) or not tex_ref:
-            raise IGSError(f"{where}: 'texture' must be a file path string")
-        tex_path = Path(tex_ref) if Path(tex_ref).is_absolute() else path.parent / tex_ref
-        texture, alpha = _read_texture(tex_path, where)
-    else:
-        try:
-            color = np.array(color_ref, dtype=np.float32)
-        except (TypeError, ValueError) as e:
-            raise IGSError(f"{where}: 'color' must be [r, g, b] ({e})") from e
-        if color.shape != (3,):
-            raise IGSError(f"{where}: 'color' must be [r, g, b], got {color_ref!r}")
+    vertices, faces, uv_flat, matrix = _json_mesh(data, where)
+    texture, alpha, color, tex_path = _json_appearance(data, path, where)
     opacity = data.get("opacity", 1.0)
     if isinstance(opacity, bool) or not isinstance(opacity, int | float):
         raise IGSError(f"{where}: 'opacity' must be a number in [0, 1], got {opacity!r}")
