@@ -98,6 +98,14 @@ def pixel_rays(camera: Camera, cols: np.ndarray, rows: np.ndarray) -> np.ndarray
     return np.stack([x, y, np.ones_like(x, dtype=np.float64)], axis=-1)
 
 
+def pixel_centre_box(x: np.ndarray, y: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
+    """(i0, i1, j0, j1): the inclusive column and row ranges of the pixel centres (i + 0.5, j + 0.5) inside
+    the bounding box of the points (``x``, ``y``), clipped to a ``width`` x ``height`` image (empty when
+    i0 > i1 or j0 > j1)."""
+    return (max(0, int(np.ceil(x.min() - 0.5))), min(width - 1, int(np.floor(x.max() - 0.5))),
+            max(0, int(np.ceil(y.min() - 0.5))), min(height - 1, int(np.floor(y.max() - 0.5))))
+
+
 def rasterize_triangles(corners_world: np.ndarray, camera: Camera, config: RasterConfig = RasterConfig()) -> Fragments:
     """Depth-tested rasterisation of triangles ``corners_world`` (F, 3, 3) (world space) in ``camera``."""
     H, W = camera.height, camera.width
@@ -115,8 +123,7 @@ def rasterize_triangles(corners_world: np.ndarray, camera: Camera, config: Raste
         if (z > near).all():
             u = camera.fx * tri[:, 0] / z + camera.cx
             v = camera.fy * tri[:, 1] / z + camera.cy
-            i0, i1 = max(0, int(np.ceil(u.min() - 0.5))), min(W - 1, int(np.floor(u.max() - 0.5)))
-            j0, j1 = max(0, int(np.ceil(v.min() - 0.5))), min(H - 1, int(np.floor(v.max() - 0.5)))
+            i0, i1, j0, j1 = pixel_centre_box(u, v, W, H)
             if i0 > i1 or j0 > j1:
                 continue
         else:  # crosses the near plane: its projection is unbounded, test the whole image

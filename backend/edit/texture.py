@@ -17,7 +17,13 @@ import numpy as np
 
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.edit.mesh_raster import ProxyRender, RasterConfig, rasterize_proxy, sample_texture
+from backend.edit.mesh_raster import (
+    ProxyRender,
+    RasterConfig,
+    pixel_centre_box,
+    rasterize_proxy,
+    sample_texture,
+)
 from backend.edit.proxy import ProxyMesh
 
 
@@ -36,8 +42,7 @@ def uv_surface_points(proxy: ProxyMesh, width: int, height: int) -> tuple[np.nda
         den = (y[1] - y[2]) * (x[0] - x[2]) + (x[2] - x[1]) * (y[0] - y[2])
         if abs(den) < 1e-12:
             continue  # zero UV area: maps to no texel
-        i0, i1 = max(0, int(np.ceil(x.min() - 0.5))), min(width - 1, int(np.floor(x.max() - 0.5)))
-        j0, j1 = max(0, int(np.ceil(y.min() - 0.5))), min(height - 1, int(np.floor(y.max() - 0.5)))
+        i0, i1, j0, j1 = pixel_centre_box(x, y, width, height)
         if i0 > i1 or j0 > j1:
             continue
         jj, ii = np.mgrid[j0:j1 + 1, i0:i1 + 1]
