@@ -26,7 +26,6 @@
    (``base``: start from another edit's albedo).
 """
 
-
 from __future__ import annotations
 
 import shutil
@@ -115,6 +114,7 @@ class _Split:
 
 
 def _load_inputs(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str, cfg: BakeConfig) -> _Inputs:
+    """The device, the capture, the edit's folder (its name checked), the proxy and the albedo to edit."""
     device = resolve_device(cfg.device)
     capture = load_capture(workspace)
     out_dir = edit_dir(capture.workspace, name)
