@@ -32,9 +32,9 @@ from typing import Any
 import torch
 
 from backend.core import events
-from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.eval.baseline import record_train_3dgs
+from backend.eval.bench_cli import error, write_result
 from backend.eval.decomposition import evaluate_decomposition
 from backend.render import BACKENDS, Backend
 from backend.train.baseline import BaselineConfig, train_3dgs
@@ -273,12 +273,8 @@ def main(argv: list[str] | None = None) -> int:
                      SCHEDULES if args.single_set_schedule == "both" else (args.single_set_schedule,),
                      args.shading_geometry)
     except IGSError as e:
-        print(f"bench_decompose: error: {e}", file=sys.stderr)
-        return 2
-    print(table(result))
-    write_json(args.out, result)
-    print(f"wrote {args.out}")
-    return 0
+        return error("bench_decompose", e)
+    return write_result(table(result), args.out, result)
 
 
 if __name__ == "__main__":

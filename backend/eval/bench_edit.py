@@ -41,8 +41,7 @@ import numpy as np
 from backend.capture.load import load_capture
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
-from backend.core.imageio import linear_to_srgb, read_exr, read_image, read_linear, srgb_to_linear
-from backend.core.workspace import split_frames
+from backend.core.imageio import linear_to_srgb, read_image, read_linear, srgb_to_linear
 from backend.edit.albedo_render import edited_albedo, render_albedo
 from backend.edit.bake import bake_edit
 from backend.edit.bake_config import BakeConfig
@@ -52,6 +51,8 @@ from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
 from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
+from backend.eval.bench_cli import error
+from backend.eval.edit_region import RegionPSNR, edit_views, true_lighting
 from backend.train.intrinsic.composite import compose
 
 EDITS = ("wall_decal", "rug_recolor", "column_decal")
@@ -183,43 +184,20 @@ def true_cylinder(edit: dict, folder: Path) -> tuple[ProxyMesh, dict]:
     return proxy, {"fit": "none (ground-truth cylinder)"}
 
 
-class Acc:
-    """Sum of squared errors and pixel counts per key -> PSNR."""
-
-    def __init__(self):
-        self.se: dict[str, float] = {}
-        self.n: dict[str, int] = {}
-
-    def add(self, key: str, a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> None:
-        if mask.any():
-            self.se[key] = self.se.get(key, 0.0) + float(np.sum((a[mask] - b[mask]) ** 2))
-            self.n[key] = self.n.get(key, 0) + int(mask.sum()) * a.shape[-1]
-
-    def psnr(self) -> dict[str, float]:
-        return {k: (float("inf") if self.se[k] == 0 else float(10 * np.log10(self.n[k] / self.se[k])))
-                for k in self.se}
-
-
 def _srgb(lin: np.ndarray) -> np.ndarray:
     return linear_to_srgb(np.clip(lin, 0.0, 1.0))
 
 
 def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: str,
              margin: int) -> dict[str, float]:
-    capture = load_capture(ws_root)
     folder = ws_root / "gt_edit" / edit_name
-    _, test = split_frames(capture.frames)
-    acc = Acc()
-    for f in test:
+    acc = RegionPSNR()
+    for f, cover in edit_views(ws_root, edit_name):
         cam = f.camera
-        stem = Path(f.name).stem
-        mask = read_image(folder / "mask" / f.name)[..., 0] > 0.5
-        if not mask.any():
-            continue
+        mask = cover > 0.5
         gt_img = read_image(folder / "images" / f.name)
         gt_alb = read_image(folder / "albedo" / f.name)
-        shading = read_exr(ws_root / "gt" / "shading" / f"{stem}.exr")[..., :3]
-        residual = read_exr(ws_root / "gt" / "residual" / f"{stem}.exr")[..., :3]
+        shading, residual = true_lighting(ws_root, f)
         orig_img = srgb_to_linear(read_image(f.image))
         a0 = render_albedo(original, cam, backend).color.clamp(0, 1).numpy()
         outside = ~dilate(mask, margin)
@@ -313,8 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         results = run(ws_root, [e for e in args.edits.split(",") if e], cfg, args.margin,
                       FitConfig(min_selected=args.min_selected), args.grow_on)
     except IGSError as e:
-        print(f"bench_edit: error: {e}", file=sys.stderr)
-        return 2
+        return error("bench_edit", e)
     out = Path(args.out) if args.out else ws_root / "bench_edit.json"
     write_json(out, {"results": results, "config": vars(args), "table": table(results)})
     print(table(results))

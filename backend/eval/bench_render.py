@@ -31,8 +31,8 @@ import numba
 import torch
 
 from backend.core import events
-from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.eval.bench_cli import error, write_result
 from backend.eval.bench_scene import room_camera, room_gaussians, room_layers
 from backend.render import Splats, gsplat_available, render, render_layers
 from backend.render import cpu as cpu_backend
@@ -384,21 +384,13 @@ def main(argv: list[str] | None = None) -> int:
                           reference_repeats=args.reference_repeats, reference_budget_s=args.reference_budget,
                           fused_count=args.fused_count, profile=(pw, ph, pn), threads=args.threads,
                           torch_threads=args.torch_threads, workspace=args.workspace)
-    except ValueError as e:
-        print(f"bench_render: error: {e}", file=sys.stderr)
-        return 2
-    except IGSError as e:
-        print(f"bench_render: error: {e}", file=sys.stderr)
-        return 2
+    except (ValueError, IGSError) as e:
+        return error("bench_render", e)
     try:
         result = run(cfg, log=events.log)
     except IGSError as e:
-        print(f"bench_render: error: {e}", file=sys.stderr)
-        return 2
-    print(format_report(result))
-    write_json(args.out, result)
-    print(f"\nwrote {args.out}")
-    return 0
+        return error("bench_render", e)
+    return write_result(format_report(result) + "\n", args.out, result)  # a blank line before 'wrote'
 
 
 if __name__ == "__main__":

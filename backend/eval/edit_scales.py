@@ -17,12 +17,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend.capture.load import load_capture
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
-from backend.core.workspace import split_frames
 from backend.edit.albedo_render import render_albedo
+from backend.eval.bench_cli import error, number_list
+from backend.eval.edit_region import RegionPSNR, edit_views
 from backend.splats.ply import read_ply
 from backend.train.views import view_camera
 
@@ -31,16 +31,10 @@ def region_psnr(ws: Path, edit: str, plys: list[Path], downscales: list[int], ba
                 ) -> dict[str, dict[str, float]]:
     """{ply: {"1/d": PSNR in the edit region}} of baked albedos at each downscale d."""
     folder = ws / "gt_edit" / edit
-    if not (folder / "mask").is_dir():
-        raise IGSError(f"{folder / 'mask'}: not found (a synthetic capture with gt_edit/{edit} is needed)")
-    _, test = split_frames(load_capture(ws).frames)
+    views = edit_views(ws, edit)
     sets = {str(p): read_ply(p, kind="albedo")[0] for p in plys}
-    se = {(p, d): 0.0 for p in sets for d in downscales}
-    n = dict.fromkeys(downscales, 0)
-    for f in test:
-        mask_full = read_image(folder / "mask" / f.name)[..., 0].astype(np.float32)
-        if not (mask_full > 0.5).any():
-            continue
+    acc = RegionPSNR()
+    for f, mask_full in views:
         gt_full = srgb_to_linear(read_image(folder / "albedo" / f.name)).astype(np.float32)
         for d in downscales:
             cam = view_camera(f.camera, d)
@@ -48,15 +42,14 @@ def region_psnr(ws: Path, edit: str, plys: list[Path], downscales: list[int], ba
             if d > 1:
                 gt = cv2.resize(gt, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
                 m = cv2.resize(m, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
-            mask = m > 0.5
-            target = linear_to_srgb(np.clip(gt, 0.0, 1.0))[mask]
+            target = linear_to_srgb(np.clip(gt, 0.0, 1.0))
             for p, g in sets.items():
                 a = render_albedo(g, cam, backend).color.clamp(0, 1).cpu().numpy()
-                se[p, d] += float(((linear_to_srgb(a)[mask] - target) ** 2).sum())
-            n[d] += int(mask.sum()) * 3
-    if not all(n.values()):
+                acc.add((p, d), linear_to_srgb(a), target, m > 0.5)
+    psnr = acc.psnr()
+    if len(psnr) < len(sets) * len(set(downscales)):  # some size saw no region pixel in any view
         raise IGSError(f"edit '{edit}' is not seen in any held-out view")
-    return {p: {f"1/{d}": float(10 * np.log10(n[d] / max(se[p, d], 1e-20))) for d in downscales} for p in sets}
+    return {p: {f"1/{d}": psnr[p, d] for d in downscales} for p in sets}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,13 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="edit_scales.json", help="JSON output (default edit_scales.json)")
     args = ap.parse_args(argv)
     try:
-        downs = [int(x) for x in args.downscales.split(",") if x]
-        if not downs or min(downs) < 1:
-            raise IGSError(f"--downscales must be integers >= 1, got {args.downscales!r}")
+        downs = number_list(args.downscales, int, 1, "--downscales must be integers >= 1")
         results = region_psnr(Path(args.workspace), args.edit, [Path(p) for p in args.plys], downs, args.backend)
     except (IGSError, ValueError) as e:
-        print(f"edit_scales: error: {e}", file=sys.stderr)
-        return 2
+        return error("edit_scales", e)
     for p, r in results.items():
         print(p + ": " + "  ".join(f"{k} {v:.2f} dB" for k, v in r.items()))
     write_json(Path(args.out), {"edit": args.edit, "results": results})
