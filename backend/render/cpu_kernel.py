@@ -167,6 +167,26 @@ def chunk_tiles(cost, n_chunks):
 
 
 @njit(cache=True, inline="always")
+def _tile_pixels(t, tiles_x, width, height):
+    """Inclusive pixel ranges (px0, px1, py0, py1) of tile ``t``, cropped to the image."""
+    px0 = (t % tiles_x) * TILE
+    py0 = (t // tiles_x) * TILE
+    return px0, min(px0 + TILE, width) - 1, py0, min(py0 + TILE, height) - 1
+
+
+@njit(cache=True, inline="always")
+def _clip_box(gbox, r, px0, px1, py0, py1):
+    """Rank ``r``'s pixel box (x0, x1, y0, y1) within the tile's ranges."""
+    return max(gbox[r, 0], px0), min(gbox[r, 1], px1), max(gbox[r, 2], py0), min(gbox[r, 3], py1)
+
+
+@njit(cache=True, inline="always")
+def _gaussian(gdat, r):
+    """Rank ``r``'s (mx, my, conic a, b, c, opacity, power cut-off) as locals (see :func:`_alpha` for why)."""
+    return gdat[r, 0], gdat[r, 1], gdat[r, 2], gdat[r, 3], gdat[r, 4], gdat[r, 5], gdat[r, 6]
+
+
+@njit(cache=True, inline="always")
 def _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1):
     """Pixels [xa, xb] of row y (within [x0, x1]) inside the ellipse where power >= the cut-off.
 
@@ -237,10 +257,7 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
     best_w = np.zeros((n_layers, TILE, TILE), np.float32)
     alive = np.zeros(n_layers, np.int64)
     for t in tiles:
-        px0 = (t % tiles_x) * TILE
-        py0 = (t // tiles_x) * TILE
-        px1 = min(px0 + TILE, width) - 1
-        py1 = min(py0 + TILE, height) - 1
+        px0, px1, py0, py1 = _tile_pixels(t, tiles_x, width, height)
         done[:] = False
         best_w[:] = ZERO
         n_alive = n_layers * (px1 - px0 + 1) * (py1 - py0 + 1)
@@ -251,12 +268,9 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
             lay = glay[r]
             if alive[lay] == 0:
                 continue
-            x0 = max(gbox[r, 0], px0)
-            x1 = min(gbox[r, 1], px1)
-            y0 = max(gbox[r, 2], py0)
-            y1 = min(gbox[r, 3], py1)
-            mx, my, ca, cb, cc = gdat[r, 0], gdat[r, 1], gdat[r, 2], gdat[r, 3], gdat[r, 4]
-            o, pcut, gid = gdat[r, 5], gdat[r, 6], order[r]
+            x0, x1, y0, y1 = _clip_box(gbox, r, px0, px1, py0, py1)
+            mx, my, ca, cb, cc, o, pcut = _gaussian(gdat, r)
+            gid = order[r]
             for y in range(y0, y1 + 1):
                 xa, xb = _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1)
                 for x in range(xa, xb + 1):
@@ -303,10 +317,7 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
     g_feat = np.empty(n_feat, np.float32)
     layer_stop = np.empty(n_layers, np.int64)
     for t in tiles:
-        px0 = (t % tiles_x) * TILE
-        py0 = (t // tiles_x) * TILE
-        px1 = min(px0 + TILE, width) - 1
-        py1 = min(py0 + TILE, height) - 1
+        px0, px1, py0, py1 = _tile_pixels(t, tiles_x, width, height)
         # Nothing after a layer's last contributor in this tile needs visiting.
         layer_stop[:] = -1
         for lay in range(n_layers):
@@ -320,12 +331,8 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
             lay = glay[r]
             if k > layer_stop[lay]:
                 continue
-            x0 = max(gbox[r, 0], px0)
-            x1 = min(gbox[r, 1], px1)
-            y0 = max(gbox[r, 2], py0)
-            y1 = min(gbox[r, 3], py1)
-            mx, my, ca, cb, cc = gdat[r, 0], gdat[r, 1], gdat[r, 2], gdat[r, 3], gdat[r, 4]
-            o, pcut = gdat[r, 5], gdat[r, 6]
+            x0, x1, y0, y1 = _clip_box(gbox, r, px0, px1, py0, py1)
+            mx, my, ca, cb, cc, o, pcut = _gaussian(gdat, r)
             g_mx = ZERO
             g_my = ZERO
             g_a = ZERO

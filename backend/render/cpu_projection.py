@@ -10,6 +10,7 @@ Gaussians, run on chunks by :mod:`backend.render.threads`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -43,6 +44,90 @@ def _matTvec(M, a, b, c):
             M[0, 2] * a + M[1, 2] * b + M[2, 2] * c)
 
 
+@njit(cache=True, inline="always")
+def _fov_bounds(fx, fy, cx, cy, width, height):
+    """(lo_u, hi_u, lo_v, hi_v): x/z and y/z at 1.3x the field of view, where the Jacobian is clamped."""
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    return (-(cx / fx + 0.3 * tan_x), (width - cx) / fx + 0.3 * tan_x,
+            -(cy / fy + 0.3 * tan_y), (height - cy) / fy + 0.3 * tan_y)
+
+
+class Terms(NamedTuple):
+    """The forward quantities of one Gaussian (float64), shared by the forward and the backward."""
+
+    x: float
+    y: float
+    z: float
+    """Camera-space point."""
+    in_depth: bool
+    """near < z < far."""
+    inv_z: float
+    """1/z (1 when culled, so that nothing is infinite)."""
+    u: float
+    v: float
+    """x/z, y/z."""
+    uc: float
+    vc: float
+    """u, v clamped to 1.3x the field of view (where the Jacobian is evaluated)."""
+    j00: float
+    j02: float
+    j11: float
+    j12: float
+    """The non-zero entries of the perspective Jacobian J (2, 3)."""
+    qn_raw: float
+    """The quaternion's norm."""
+    nq: tuple[float, float, float, float]
+    """The unit quaternion (w, x, y, z)."""
+    r: tuple[float, ...]
+    """Its rotation matrix Rq, 9 entries row-major."""
+    s: tuple[float, float, float]
+    """Scales."""
+    pc0: tuple[float, float, float]
+    pc1: tuple[float, float, float]
+    pc2: tuple[float, float, float]
+    """Columns of P = Rw Rq S."""
+    t0: tuple[float, float, float]
+    t1: tuple[float, float, float]
+    """Rows of T = J P."""
+    a: float
+    b: float
+    c: float
+    """The 2D covariance [[a, b], [b, c]] = T T^T + eps2d I."""
+
+
+@njit(cache=True, inline="always")
+def _terms(i, means, quats, scales, eps2d, Rw, tw, fx, fy, near, far, lo_u, hi_u, lo_v, hi_v):
+    """:class:`Terms` of Gaussian ``i``: the shared start of the forward and of the backward (which
+    recomputes it rather than storing it). Inlined, so the kernels' loops make no call."""
+    x, y, z = _matvec(Rw, np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2]))
+    x, y, z = x + tw[0], y + tw[1], z + tw[2]
+    in_depth = z > near and z < far
+    inv_z = 1.0 / z if in_depth else 1.0
+    u, v = x * inv_z, y * inv_z
+    uc = min(max(u, lo_u), hi_u)
+    vc = min(max(v, lo_v), hi_v)
+    j00, j02 = fx * inv_z, -fx * uc * inv_z
+    j11, j12 = fy * inv_z, -fy * vc * inv_z
+    qw, qx, qy, qz = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
+                      np.float64(quats[i, 3]))
+    qn_raw = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    qn = max(qn_raw, 1e-12)
+    nq = (qw / qn, qx / qn, qy / qn, qz / qn)
+    r = _rotation(nq[0], nq[1], nq[2], nq[3])
+    s0, s1, s2 = np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2])
+    pc0 = _matvec(Rw, r[0] * s0, r[3] * s0, r[6] * s0)
+    pc1 = _matvec(Rw, r[1] * s1, r[4] * s1, r[7] * s1)
+    pc2 = _matvec(Rw, r[2] * s2, r[5] * s2, r[8] * s2)
+    t0 = (j00 * pc0[0] + j02 * pc0[2], j00 * pc1[0] + j02 * pc1[2], j00 * pc2[0] + j02 * pc2[2])
+    t1 = (j11 * pc0[1] + j12 * pc0[2], j11 * pc1[1] + j12 * pc1[2], j11 * pc2[1] + j12 * pc2[2])
+    e2 = np.float64(eps2d[i])
+    a = t0[0] * t0[0] + t0[1] * t0[1] + t0[2] * t0[2] + e2
+    b = t0[0] * t1[0] + t0[1] * t1[1] + t0[2] * t1[2]
+    c = t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2] + e2
+    return Terms(x, y, z, in_depth, inv_z, u, v, uc, vc, j00, j02, j11, j12, qn_raw, nq, r, (s0, s1, s2),
+                 pc0, pc1, pc2, t0, t1, a, b, c)
+
+
 def forward_buffers(n: int):
     """Outputs of :func:`project_forward_range`: means2d (N, 2), conics (N, 3), depths (N,) float32,
     bbox (N, 4), radii (N,) int32."""
@@ -58,39 +143,13 @@ def project_forward_range(start, end, means, quats, scales, opac, Rw, tw, fx, fy
     means (N, 3), quats (N, 4) wxyz, scales (N, 3) activated, opac (N,), eps2d (N,) each Gaussian's
     low-pass variance in pixels^2; Rw (3, 3), tw (3,) world-to-camera. The outputs are exactly :func:`backend.render.projection.project`'s.
     """
-    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
-    lo_u, hi_u = -(cx / fx + 0.3 * tan_x), (width - cx) / fx + 0.3 * tan_x
-    lo_v, hi_v = -(cy / fy + 0.3 * tan_y), (height - cy) / fy + 0.3 * tan_y
+    lo_u, hi_u, lo_v, hi_v = _fov_bounds(fx, fy, cx, cy, width, height)
     for i in range(start, end):
-        mx, my, mz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        x = Rw[0, 0] * mx + Rw[0, 1] * my + Rw[0, 2] * mz + tw[0]
-        y = Rw[1, 0] * mx + Rw[1, 1] * my + Rw[1, 2] * mz + tw[1]
-        z = Rw[2, 0] * mx + Rw[2, 1] * my + Rw[2, 2] * mz + tw[2]
-        in_depth = z > near and z < far
-        inv_z = 1.0 / z if in_depth else 1.0
-        u, v = x * inv_z, y * inv_z
-        means2d[i, 0] = fx * u + cx
-        means2d[i, 1] = fy * v + cy
-        depths[i] = z if in_depth else 0.0
-        uc = min(max(u, lo_u), hi_u)
-        vc = min(max(v, lo_v), hi_v)
-        j00, j02 = fx * inv_z, -fx * uc * inv_z
-        j11, j12 = fy * inv_z, -fy * vc * inv_z
-        qw, qx, qy, qz = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
-                          np.float64(quats[i, 3]))
-        qn = max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-12)
-        r = _rotation(qw / qn, qx / qn, qy / qn, qz / qn)
-        s0, s1, s2 = np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2])
-        # Columns of P = Rw Rq S, and of T = J P (two rows t0*, t1*).
-        pc0 = _matvec(Rw, r[0] * s0, r[3] * s0, r[6] * s0)
-        pc1 = _matvec(Rw, r[1] * s1, r[4] * s1, r[7] * s1)
-        pc2 = _matvec(Rw, r[2] * s2, r[5] * s2, r[8] * s2)
-        t00, t01, t02 = j00 * pc0[0] + j02 * pc0[2], j00 * pc1[0] + j02 * pc1[2], j00 * pc2[0] + j02 * pc2[2]
-        t10, t11, t12 = j11 * pc0[1] + j12 * pc0[2], j11 * pc1[1] + j12 * pc1[2], j11 * pc2[1] + j12 * pc2[2]
-        e2 = np.float64(eps2d[i])
-        a = t00 * t00 + t01 * t01 + t02 * t02 + e2
-        b = t00 * t10 + t01 * t11 + t02 * t12
-        c = t10 * t10 + t11 * t11 + t12 * t12 + e2
+        g = _terms(i, means, quats, scales, eps2d, Rw, tw, fx, fy, near, far, lo_u, hi_u, lo_v, hi_v)
+        in_depth, a, b, c = g.in_depth, g.a, g.b, g.c
+        means2d[i, 0] = fx * g.u + cx
+        means2d[i, 1] = fy * g.v + cy
+        depths[i] = g.z if in_depth else 0.0
         det = max(a * c - b * b, 1e-12)
         conics[i, 0] = c / det
         conics[i, 1] = -b / det
@@ -125,39 +184,18 @@ def project_backward_range(start, end, means, quats, scales, Rw, tw, fx, fy, cx,
                            eps2d, g_means2d, g_conics, g_depths, d_means, d_quats, d_scales):
     """Gradients of sum(g_means2d * means2d) + sum(g_conics * conics) + sum(g_depths * depths) for
     Gaussians ``start..end-1``, written into d_means (N, 3), d_quats (N, 4), d_scales (N, 3)."""
-    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
-    lo_u, hi_u = -(cx / fx + 0.3 * tan_x), (width - cx) / fx + 0.3 * tan_x
-    lo_v, hi_v = -(cy / fy + 0.3 * tan_y), (height - cy) / fy + 0.3 * tan_y
+    lo_u, hi_u, lo_v, hi_v = _fov_bounds(fx, fy, cx, cy, width, height)
     for i in range(start, end):
         # ---- forward again (cheaper than storing it) ----
-        mx, my, mz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        x = Rw[0, 0] * mx + Rw[0, 1] * my + Rw[0, 2] * mz + tw[0]
-        y = Rw[1, 0] * mx + Rw[1, 1] * my + Rw[1, 2] * mz + tw[1]
-        z = Rw[2, 0] * mx + Rw[2, 1] * my + Rw[2, 2] * mz + tw[2]
-        in_depth = z > near and z < far
-        inv_z = 1.0 / z if in_depth else 1.0
-        u, v = x * inv_z, y * inv_z
-        uc = min(max(u, lo_u), hi_u)
-        vc = min(max(v, lo_v), hi_v)
-        j00, j02 = fx * inv_z, -fx * uc * inv_z
-        j11, j12 = fy * inv_z, -fy * vc * inv_z
-        qw, qx, qy, qz = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
-                          np.float64(quats[i, 3]))
-        qn_raw = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        qn = max(qn_raw, 1e-12)
-        nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
-        r = _rotation(nw, nx, ny, nz)
-        s0, s1, s2 = np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2])
-        # Columns of P = Rw Rq S, and of T = J P (two rows t0*, t1*).
-        pc0 = _matvec(Rw, r[0] * s0, r[3] * s0, r[6] * s0)
-        pc1 = _matvec(Rw, r[1] * s1, r[4] * s1, r[7] * s1)
-        pc2 = _matvec(Rw, r[2] * s2, r[5] * s2, r[8] * s2)
-        t00, t01, t02 = j00 * pc0[0] + j02 * pc0[2], j00 * pc1[0] + j02 * pc1[2], j00 * pc2[0] + j02 * pc2[2]
-        t10, t11, t12 = j11 * pc0[1] + j12 * pc0[2], j11 * pc1[1] + j12 * pc1[2], j11 * pc2[1] + j12 * pc2[2]
-        e2 = np.float64(eps2d[i])
-        a = t00 * t00 + t01 * t01 + t02 * t02 + e2
-        b = t00 * t10 + t01 * t11 + t02 * t12
-        c = t10 * t10 + t11 * t11 + t12 * t12 + e2
+        g = _terms(i, means, quats, scales, eps2d, Rw, tw, fx, fy, near, far, lo_u, hi_u, lo_v, hi_v)
+        x, y, in_depth, inv_z, u, v, uc, vc = g.x, g.y, g.in_depth, g.inv_z, g.u, g.v, g.uc, g.vc
+        j00, j02, j11, j12, r, a, b, c = g.j00, g.j02, g.j11, g.j12, g.r, g.a, g.b, g.c
+        nw, nx, ny, nz = g.nq
+        s0, s1, s2 = g.s
+        t00, t01, t02 = g.t0
+        t10, t11, t12 = g.t1
+        pc0, pc1, pc2 = g.pc0, g.pc1, g.pc2
+        qn = max(g.qn_raw, 1e-12)
         det_raw = a * c - b * b
         det = max(det_raw, 1e-12)
 
@@ -194,7 +232,7 @@ def project_backward_range(start, end, means, quats, scales, Rw, tw, fx, fy, cx,
         gz = 2.0 * (-2.0 * nz * gr[0] - nw * gr[1] + nx * gr[2] + nw * gr[3] - 2.0 * nz * gr[4] + ny * gr[5]
                     + nx * gr[6] + ny * gr[7])
         # normalisation q / max(|q|, 1e-12)
-        if qn_raw > 1e-12:
+        if g.qn_raw > 1e-12:
             dot = gw * nw + gx * nx + gy * ny + gz * nz
             gw, gx, gy, gz = (gw - nw * dot) / qn, (gx - nx * dot) / qn, (gy - ny * dot) / qn, (gz - nz * dot) / qn
         else:

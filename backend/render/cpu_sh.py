@@ -79,6 +79,25 @@ def _basis_grad(x, y, z, k, gb):
         gb[15, 0], gb[15, 1], gb[15, 2] = _C3[6] * (3.0 * xx - 3.0 * yy), -6.0 * _C3[6] * x * y, 0.0
 
 
+@njit(cache=True, inline="always")
+def _direction(means, center, i):
+    """(x, y, z, 1/|d|): the unit direction from ``center`` to Gaussian ``i`` and its inverse distance."""
+    dx = means[i, 0] - center[0]
+    dy = means[i, 1] - center[1]
+    dz = means[i, 2] - center[2]
+    inv = np.float32(1.0) / max(np.sqrt(dx * dx + dy * dy + dz * dz), np.float32(1e-12))
+    return dx * inv, dy * inv, dz * inv, inv
+
+
+@njit(cache=True, inline="always")
+def _unclamped(b, coeffs, i, c, k):
+    """Channel ``c`` of Gaussian ``i`` before the clamp at 0: sum_j b[j] coeffs[i, j, c] + 0.5."""
+    acc = np.float32(0.5)
+    for j in range(k):
+        acc += b[j] * coeffs[i, j, c]
+    return acc
+
+
 @njit(nogil=True, cache=True)
 def sh_forward_range(coeffs, means, center, k, out, start, stop):
     """Rows [start, stop) of out (N, C) = max(sum_k basis_k(dir) coeffs[:, k] + 0.5, 0).
@@ -88,16 +107,10 @@ def sh_forward_range(coeffs, means, center, k, out, start, stop):
     n_ch = coeffs.shape[2]
     b = np.empty(16, np.float32)
     for i in range(start, stop):
-        dx = means[i, 0] - center[0]
-        dy = means[i, 1] - center[1]
-        dz = means[i, 2] - center[2]
-        inv = np.float32(1.0) / max(np.sqrt(dx * dx + dy * dy + dz * dz), np.float32(1e-12))
-        _basis(dx * inv, dy * inv, dz * inv, k, b)
+        x, y, z, _inv = _direction(means, center, i)
+        _basis(x, y, z, k, b)
         for c in range(n_ch):
-            acc = np.float32(0.5)
-            for j in range(k):
-                acc += b[j] * coeffs[i, j, c]
-            out[i, c] = max(acc, np.float32(0.0))
+            out[i, c] = max(_unclamped(b, coeffs, i, c, k), np.float32(0.0))
 
 
 @njit(nogil=True, cache=True)
@@ -111,18 +124,12 @@ def sh_backward_range(coeffs, means, center, k, grad_color, need_means, g_coeffs
     gb = np.empty((16, 3), np.float32)
     gc = np.empty(n_ch, np.float32)
     for i in range(start, stop):
-        dx = means[i, 0] - center[0]
-        dy = means[i, 1] - center[1]
-        dz = means[i, 2] - center[2]
-        inv = np.float32(1.0) / max(np.sqrt(dx * dx + dy * dy + dz * dz), np.float32(1e-12))
-        x, y, z = dx * inv, dy * inv, dz * inv
+        x, y, z, inv = _direction(means, center, i)
         _basis(x, y, z, k, b)
         live = False
         for c in range(n_ch):
-            acc = np.float32(0.5)
-            for j in range(k):
-                acc += b[j] * coeffs[i, j, c]
-            gc[c] = grad_color[i, c] if acc >= 0.0 else np.float32(0.0)  # as torch's clamp_min
+            # as torch's clamp_min: no gradient where the colour is clamped
+            gc[c] = grad_color[i, c] if _unclamped(b, coeffs, i, c, k) >= 0.0 else np.float32(0.0)
             live = live or gc[c] != 0.0
         if not live:
             continue
