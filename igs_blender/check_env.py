@@ -242,7 +242,7 @@ def torch_info() -> dict | None:
 def backend_commands() -> tuple[bool, list[str], str]:
     """(importable, command names, error) of the backend on this interpreter's path."""
     try:
-        from backend import cli  # noqa: PLC0415 (only in the backend interpreter)
+        from backend.commands import cli  # noqa: PLC0415 (only in the backend interpreter)
 
         parser = cli.build_parser()
     except Exception as e:  # any import problem is what the user needs to see

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from _train_scene import make_workspace
 
-from backend.cli import main
+from backend.commands.cli import main
 from backend.core.atomic_io import clean_stale_tmp, is_tmp_name, write_bytes, write_image_file, write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import read_image, write_image

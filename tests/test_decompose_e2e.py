@@ -15,7 +15,7 @@ import pytest
 import torch
 from _synth_capture import needs_synth_renderer
 
-from backend.cli import main
+from backend.commands.cli import main
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.stages import inverse_photometric
 from backend.train.loop import load_checkpoint

@@ -10,7 +10,7 @@ import json
 
 from _synth_capture import needs_synth_renderer
 
-from backend.cli import main
+from backend.commands.cli import main
 
 
 def test_demo_runs_synth_decompose_fit_bake_and_turntable(tmp_path, capsys):

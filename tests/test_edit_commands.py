@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from backend.cli import main
+from backend.commands.cli import main
 from backend.core.imageio import read_image
 from backend.edit.albedo_render import render_albedo
 from backend.edit.bake import bake_edit

@@ -31,7 +31,7 @@ from backend.capture.colmap_io import read_model
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.load import image_file_size, load_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
-from backend.cli import main
+from backend.commands.cli import main
 from backend.core.errors import IGSError
 from backend.core.imageio import read_depth, read_image, write_image
 from backend.edit.proxy import load_proxy, plane_proxy, save_proxy

@@ -13,7 +13,7 @@ import pytest
 from _import_scene import render, write_capture
 
 from backend.capture.colmap_io import read_model, write_model
-from backend.capture.import_commands import import_with_priors
+from backend.commands.import_capture import import_with_priors
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.load import load_capture
 from backend.capture.pose_eval import compare_cameras
@@ -253,7 +253,7 @@ def test_workspace_of_another_capture_is_not_overwritten(scene, tmp_path):
 
 
 def test_cli_import_then_priors_with_progress_events(distorted_project, tmp_path, capsys):
-    from backend.cli import main
+    from backend.commands.cli import main
 
     proj, cams = distorted_project
     ws = tmp_path / "ws"
@@ -279,7 +279,7 @@ def test_cli_import_then_priors_with_progress_events(distorted_project, tmp_path
 
 
 def test_cli_reports_a_bad_prior_spec_before_any_work(distorted_project, tmp_path, capsys):
-    from backend.cli import main
+    from backend.commands.cli import main
 
     proj, _ = distorted_project
     assert main(["import", str(proj), str(tmp_path / "ws"), "--depth", "depth-anything:/no/such/model"]) == 2

@@ -19,7 +19,7 @@ from backend.capture.pose_eval import compare_cameras
 from backend.capture.sfm import SfMConfig
 from backend.capture.synth import synthesize
 from backend.capture.video import FrameSelection
-from backend.cli import main
+from backend.commands.cli import main
 
 # One thread: COLMAP's multi-threaded mapper is not repeatable. 2 px: see SfMConfig.max_reproj_error.
 SFM = SfMConfig(num_threads=1, max_reproj_error=2.0)

@@ -11,7 +11,7 @@ from _import_scene import write_capture
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.load import load_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
-from backend.cli import main
+from backend.commands.cli import main
 from backend.core.errors import IGSError
 from backend.core.paths import inside, plain_name, relative_name
 

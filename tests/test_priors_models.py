@@ -8,7 +8,7 @@ import pytest
 import torch
 from _import_scene import write_capture
 
-from backend.capture.import_commands import import_with_priors
+from backend.commands.import_capture import import_with_priors
 from backend.capture.importer import ImportConfig
 from backend.capture.load import load_capture
 from backend.core.errors import IGSError

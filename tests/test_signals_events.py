@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from _train_scene import make_layered_workspace
 
-from backend.cli import main
+from backend.commands.cli import main
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from igs_blender.client import JobState, parse_event  # noqa: E402

@@ -176,7 +176,7 @@ def test_a_worker_that_crashes_while_rendering_stops_the_capture(tmp_path):
 
 def _no_bpy(*argv: str, **env: str) -> subprocess.CompletedProcess:
     """``igs`` in a Python where ``import bpy`` fails."""
-    code = "import sys; sys.modules['bpy'] = None; from backend.cli import main; sys.exit(main(sys.argv[1:]))"
+    code = "import sys; sys.modules['bpy'] = None; from backend.commands.cli import main; sys.exit(main(sys.argv[1:]))"
     return subprocess.run([sys.executable, "-c", code, *argv], cwd=REPO, env=_env(**env),
                           capture_output=True, text=True, timeout=120)
 

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from backend.cli import main
+from backend.commands.cli import main
 from backend.edit.albedo_render import render_albedo
 from backend.edit.bake import bake_edit
 from backend.edit.bake_config import BakeConfig

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from _synth_capture import needs_synth_renderer
 
-from backend.cli import main
+from backend.commands.cli import main
 from backend.train.loop import load_checkpoint
 from igs_blender.client import parse_event
 

@@ -12,7 +12,7 @@ from _train_scene import make_layered_workspace
 
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
-from backend.cli import main
+from backend.commands.cli import main
 from backend.core.errors import IGSError
 from backend.splats.ply import read_ply, write_ply
 

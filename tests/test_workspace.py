@@ -7,7 +7,7 @@ import pytest
 
 from backend.capture.colmap_io import write_model
 from backend.capture.load import load_capture
-from backend.cli import main
+from backend.commands.cli import main
 from backend.core import imageio
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError

@@ -21,6 +21,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -46,7 +47,8 @@ from backend.core.paths import inside
 from backend.core.staging import Staging
 from backend.core.workspace import CAPTURE_SCHEMA, Workspace
 
-SOURCE_KINDS = ("auto", "video", "photos", "colmap", "transforms")
+SourceKind = Literal["auto", "video", "photos", "colmap", "transforms"]
+SOURCE_KINDS: tuple[SourceKind, ...] = get_args(SourceKind)
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 FRAME_NAME = "frame_{:04d}.png"
 
@@ -55,7 +57,7 @@ FRAME_NAME = "frame_{:04d}.png"
 class ImportConfig:
     """Everything ``igs import`` can be told."""
 
-    kind: str = "auto"
+    kind: SourceKind = "auto"
     """Source kind: auto, video, photos, colmap, transforms."""
     selection: FrameSelection = field(default_factory=FrameSelection)
     """Video frame selection (every n-th, sharpest, max frames, max side); max frames/side apply to photos too."""

@@ -14,6 +14,7 @@ import signal
 import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -21,14 +22,15 @@ from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import Cancelled, IGSError
 
-MATCHING = ("auto", "sequential", "exhaustive")
+Matching = Literal["auto", "sequential", "exhaustive"]
+MATCHING: tuple[Matching, ...] = get_args(Matching)
 
 
 @dataclass(frozen=True)
 class SfMConfig:
     """Settings of the SfM run."""
 
-    matching: str = "auto"
+    matching: Matching = "auto"
     """'sequential' (video frames), 'exhaustive' (unordered photos) or 'auto' (sequential for video,
     exhaustive for photo sets of at most ``exhaustive_max`` images, else sequential)."""
     exhaustive_max: int = 100

@@ -14,6 +14,7 @@ discontinuities are dropped: there a predicted map blurs foreground into backgro
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -23,7 +24,8 @@ from backend.core.imageio import read_depth
 from backend.core.workspace import Capture, split_frames
 from backend.edit.views import unproject
 
-GROW_ON = ("auto", "depth", "centres")
+GrowOn = Literal["auto", "depth", "centres"]
+GROW_ON: tuple[GrowOn, ...] = get_args(GrowOn)
 EDGE_REL = 0.05
 """A pixel whose depth changes by more than this fraction of itself to a neighbour is an edge."""
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -43,7 +44,7 @@ class AlbedoOptions:
     """Processing resolution, longer side (0: the checkpoint's default)."""
     seed: int = 0
     """Noise seed, the same for every frame (steadier across frames)."""
-    folder_space: str = "srgb"
+    folder_space: Literal["srgb", "linear"] = "srgb"
     """What 8/16-bit folder maps hold: 'srgb' (encoded, like photos) or 'linear'. EXR maps are always linear."""
 
 

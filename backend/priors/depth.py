@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -28,9 +29,9 @@ DEPTH_SPECS = "none, gt, folder:<path>, depth-anything:<model dir>"
 class DepthOptions:
     """How depth maps from a folder are read."""
 
-    folder_kind: str = "depth"
+    folder_kind: Literal["depth", "disparity"] = "depth"
     """What folder maps hold: 'depth' (z-depth, any unit) or 'disparity' (inverse depth)."""
-    fit: str = "auto"
+    fit: Literal["auto", "scale", "scale_shift"] = "auto"
     """Alignment model: 'scale', 'scale_shift' or 'auto' (scale for gt, scale_shift otherwise)."""
     device: str = "cpu"
     """Torch device for model predictors ('cpu', 'cuda', 'auto')."""

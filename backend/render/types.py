@@ -13,7 +13,7 @@ from torch import Tensor
 from backend.core.errors import IGSError
 from backend.render.projection import EPS2D
 
-Backend = Literal["auto", "reference", "cpu", "gsplat"]
+Backend = Literal["auto", "cpu", "reference", "gsplat"]  # the order `igs --help` lists them in
 BACKENDS: tuple[Backend, ...] = get_args(Backend)
 
 Background = Tensor | float | Sequence[float] | None

@@ -1,23 +1,17 @@
-"""Capture commands: ``igs synth`` (more import commands register here too)."""
+"""``igs synth <ws>``: render the synthetic room into a workspace with exact ground truth."""
 
 from __future__ import annotations
 
 import argparse
 
-from backend import options as opt
+from backend.capture.synth import PRESETS, synthesize
+from backend.capture.synth_blender import RENDERERS
+from backend.commands import options as opt
 from backend.core import events
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the capture room's subcommands."""
-    _register_synth(subparsers)
-
-
-def _register_synth(subparsers: argparse._SubParsersAction) -> None:
-    from backend.capture.synth import PRESETS
-    from backend.capture.synth_blender import RENDERERS
-
-    p = subparsers.add_parser(
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
         "synth", help="render the synthetic room with Cycles into a workspace with exact ground truth",
         description="Render the synthetic room (Cycles, CPU) into WORKSPACE: images, ground-truth albedo, "
                     "shading, residual and depth, COLMAP cameras and points, and three edited versions "
@@ -38,12 +32,10 @@ def _register_synth(subparsers: argparse._SubParsersAction) -> None:
                         "`import bpy` works, else the binary")
     p.add_argument("--blender", default=None, metavar="PATH",
                    help="the Blender binary for --renderer binary/auto (default: $IGS_BLENDER)")
-    p.set_defaults(func=_run_synth)
+    p.set_defaults(func=run)
 
 
-def _run_synth(args: argparse.Namespace) -> None:
-    from backend.capture.synth import synthesize
-
+def run(args: argparse.Namespace) -> None:
     summary = synthesize(args.workspace, preset=args.preset, seed=args.seed, views=args.views,
                          samples=args.samples, force=args.force, threads=args.threads,
                          renderer=args.renderer, blender=args.blender)

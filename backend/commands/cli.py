@@ -1,7 +1,7 @@
-"""The ``igs`` / ``python -m backend`` command line.
+"""The ``igs`` / ``python -m backend`` command line: the parser, ``main`` and its error handling.
 
-Each command lives in its room's ``commands.py`` which exposes ``register(subparsers)``; a
-command is listed here only once it works end to end.
+Each command lives in a module of :mod:`backend.commands` which exposes ``register(subparsers)``;
+a command is listed here only once it works end to end.
 """
 
 from __future__ import annotations
@@ -27,17 +27,18 @@ DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPER
 
 CANCELLED = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
 
-# Modules with a ``register(subparsers)`` function, in the order of the pipeline.
+# Modules with a ``register(subparsers)`` function, in the order of the pipeline (and of --help).
+# Imported by build_parser, not here: torch loads with them, after the signal handlers are in.
 COMMAND_MODULES: list[str] = [
-    "backend.demo",
-    "backend.capture.info",
-    "backend.capture.import_commands",
-    "backend.priors.commands",
-    "backend.capture.commands",
-    "backend.train.commands",
-    "backend.train.decompose_commands",
-    "backend.edit.commands",
-    "backend.eval.render_views",
+    "backend.commands.demo",
+    "backend.commands.info",
+    "backend.commands.import_capture",
+    "backend.commands.priors",
+    "backend.commands.synth",
+    "backend.commands.train",
+    "backend.commands.decompose",
+    "backend.commands.edit",
+    "backend.commands.render",
 ]
 
 

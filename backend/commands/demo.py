@@ -1,8 +1,8 @@
 """`igs demo`: the main job on the built-in default, the synthetic demo capture.
 
 synth -> decompose -> edit (fit a plane under the synthetic decal's rectangle, bake the decal) ->
-turntable of the edited scene. Every step resumes: running the command again after a cancel
-continues where it stopped.
+turntable of the edited scene, each step the library call its own command makes, with that command's
+result. Every step resumes: running the command again after a cancel continues where it stopped.
 """
 
 from __future__ import annotations
@@ -12,10 +12,23 @@ import json
 import time
 from pathlib import Path
 
-from backend import options as opt
+from backend.capture.load import capture_summary, load_capture
+from backend.capture.synth import synthesize
+from backend.commands import decompose as decompose_command
+from backend.commands import edit as edit_command
+from backend.commands import options as opt
+from backend.commands import render as render_command
 from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.edit.bake import bake_edit
+from backend.edit.bake_config import BakeConfig
+from backend.edit.bake_input import BakeInput, resolve_bake_input
+from backend.edit.fit_workflow import fit_proxy
+from backend.eval.decomposition import evaluate_decomposition
+from backend.eval.render_views import capture_orbit
+from backend.eval.render_workspace import RenderConfig, render_workspace
+from backend.train.intrinsic.run import decompose
 
 DEFAULT_WORKSPACE = Path("workspaces") / "demo"
 DEMO_EDIT = "wall_decal"
@@ -40,26 +53,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _step(argv: list[str]) -> None:
-    """Run one igs command in-process; a failing step stops the demo with its message."""
-    from backend.cli import build_parser
-
-    args = build_parser().parse_args(argv)
-    args.func(args)
-
-
 def turntable_orbit(capture) -> tuple[str, float, float]:
     """(centre "x,y,z", radius, height) of a turntable inside the capture's own camera loop (world z
-    up: the synthetic capture's), as ``igs render --turntable`` chooses by default."""
-    from backend.eval.render_views import capture_orbit
-
+    up: the synthetic capture's), as ``igs render --turntable`` chooses by default; rounded as the
+    demo has always given them (centre to 4 decimals, radius and height to 3)."""
     centre, radius, height = capture_orbit([f.camera for f in capture.frames], capture.points, (0.0, 0.0, 1.0))
-    return ",".join(f"{v:.4f}" for v in centre), radius, height
+    return ",".join(f"{v:.4f}" for v in centre), round(radius, 3), round(height, 3)
 
 
 def run(args: argparse.Namespace) -> dict:
-    from backend.capture.load import capture_summary, load_capture
-    from backend.capture.synth import synthesize
     ws = Path(args.workspace)
     iterations = args.iterations or ITERATIONS[args.preset]
     t0 = time.perf_counter()
@@ -71,37 +73,43 @@ def run(args: argparse.Namespace) -> dict:
         fn()
         steps[name] = round(time.perf_counter() - t, 1)
 
+    def decomposition() -> None:
+        outcome = decompose(str(ws), decompose_command.config_with_iterations(iterations))
+        decompose_command.show(evaluate_decomposition(outcome))
+
     timed("synthetic capture", lambda: synthesize(ws, preset=args.preset, seed=args.seed))
-    timed("decompose", lambda: _step(["decompose", str(ws), "--iterations", str(iterations)]))
+    timed("decompose", decomposition)
 
     edit_json = ws / "gt_edit" / DEMO_EDIT / "edit.json"
     if not edit_json.exists():
         raise IGSError(f"{edit_json}: missing; the synthetic capture should have written it")
     edit = json.loads(edit_json.read_text())
-    rect = [str(v) for v in edit["rect"]]
     plane = {"file": ws / "edits" / DEMO_EDIT / "edit.json", "source": "fitted"}
 
     def fit() -> None:
         try:
-            _step(["edit", "fit-plane", str(ws), "--view", edit["edit_view"], "--rect", *rect, "--name", DEMO_EDIT])
+            meta = fit_proxy(str(ws), "plane", edit["edit_view"], [float(v) for v in edit["rect"]], DEMO_EDIT)
         except IGSError as e:
             # A short decomposition can leave the wall too fuzzy for RANSAC; the synthetic capture
             # knows the true plane, so the demo goes on with it and says so.
             events.log(f"plane fit failed ({e}); baking on the capture's ground-truth plane instead")
             plane.update(file=edit_json, source="ground truth (fit failed)")
+            return
+        edit_command.show_fit("plane", meta)
+
+    def bake() -> None:
+        proxy, name = resolve_bake_input(BakeInput(plane=str(plane["file"]), name=DEMO_EDIT,
+                                                   texture=str(edit_json.parent / edit["texture"])))
+        cfg = BakeConfig(view=edit["edit_view"], iterations=BAKE_ITERATIONS[args.preset])
+        edit_command.show_bake(bake_edit(str(ws), proxy, name, cfg))
 
     timed("fit a plane under the decal's rectangle", fit)
-    timed("bake the decal into the albedo field",
-          lambda: _step(["edit", "bake", str(ws), "--plane", str(plane["file"]),
-                         "--texture", str(edit_json.parent / edit["texture"]), "--view", edit["edit_view"],
-                         "--iterations", str(BAKE_ITERATIONS[args.preset]), "--name", DEMO_EDIT]))
+    timed("bake the decal into the albedo field", bake)
     turntable = ws / "renders" / f"{DEMO_EDIT}-turntable"
     center, radius, height = turntable_orbit(load_capture(ws))
-    # "--center=x,y,z" in one word: a centre starting with "-" would read as an option
-    timed("turntable of the edited scene",
-          lambda: _step(["render", str(ws), "--edit", DEMO_EDIT, "--turntable", f"--center={center}", "--up=0,0,1",
-                         "--radius", f"{radius:.3f}", "--height", f"{height:.3f}", "--frames", str(args.frames),
-                         "--out", str(turntable), "--mp4"]))
+    render = RenderConfig(edit=DEMO_EDIT, turntable=True, center=center, up="0,0,1", radius=radius, height=height,
+                          frames=args.frames, out=str(turntable), mp4=True)
+    timed("turntable of the edited scene", lambda: render_command.show(render_workspace(str(ws), render)))
 
     summary = {"workspace": str(ws), "preset": args.preset, "iterations": iterations, "steps_seconds": steps,
                "edit_plane": plane["source"],

@@ -1,0 +1,112 @@
+"""``igs decompose <ws>``: the intrinsic decomposition (albedo, shading, residual fields) or the
+single-set baseline, then its held-out evaluation."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from backend.commands import options as opt
+from backend.commands import shared_options as shared
+from backend.commands.config_args import Option, add_config_arguments, config_from_args, with_fields
+from backend.core import events
+from backend.core.errors import IGSError
+from backend.eval.decomposition import evaluate_decomposition
+from backend.train.intrinsic.config import STAGES, DecomposeConfig, split_iterations
+from backend.train.intrinsic.run import decompose
+from backend.train.single_set import SCHEDULES, decompose_single_set
+
+_D = DecomposeConfig()
+STAGE_ITERATIONS = tuple(Option(f"--{s}-iterations", f"{s}.iterations", f"iterations of the {s} stage",
+                                type=opt.COUNT, default=None) for s in STAGES)
+OPTIONS = (
+    shared.backend(*(f"{s}.backend" for s in STAGES), detail=True),
+    shared.device(),
+    Option("--downscale", "downscale", "divide the image size by this factor (default 1)", type=opt.DOWNSCALE),
+    shared.seed(*(f"{s}.seed" for s in STAGES)),
+    Option("--checkpoint-every", tuple(f"{s}.checkpoint_every" for s in STAGES),
+           f"iterations between checkpoints (default {_D.albedo.checkpoint_every})", type=opt.COUNT),
+    # the residual keeps its own, larger budget
+    Option("--max-gaussians", ("albedo.densify.max_gaussians", "shading.densify.max_gaussians"),
+           "densification budget of each of the albedo and shading fields "
+           f"(default {_D.albedo.densify.max_gaussians}; residual {_D.residual.densify.max_gaussians})",
+           type=opt.COUNT, default=None),
+    Option("--depth-weight", tuple(f"{s}.lambda_depth" for s in STAGES),
+           f"λ_d of the depth L1 (default {_D.albedo.lambda_depth}; 0 = off)", type=opt.WEIGHT, default=None),
+    Option("--scale-weight", tuple(f"{s}.lambda_scale" for s in STAGES),
+           f"λ_s of the mean-scale term (default {_D.albedo.lambda_scale}; 0 = off)", type=opt.WEIGHT, default=None),
+    Option("--gray-weight", "lambda_gray",
+           f"weight of the gray regulariser on shading colours (default {_D.lambda_gray}; 0 = off)", type=opt.WEIGHT),
+    Option("--shading-geometry", "shading_geometry",
+           "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
+           "default) or 'points' (the SfM points, as in the paper)"),
+    Option("--residual-points", "spawn.points",
+           f"residual Gaussians spawned at high-error pixels (default {_D.spawn.points})", type=opt.COUNT0),
+)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "decompose",
+        help="decompose a capture into albedo, shading and residual Gaussians (I = A*S + R)",
+        description="Train the albedo field on the albedo maps, then the shading field (albedo frozen, "
+        "I = A*S), then the residual field (I = A*S + R), every 8th view held out. Writes "
+        "<ws>/layers/{albedo,shading,residual}.ply, the key 'decompose' of <ws>/metrics.json and "
+        "<ws>/report.png. A killed or cancelled run resumes where it stopped; finished stages are skipped. "
+        "Needs albedo maps (<ws>/albedo or ground truth); depth maps enable the depth terms.",
+    )
+    p.add_argument("workspace", help="workspace folder")
+    p.add_argument("--stage", choices=STAGES, action="append",
+                   help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
+    p.add_argument("--iterations", type=opt.COUNT, default=None,
+                   help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
+                        f"{_D.albedo.iterations}/{_D.shading.iterations}/{_D.residual.iterations})")
+    add_config_arguments(p, _D, STAGE_ITERATIONS)
+    p.add_argument("--single-set", action="store_true",
+                   help="the baseline the paper argues against: one set of Gaussians carrying albedo, shading "
+                        "and residual colours, same losses and iterations (writes <ws>/layers/single_set/ and "
+                        "the key 'decompose_single_set')")
+    p.add_argument("--single-set-schedule", choices=SCHEDULES, default=None,
+                   help="with --single-set: 'joint' (default) keeps the albedo loss on in every phase; "
+                        "'sequential' runs each loss as long as the three sets do and freezes the albedo colours "
+                        "after the albedo phase (writes layers/single_set_sequential/ and "
+                        "'decompose_single_set_sequential')")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--resume", dest="resume", action="store_true", default=True,
+                       help="continue from checkpoints and skip finished stages (default)")
+    group.add_argument("--restart", dest="resume", action="store_false",
+                       help="discard the checkpoints of the stages run and start them over")
+    add_config_arguments(p, _D, OPTIONS)
+    p.set_defaults(func=run)
+
+
+def config_with_iterations(total: int | None) -> DecomposeConfig:
+    """The default config, with ``--iterations total`` split over the stages when given."""
+    if total is None:
+        return DecomposeConfig()
+    return with_fields(DecomposeConfig(), {f"{s}.iterations": n for s, n in split_iterations(total).items()})
+
+
+def show(summary: dict[str, Any]) -> None:
+    """The command's result: held-out metrics per layer, Gaussians, time, the report's path."""
+    short = {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips")} for k, v in summary["layers"].items()}
+    events.result("decompose", {"mode": summary["mode"], "layers": short, "gaussians": summary["gaussians"],
+                                "decompose_seconds": summary["decompose_seconds"], "report": summary["report"]},
+                  indent=None)
+
+
+def run(args: argparse.Namespace) -> dict:
+    # --iterations first: the per-stage options override its split
+    cfg = config_from_args(config_with_iterations(args.iterations), STAGE_ITERATIONS + OPTIONS, args)
+    if args.single_set:
+        if args.stage:
+            raise IGSError("--stage does not apply to --single-set (one set is trained in one run)")
+        outcome = decompose_single_set(args.workspace, cfg, resume=args.resume,
+                                       schedule=args.single_set_schedule or "joint")
+    else:
+        if args.single_set_schedule is not None:
+            raise IGSError("--single-set-schedule applies only with --single-set")
+        outcome = decompose(args.workspace, cfg, stages=args.stage or STAGES, resume=args.resume)
+    summary = evaluate_decomposition(outcome)
+    show(summary)
+    return summary

@@ -1,0 +1,124 @@
+"""Render a workspace's layers for the cameras asked for: the workflow of ``igs render``.
+
+The cameras come from exactly one of a cameras.json, a camera path or a turntable whose unset
+settings come from the capture (formats and defaults: :mod:`backend.eval.render_views`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.cameras import Camera
+from backend.core.errors import IGSError
+from backend.core.paths import plain_name
+from backend.eval.render_views import (
+    LAYERS,
+    NEEDS,
+    capture_orbit,
+    capture_up,
+    load_layers,
+    read_cameras,
+    read_path,
+    render_views,
+    turntable,
+)
+from backend.render import Backend
+
+
+@dataclass
+class RenderConfig:
+    """What :func:`render_workspace` renders, from where, and into which files."""
+
+    edit: str | None = None
+    """Use ``<ws>/edits/<edit>/albedo.ply`` as the albedo."""
+    cameras: str | None = None
+    """cameras.json (format: :mod:`backend.eval.render_views`)."""
+    path: str | None = None
+    """Camera path as a nerfstudio-style transforms.json."""
+    turntable: bool = False
+    """Orbit around ``center``; the settings left at None come from the capture's own camera path."""
+    center: str | None = None
+    """Turntable centre ``x,y,z``; None: the centroid of the SfM points."""
+    up: str | None = None
+    """Turntable axis ``x,y,z``; None: the capture's up, read from its cameras."""
+    radius: float | None = None
+    """Turntable radius; None: 85 % of the cameras' mean distance from the axis."""
+    height: float | None = None
+    """Camera height above the centre along ``up``; None: the cameras' mean height."""
+    frames: int = 60
+    """Turntable frames."""
+    size: tuple[int, int] | None = None
+    """Turntable image size (width, height); None: the capture's."""
+    fov: float | None = None
+    """Turntable horizontal field of view in degrees; None: the capture's."""
+    layers: str = "A,S,R,full"
+    """Comma list of the layers to write: A, S, R, full."""
+    out: str | None = None
+    """Output folder; None: ``<ws>/renders/<edit or 'layers'>``."""
+    mp4: bool = False
+    """Also write ``OUT/<layer>.mp4``."""
+    fps: float = 24.0
+    """Video frame rate."""
+    backend: Backend = "auto"
+    """Renderer backend."""
+
+
+def _vector(text: str, flag: str) -> np.ndarray:
+    try:
+        v = np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
+    except ValueError:
+        raise IGSError(f"{flag} must be x,y,z, got {text!r}") from None
+    if not np.isfinite(v).all():
+        raise IGSError(f"{flag} must be finite x,y,z, got {text!r}")
+    return v
+
+
+def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]:
+    """Render ``cfg.layers`` of the workspace for the cameras asked for; returns the output folder, the
+    number of views, the layers and the videos written."""
+    if cfg.edit is not None:
+        plain_name(cfg.edit, "--edit")  # a folder under <ws>/edits and <ws>/renders, never a path
+    if cfg.out and Path(cfg.out).exists() and not Path(cfg.out).is_dir():
+        raise IGSError(f"--out {cfg.out}: is a file; give a folder (the images go to OUT/<layer>/)")
+    wanted = [w.strip() for w in cfg.layers.split(",") if w.strip()]
+    bad = [w for w in wanted if w not in LAYERS]
+    if bad or not wanted:
+        raise IGSError(f"--layers must be a comma list of {', '.join(LAYERS)}, got {cfg.layers!r}")
+    sources = sum(x is not None and x is not False for x in (cfg.cameras, cfg.path, cfg.turntable or None))
+    if sources != 1:
+        raise IGSError("give exactly one of --cameras cams.json, --turntable or --path transforms.json")
+    capture = load_capture(workspace)
+    ws = capture.workspace
+    if cfg.cameras:
+        cams = read_cameras(cfg.cameras)
+    elif cfg.path:
+        cams = read_path(cfg.path)
+    else:
+        template = capture.frames[0].camera
+        if cfg.size:
+            template = template.scaled(cfg.size[0] / template.width)
+            template = Camera(template.name, int(cfg.size[0]), int(cfg.size[1]), template.fx, template.fx,
+                              cfg.size[0] / 2, cfg.size[1] / 2, template.R, template.t)
+        frames = [f.camera for f in capture.frames]
+        up = _vector(cfg.up, "--up") if cfg.up else capture_up(frames)
+        center, radius, height = capture_orbit(frames, capture.points, up)
+        if cfg.center:
+            center = _vector(cfg.center, "--center")
+            _, radius, height = capture_orbit(frames, center[None], up)
+        radius = cfg.radius if cfg.radius is not None else radius
+        height = cfg.height if cfg.height is not None else height
+        events.log(f"render: turntable around {np.round(center, 3).tolist()}, radius {radius:.3g}, height "
+                   f"{height:.3g} along up {np.round(up, 3).tolist()}")
+        cams = turntable(center, radius, height, cfg.frames, template, cfg.fov, up)
+    needed = set().union(*(NEEDS[w] for w in wanted))
+    layers = load_layers(ws.root, cfg.edit, needed)
+    out = Path(cfg.out) if cfg.out else ws.renders / (plain_name(cfg.edit, "--edit") if cfg.edit else "layers")
+    result = render_views(cams, layers, wanted, out, cfg.backend, cfg.mp4, cfg.fps)
+    events.log(f"render: {len(cams)} views x {', '.join(wanted)} -> {out}")
+    return {"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]}
