@@ -53,6 +53,7 @@ from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
 from backend.eval.bench_cli import error
 from backend.eval.edit_region import RegionPSNR, edit_views, true_lighting
+from backend.render import Backend
 from backend.train.intrinsic.composite import compose
 
 EDITS = ("wall_decal", "rug_recolor", "column_decal")
@@ -94,49 +95,69 @@ def _grown(fn, cam, ids, centres, rect, fit_cfg: FitConfig, capture, grow_on: st
     return fit_grown(fn, capture, grow_on, np.asarray(centres), cam, ids, centres, rect, config=fit_cfg)
 
 
-def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plane: bool = False,
+def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: Backend, force_plane: bool = False,
                  fit_cfg: FitConfig = FitConfig(), capture=None, grow_on: str = "auto") -> tuple[ProxyMesh, dict]:
     """The fitted surface with the decal placed as in the ground truth (module docstring). A plane is
     or cylinder is placed by ``igs edit fit-plane/fit-cylinder``'s offset sweep over ``capture``'s views
     (none without a capture)."""
     out = render_albedo(albedo, cam, backend, return_ids=True)
-    surf = edit["surface"]
-    tex, col = _look(edit, folder)
+    look = _look(edit, folder)
     ids, centres = out.ids, albedo.means.detach()
-    if surf["type"] == "plane" or force_plane:
-        (fit, grown_on), threshold = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg, capture,
-                                          grow_on)
-        plane, sweep = (sweep_fitted(capture, albedo, fit.proxy, cam, backend) if capture is not None
-                        else (fit.proxy, None))
-        m = plane.matrix_world
-        n, c0 = _unit(m[:3, 2]), m[:3, 3]
-        if surf["type"] == "plane":
-            gc, gu, gv, size = (np.asarray(surf[k], np.float64) for k in ("center", "u_axis", "v_axis", "size"))
-        else:  # the decal's middle on the cylinder, its tangent and axis, laid flat (arc length x height)
-            axis, ref = _unit(surf["axis"]), _unit(surf["ref_axis"])
-            t0, t1 = surf["theta_range"]
-            h0, h1 = surf["height_range"]
-            tm, hm = 0.5 * (t0 + t1), 0.5 * (h0 + h1)
-            side = np.cross(axis, ref)
-            radial = np.cos(tm) * ref + np.sin(tm) * side
-            gc = np.asarray(surf["base_center"], np.float64) + hm * axis + surf["radius"] * radial
-            gu, gv = np.cross(axis, radial), axis
-            size = np.array([surf["radius"] * (t1 - t0), h1 - h0])
-        center = gc - np.dot(gc - c0, n) * n
-        u = _unit(gu - np.dot(gu, n) * n)
-        v = _unit(gv - np.dot(gv, n) * n - np.dot(gv, u) * u)
-        proxy = plane_proxy(center, n, u, v, size, name=edit["name"], texture=tex, color=col)
-        info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers)),
-                "threshold": threshold, "grown_points": fit.grown_points, "grown_on": grown_on,
-                "offset_sweep": None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted,
-                                                            "reason": sweep.reason}}
-        if surf["type"] == "plane":
-            cosang = abs(float(np.dot(n, _unit(surf["normal"]))))
-            info["normal_error_deg"] = float(np.degrees(np.arccos(min(1.0, cosang))))
-            info["offset_error"] = float(abs(np.dot(gc - c0, n)))
-        return proxy, info
-    (fit, grown_on), threshold = _fit(fit_cylinder_from_rect, cam, ids, centres, edit["rect"], fit_cfg, capture,
-                                      grow_on)
+    if edit["surface"]["type"] == "plane" or force_plane:
+        fitted = _fit(fit_plane_from_rect, cam, ids, centres, edit["rect"], fit_cfg, capture, grow_on)
+        return _decal_on_plane(edit, look, cam, albedo, backend, capture, *fitted)
+    fitted = _fit(fit_cylinder_from_rect, cam, ids, centres, edit["rect"], fit_cfg, capture, grow_on)
+    return _decal_on_cylinder(edit, look, cam, albedo, backend, capture, *fitted)
+
+
+def _sweep_info(sweep) -> dict | None:
+    return None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted, "reason": sweep.reason}
+
+
+def _decal_on_plane(edit: dict, look, cam, albedo, backend: Backend, capture, fitted, threshold: str
+                    ) -> tuple[ProxyMesh, dict]:
+    """The ground-truth decal (``look``: texture, colour) laid on a fitted plane (a cylinder's decal
+    flat: arc length x height); ``fitted``, ``threshold``: what :func:`_fit` returned."""
+    fit, grown_on = fitted
+    surf = edit["surface"]
+    tex, col = look
+    plane, sweep = (sweep_fitted(capture, albedo, fit.proxy, cam, backend) if capture is not None
+                    else (fit.proxy, None))
+    m = plane.matrix_world
+    n, c0 = _unit(m[:3, 2]), m[:3, 3]
+    if surf["type"] == "plane":
+        gc, gu, gv, size = (np.asarray(surf[k], np.float64) for k in ("center", "u_axis", "v_axis", "size"))
+    else:  # the decal's middle on the cylinder, its tangent and axis, laid flat (arc length x height)
+        axis, ref = _unit(surf["axis"]), _unit(surf["ref_axis"])
+        t0, t1 = surf["theta_range"]
+        h0, h1 = surf["height_range"]
+        tm, hm = 0.5 * (t0 + t1), 0.5 * (h0 + h1)
+        side = np.cross(axis, ref)
+        radial = np.cos(tm) * ref + np.sin(tm) * side
+        gc = np.asarray(surf["base_center"], np.float64) + hm * axis + surf["radius"] * radial
+        gu, gv = np.cross(axis, radial), axis
+        size = np.array([surf["radius"] * (t1 - t0), h1 - h0])
+    center = gc - np.dot(gc - c0, n) * n
+    u = _unit(gu - np.dot(gu, n) * n)
+    v = _unit(gv - np.dot(gv, n) * n - np.dot(gv, u) * u)
+    proxy = plane_proxy(center, n, u, v, size, name=edit["name"], texture=tex, color=col)
+    info = {"fit": "plane", "normal_error_deg": None, "inliers": int(np.sum(fit.fit.inliers)),
+            "threshold": threshold, "grown_points": fit.grown_points, "grown_on": grown_on,
+            "offset_sweep": _sweep_info(sweep)}
+    if surf["type"] == "plane":
+        cosang = abs(float(np.dot(n, _unit(surf["normal"]))))
+        info["normal_error_deg"] = float(np.degrees(np.arccos(min(1.0, cosang))))
+        info["offset_error"] = float(abs(np.dot(gc - c0, n)))
+    return proxy, info
+
+
+def _decal_on_cylinder(edit: dict, look, cam, albedo, backend: Backend, capture, fitted, threshold: str
+                       ) -> tuple[ProxyMesh, dict]:
+    """The ground-truth decal (``look``: texture, colour) on a fitted cylinder, with its physical size
+    and centred on its middle; ``fitted``, ``threshold``: what :func:`_fit` returned."""
+    fit, grown_on = fitted
+    surf = edit["surface"]
+    tex, col = look
     f = fit.fit
     sweep = sweep_fitted(capture, albedo, fit.proxy, cam, backend)[1] if capture is not None else None
     radius = f.radius + (sweep.offset if sweep is not None else 0.0)
@@ -161,9 +182,7 @@ def fitted_proxy(edit: dict, folder: Path, cam, albedo, backend: str, force_plan
     info = {"fit": "cylinder", "radius": float(radius), "radius_gt": surf["radius"], "fitted_radius": float(f.radius),
             "axis_error_deg": float(np.degrees(np.arccos(min(1.0, abs(float(np.dot(f.axis, axis_gt))))))),
             "inliers": int(np.sum(f.inliers)), "threshold": threshold, "grown_points": fit.grown_points,
-            "grown_on": grown_on,
-            "offset_sweep": None if sweep is None else {"offset": sweep.offset, "accepted": sweep.accepted,
-                                                        "reason": sweep.reason}}
+            "grown_on": grown_on, "offset_sweep": _sweep_info(sweep)}
     q = np.asarray(surf["base_center"], np.float64) - f.point
     info["axis_offset"] = float(np.linalg.norm(q - np.dot(q, axis) * axis))  # gt axis point to the fitted line
     if fit.ransac_fit is not None:
@@ -188,7 +207,7 @@ def _srgb(lin: np.ndarray) -> np.ndarray:
     return linear_to_srgb(np.clip(lin, 0.0, 1.0))
 
 
-def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: str,
+def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: Backend,
              margin: int) -> dict[str, float]:
     folder = ws_root / "gt_edit" / edit_name
     acc = RegionPSNR()

@@ -34,7 +34,7 @@ from backend.core import events
 from backend.core.errors import IGSError
 from backend.eval.bench_cli import error, write_result
 from backend.eval.bench_scene import room_camera, room_gaussians, room_layers
-from backend.render import Splats, gsplat_available, render, render_layers
+from backend.render import Backend, Splats, gsplat_available, render, render_layers
 from backend.render import cpu as cpu_backend
 from backend.render import threads as render_threads
 from backend.render.projection import CameraTensors
@@ -121,7 +121,7 @@ def _time_interleaved(fns: dict, repeats: int) -> dict[str, tuple[float, float]]
     return {k: (statistics.median(walls[k]), statistics.median(cpus[k])) for k in fns}
 
 
-def _render_fn(sets: list[Splats], cam, backend: str, grad: bool, fused: bool):
+def _render_fn(sets: list[Splats], cam, backend: Backend, grad: bool, fused: bool):
     def run():
         leaves = [_leaf(s, grad) for s in sets]
         with torch.set_grad_enabled(grad):

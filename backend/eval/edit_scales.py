@@ -23,11 +23,12 @@ from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
 from backend.edit.albedo_render import render_albedo
 from backend.eval.bench_cli import error, number_list
 from backend.eval.edit_region import RegionPSNR, edit_views
+from backend.render import Backend
 from backend.splats.ply import read_ply
 from backend.train.views import view_camera
 
 
-def region_psnr(ws: Path, edit: str, plys: list[Path], downscales: list[int], backend: str = "auto"
+def region_psnr(ws: Path, edit: str, plys: list[Path], downscales: list[int], backend: Backend = "auto"
                 ) -> dict[str, dict[str, float]]:
     """{ply: {"1/d": PSNR in the edit region}} of baked albedos at each downscale d."""
     folder = ws / "gt_edit" / edit

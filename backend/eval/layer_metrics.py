@@ -25,7 +25,7 @@ import torch
 
 from backend.core.imageio import read_exr, read_image, srgb_to_linear
 from backend.core.workspace import Frame
-from backend.render import render_layers
+from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.train.image_metrics import image_metrics, mean_metrics, psnr
@@ -39,7 +39,7 @@ METRIC_SPACE = ("sRGB-encoded, clipped to [0, 1] (shading above 1 counts as 1; p
 
 
 def render_frame(layers: Mapping[str, GaussianSet], frame: Frame, downscale: float,
-                 backend: str = "auto") -> dict[str, torch.Tensor]:
+                 backend: Backend = "auto") -> dict[str, torch.Tensor]:
     """{'albedo', 'shading', 'residual'} (H, W, 3) linear renders of the layers present, and
     'diffuse' (A * S) / 'full' (A * S + R) when A and S are present."""
     cam = view_camera(frame.camera, downscale)
@@ -75,7 +75,7 @@ def channel_scale(pred: Sequence[torch.Tensor], target: Sequence[torch.Tensor]) 
 
 
 def evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
-                    albedo_source: str, backend: str = "auto") -> dict[str, Any]:
+                    albedo_source: str, backend: Backend = "auto") -> dict[str, Any]:
     """Per-layer metrics on ``frames`` (held-out views): means per layer, per view, and the alignment used.
 
     Torch runs on one thread meanwhile, as in training (:func:`backend.render.threads.torch_threads`)."""
@@ -84,7 +84,7 @@ def evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], 
 
 
 def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
-                     albedo_source: str, backend: str) -> dict[str, Any]:
+                     albedo_source: str, backend: Backend) -> dict[str, Any]:
     renders, gts = [], []
     for f in frames:
         r = render_frame(layers, f, downscale, backend)
@@ -129,7 +129,7 @@ def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame],
 
 
 def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
-                backend: str = "auto") -> list[tuple[str, list[tuple[str, np.ndarray | None]]]]:
+                backend: Backend = "auto") -> list[tuple[str, list[tuple[str, np.ndarray | None]]]]:
     """Contact-sheet rows, one per frame: input | A | S | R | A*S+R | GT A | GT S (sRGB-encoded float
     images in [0, 1], shading halved; None where a layer is missing; ground-truth columns only when
     some frame has them)."""

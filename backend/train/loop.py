@@ -402,6 +402,41 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
         return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after)
 
 
+def _prepare_folder(ckpt_dir: Path, resume: bool) -> None:
+    """Create ``ckpt_dir`` (emptied first unless ``resume``) and drop half-written files of a killed run."""
+    try:
+        if not resume and ckpt_dir.exists():
+            shutil.rmtree(ckpt_dir)
+        ckpt_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise os_error(ckpt_dir, e, "could not prepare the checkpoint folder") from e
+    clean_stale_tmp(ckpt_dir)
+
+
+def _restore(ckpt: dict[str, Any], stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler,
+             ckpt_dir: Path) -> tuple[int, float, dict[str, Any]]:
+    """Load the optimizer, strategy, view order and RNG states of ``ckpt``; returns (step, train seconds, extra)."""
+    optimizer.load_state_dict(ckpt["optimizer"])
+    if stage.strategy is not None and ckpt["strategy"] is not None:
+        stage.strategy.load_state_dict(ckpt["strategy"])
+    sampler.load(ckpt["sampler"])
+    torch.set_rng_state(ckpt["rng"]["torch"])
+    random.setstate(ckpt["rng"]["python"])
+    np.random.set_state(ckpt["rng"]["numpy"])
+    events.log(f"{stage.name}: resuming from iteration {ckpt['step']} of {stage.config.iterations} ({ckpt_dir})")
+    return ckpt["step"], ckpt["train_seconds"], dict(ckpt["extra"])
+
+
+def _write_config(ckpt_dir: Path, stage: Stage) -> None:
+    """config.json beside the checkpoint: the stage, its settings and the schedule they resolve to."""
+    cfg = stage.config
+    write_json(ckpt_dir / CONFIG_NAME, {"stage": stage.name, "kind": stage.gaussians.kind,
+                                        "sh_degree": stage.gaussians.sh_degree, "scene_extent": stage.scene_extent,
+                                        "color_space": stage.color_space, "train": config_dict(cfg),
+                                        "densify_resolved": asdict(cfg.resolved_densify()),
+                                        "sh_up_every_resolved": cfg.resolved_sh_up_every()})
+
+
 def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None) -> TrainResult:
     cfg = stage.config
     stage.to(stage.device)  # a set assigned after the last move (initial or restored) follows the stage
@@ -410,38 +445,18 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
     np.finfo(np.float32), np.finfo(np.float64)  # cache numpy's limits first: it warns when computed under FTZ
     torch.set_flush_denormal(True)
     ckpt_dir = Path(ckpt_dir)
-    try:
-        if not resume and ckpt_dir.exists():
-            shutil.rmtree(ckpt_dir)
-        ckpt_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise os_error(ckpt_dir, e, "could not prepare the checkpoint folder") from e
-    clean_stale_tmp(ckpt_dir)  # half-written checkpoints of a killed run
+    _prepare_folder(ckpt_dir, resume)
 
     rng = seed_everything(cfg.seed)
     sampler = ViewSampler(len(stage.train_views), rng)
     ckpt = load_checkpoint(ckpt_dir) if resume else None
-    step, train_seconds, extra = 0, 0.0, {}
     if ckpt is not None:
         _check_resumable(ckpt, stage, _checkpoint_path(ckpt_dir))
         stage.gaussians = stage.restore_gaussians(ckpt).to(stage.device)
     optimizer = make_optimizer(stage.gaussians, cfg, stage.scene_extent)
-    if ckpt is not None:
-        optimizer.load_state_dict(ckpt["optimizer"])
-        if stage.strategy is not None and ckpt["strategy"] is not None:
-            stage.strategy.load_state_dict(ckpt["strategy"])
-        sampler.load(ckpt["sampler"])
-        torch.set_rng_state(ckpt["rng"]["torch"])
-        random.setstate(ckpt["rng"]["python"])
-        np.random.set_state(ckpt["rng"]["numpy"])
-        step, train_seconds, extra = ckpt["step"], ckpt["train_seconds"], dict(ckpt["extra"])
-        events.log(f"{stage.name}: resuming from iteration {step} of {cfg.iterations} ({ckpt_dir})")
+    step, train_seconds, extra = (0, 0.0, {}) if ckpt is None else _restore(ckpt, stage, optimizer, sampler, ckpt_dir)
     resumed_from = step
-    write_json(ckpt_dir / CONFIG_NAME, {"stage": stage.name, "kind": stage.gaussians.kind,
-                                        "sh_degree": stage.gaussians.sh_degree, "scene_extent": stage.scene_extent,
-                                        "color_space": stage.color_space, "train": config_dict(cfg),
-                                        "densify_resolved": asdict(cfg.resolved_densify()),
-                                        "sh_up_every_resolved": cfg.resolved_sh_up_every()})
+    _write_config(ckpt_dir, stage)
 
     stage.prepare()
     if step == 0 and stage.test_views and "initial_metrics" not in extra:

@@ -46,7 +46,7 @@ from backend.train.intrinsic.composite import compose
 from backend.train.intrinsic.config import STAGES, DecomposeConfig
 from backend.train.intrinsic.initial import initial_albedo, initial_shading
 from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
-from backend.train.intrinsic.setup import prepare_setup
+from backend.train.intrinsic.setup import Setup, prepare_setup
 from backend.train.intrinsic.stages import depth_term, inverse_photometric
 from backend.train.intrinsic.state import STATE_DIR, DecomposeState, jsonable
 from backend.train.loop import Stage, TrainConfig, sum_terms, train
@@ -209,16 +209,11 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     state.set(name, {"done": False, "extra": extra})
 
     t0 = time.perf_counter()
-    with_depth = tcfg.lambda_depth > 0
-    train_views = setup.views(setup.train_frames, "image", cfg.downscale, with_depth)
+    train_views = setup.views(setup.train_frames, "image", cfg.downscale, tcfg.lambda_depth > 0)
     for v, a in zip(train_views, setup.views(setup.train_frames, "albedo", cfg.downscale, False)):
         v.extras["albedo"] = a.image
     test_views = setup.views(setup.test_frames, "image", cfg.downscale, False)
-    albedo0, how = initial_albedo(setup.capture, [_as_albedo_view(v) for v in train_views], cfg)
-    shading0, _ = initial_shading(setup.capture, train_views, cfg, albedo_of=lambda v: v.extras["albedo"])
-    if len(shading0) != len(albedo0):  # both come from the same points; guard the row pairing
-        raise IGSError("single set: albedo and shading initialisations differ in size")
-    init = LayeredGaussians.from_layers(albedo0, shading0.colors.detach(), cfg.residual_sh_degree, gain)
+    init, how = _initial_set(setup, cfg, train_views, gain)
     phases = (cfg.albedo.iterations, cfg.albedo.iterations + cfg.shading.iterations)
     stage = SingleSetStage(name, init, train_views, test_views, tcfg, setup.extent,
                            DensifyStrategy(tcfg.resolved_densify(), setup.extent), color_space="linear",
@@ -244,6 +239,17 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     # one set: the three layer files hold the same Gaussians, counted once
     return DecompositionRun(setup, cfg, layers, {name: entry}, mode, f"decompose_{name}", ws.root / f"report_{name}.png",
                             wall, {name: len(g)})
+
+
+def _initial_set(setup: Setup, cfg: DecomposeConfig, train_views: list[View],
+                 gain: float) -> tuple[LayeredGaussians, str]:
+    """The three-set albedo and shading initialisations merged into one set (they start on the same
+    points, row for row); ``train_views`` carry their albedo map as ``extras['albedo']``."""
+    albedo0, how = initial_albedo(setup.capture, [_as_albedo_view(v) for v in train_views], cfg)
+    shading0, _ = initial_shading(setup.capture, train_views, cfg, albedo_of=lambda v: v.extras["albedo"])
+    if len(shading0) != len(albedo0):  # both come from the same points; guard the row pairing
+        raise IGSError("single set: albedo and shading initialisations differ in size")
+    return LayeredGaussians.from_layers(albedo0, shading0.colors.detach(), cfg.residual_sh_degree, gain), how
 
 
 def _as_albedo_view(v: View) -> View:

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import torch
 
 from backend.core import events
-from backend.render import RenderOutput, Splats, render_layers
+from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
 from backend.train.loop import Stage, TrainConfig, sum_terms
@@ -45,7 +45,7 @@ def layer_splats(g: GaussianSet) -> Splats:
     return Splats(**g.render_args())
 
 
-def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: str, what: str) -> float:
+def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: Backend, what: str) -> float:
     """Render the frozen layers once per view into ``view.extras`` (no re-render per iteration).
 
     ``frozen`` is [G_A] (caches ``A``) or [G_A, G_S] (caches ``AS`` = A * S, one fused pass), each
