@@ -120,7 +120,7 @@ def test_fields_are_labelled_and_zero_says_default(scene):
 def test_iterations_tooltip_and_shown_defaults_are_the_backends(addon):
     from backend.edit.bake import BakeConfig
     from backend.edit.fit import MIN_SELECTED
-    from backend.train.commands import DEFAULT_ITERATIONS
+    from backend.commands.train import DEFAULT_ITERATIONS
     from backend.train.intrinsic import split_iterations
 
     props_mod = sub("props")

@@ -25,7 +25,6 @@ composite are linear values clipped to [0, 1] before the sRGB curve) and with ``
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -33,8 +32,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend import options as opt
-from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.cameras import Camera, from_blender_matrix_world
 from backend.core.errors import IGSError
@@ -222,16 +219,6 @@ def turntable(center, radius: float, height: float, frames: int, template: Camer
     return cams
 
 
-def _vector(text: str, flag: str) -> np.ndarray:
-    try:
-        v = np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
-    except ValueError:
-        raise IGSError(f"{flag} must be x,y,z, got {text!r}") from None
-    if not np.isfinite(v).all():
-        raise IGSError(f"{flag} must be finite x,y,z, got {text!r}")
-    return v
-
-
 def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, GaussianSet]:
     layers = {}
     for kind in ("albedo", "shading", "residual"):
@@ -291,79 +278,3 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
     for v in videos.values():
         events.output("video", v)
     return {"images": written, "videos": videos}
-
-
-def run_render(args: argparse.Namespace) -> None:
-    if args.edit is not None:
-        plain_name(args.edit, "--edit")  # a folder under <ws>/edits and <ws>/renders, never a path
-    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
-        raise IGSError(f"--out {args.out}: is a file; give a folder (the images go to OUT/<layer>/)")
-    wanted = [w.strip() for w in args.layers.split(",") if w.strip()]
-    bad = [w for w in wanted if w not in LAYERS]
-    if bad or not wanted:
-        raise IGSError(f"--layers must be a comma list of {', '.join(LAYERS)}, got {args.layers!r}")
-    sources = sum(x is not None and x is not False for x in (args.cameras, args.path, args.turntable or None))
-    if sources != 1:
-        raise IGSError("give exactly one of --cameras cams.json, --turntable or --path transforms.json")
-    capture = load_capture(args.workspace)
-    ws = capture.workspace
-    if args.cameras:
-        cams = read_cameras(args.cameras)
-    elif args.path:
-        cams = read_path(args.path)
-    else:
-        template = capture.frames[0].camera
-        if args.size:
-            template = template.scaled(args.size[0] / template.width)
-            template = Camera(template.name, int(args.size[0]), int(args.size[1]), template.fx, template.fx,
-                              args.size[0] / 2, args.size[1] / 2, template.R, template.t)
-        frames = [f.camera for f in capture.frames]
-        up = _vector(args.up, "--up") if args.up else capture_up(frames)
-        center, radius, height = capture_orbit(frames, capture.points, up)
-        if args.center:
-            center = _vector(args.center, "--center")
-            _, radius, height = capture_orbit(frames, center[None], up)
-        radius = args.radius if args.radius is not None else radius
-        height = args.height if args.height is not None else height
-        events.log(f"render: turntable around {np.round(center, 3).tolist()}, radius {radius:.3g}, height "
-                   f"{height:.3g} along up {np.round(up, 3).tolist()}")
-        cams = turntable(center, radius, height, args.frames, template, args.fov, up)
-    needed = set().union(*(NEEDS[w] for w in wanted))
-    layers = load_layers(ws.root, args.edit, needed)
-    out = Path(args.out) if args.out else ws.renders / (plain_name(args.edit, "--edit") if args.edit else "layers")
-    result = render_views(cams, layers, wanted, out, args.backend, args.mp4, args.fps)
-    events.log(f"render: {len(cams)} views x {', '.join(wanted)} -> {out}")
-    events.result("render", {"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]})
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "render", help="render A, S, R and A*S+R for given cameras, a turntable or a camera path",
-        description="Render the layers of a workspace (optionally with an edited albedo) as sRGB PNG sequences "
-        "and MP4 videos. cameras.json: a list of {name, width, height, fx, fy (or fov_x_deg), cx, cy, "
-        "matrix_world (Blender camera, 4x4) or R, t (OpenCV world->camera)}.")
-    p.add_argument("workspace", help="workspace folder")
-    p.add_argument("--edit", default=None, help="use <ws>/edits/EDIT/albedo.ply as the albedo")
-    p.add_argument("--cameras", default=None, help="cameras.json (format above)")
-    p.add_argument("--path", default=None, help="camera path as a nerfstudio-style transforms.json")
-    p.add_argument("--turntable", action="store_true", help="orbit around --center (defaults: inside the capture's "
-                   "own camera path)")
-    p.add_argument("--center", default=None, help="turntable centre x,y,z (default: centroid of the SfM points)")
-    p.add_argument("--up", default=None, help="turntable axis x,y,z (default: the capture's up, read from its "
-                   "cameras: the direction most nearly perpendicular to their x axes)")
-    p.add_argument("--radius", type=opt.POSITIVE, default=None,
-                   help="turntable radius (default: 85%% of the cameras' mean distance from the axis)")
-    p.add_argument("--height", type=opt.number(), default=None,
-                   help="camera height above the centre along --up (default: the cameras' mean height)")
-    p.add_argument("--frames", type=opt.integer(1, 100_000), default=60, help="turntable frames (default 60)")
-    p.add_argument("--size", type=opt.integer(1, MAX_SIDE), nargs=2, default=None, metavar=("W", "H"),
-                   help="turntable image size (default: the capture's)")
-    p.add_argument("--fov", type=opt.number(0, 180, lo_open=True, hi_open=True), default=None, help="turntable horizontal field of view in degrees "
-                   "(default: the capture's)")
-    p.add_argument("--layers", default="A,S,R,full", help="comma list of A, S, R, full (default all)")
-    p.add_argument("--out", default=None, help="output folder (default <ws>/renders/<edit or 'layers'>)")
-    p.add_argument("--mp4", action="store_true", help="also write OUT/<layer>.mp4")
-    p.add_argument("--fps", type=opt.number(0, 1000, lo_open=True), default=24.0, help="video frame rate (default 24)")
-    p.add_argument("--backend", default="auto", choices=("auto", "cpu", "reference", "gsplat"),
-                   help="renderer backend (default auto)")
-    p.set_defaults(func=run_render)
