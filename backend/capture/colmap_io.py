@@ -1,21 +1,22 @@
-"""COLMAP models: written as COLMAP text files, read through pycolmap (text or binary)."""
+"""COLMAP models: written and read through pycolmap (written as text; read as text or binary)."""
 
 from __future__ import annotations
 
 import re
 import struct
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from backend.core.atomic_io import write_text
+from backend.core.atomic_io import write_bytes
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import relative_name
-from backend.core.rotations import rotmat_to_qvec
 
 MAX_SIDE = 16384  # pixels
+MODEL_FILES = ("cameras.txt", "images.txt", "points3D.txt")
 
 
 @dataclass
@@ -33,44 +34,39 @@ def write_model(folder: str | Path, cameras: list[Camera], points: np.ndarray, c
                 tracks: list[list[str]] | None = None) -> None:
     """Write ``cameras.txt``, ``images.txt``, ``points3D.txt`` (PINHOLE, one COLMAP camera per image).
 
-    ``tracks`` optionally names, per point, the images that see it; their 2D observations are
-    written as the point's projection so that COLMAP tools show them.
+    points: (N, 3) world positions; colors: (N, 3) uint8 RGB. ``tracks`` optionally names, per point,
+    the images that see it; their 2D observations are written as the point's projection so that
+    COLMAP tools show them. Camera and image ids are 1.. in the order of ``cameras``, point ids 1.. in
+    the order of ``points``.
     """
+    import pycolmap
+
+    rec = pycolmap.Reconstruction()
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    image_id = {cam.name: i for i, cam in enumerate(cameras, start=1)}
+    # Observation k of an image is the k-th track entry naming it, in point order.
+    observed: dict[str, list[int]] = {cam.name: [] for cam in cameras}
+    elements = []
+    for pid, names in enumerate(tracks if tracks is not None else [[] for _ in range(len(points))]):
+        elements.append([pycolmap.TrackElement(image_id[n], len(observed[n])) for n in names])
+        for n in names:
+            observed[n].append(pid)
+    for i, cam in enumerate(cameras, start=1):
+        rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
+                                                        params=[cam.fx, cam.fy, cam.cx, cam.cy], camera_id=i))
+        uv = cam.project(points[observed[cam.name]])[0]
+        image = pycolmap.Image(name=cam.name, keypoints=uv.reshape(-1, 2), camera_id=i, image_id=i)
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.hstack([cam.R, cam.t.reshape(3, 1)])))
+    for p, c, el in zip(points, np.asarray(colors, dtype=np.uint8).reshape(-1, 3), elements):
+        rec.add_point3D(p, pycolmap.Track(el), c)
+    rec.update_point_3d_errors()
+    # The classic three files only: COLMAP 4's frames.txt would take the poses over from images.txt,
+    # which readers and hand edits of this model use. Each file is replaced atomically.
     folder = Path(folder)
-    name_to_id = {cam.name: i + 1 for i, cam in enumerate(cameras)}
-    cam_lines = ["# Camera list with one line of data per camera:",
-                 "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
-    for i, cam in enumerate(cameras, start=1):
-        cam_lines.append(f"{i} PINHOLE {cam.width} {cam.height} {cam.fx:.10g} {cam.fy:.10g} {cam.cx:.10g} {cam.cy:.10g}")
-
-    # Project every point once per camera (vectorised), then look observations up per track entry.
-    obs: dict[str, list[tuple[float, float, int]]] = {cam.name: [] for cam in cameras}
-    uv_by_cam = {cam.name: cam.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))[0] for cam in cameras} \
-        if tracks is not None else {}
-    track_lines: list[str] = []
-    for pid, (p, c) in enumerate(zip(points, colors), start=1):
-        elems = []
-        for name in (tracks[pid - 1] if tracks is not None else []):
-            u, v = uv_by_cam[name][pid - 1]
-            elems.append(f"{name_to_id[name]} {len(obs[name])}")
-            obs[name].append((float(u), float(v), pid))
-        track_lines.append(f"{pid} {p[0]:.8g} {p[1]:.8g} {p[2]:.8g} {int(c[0])} {int(c[1])} {int(c[2])} 0 " + " ".join(elems))
-
-    img_lines = ["# Image list with two lines of data per image:",
-                 "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
-                 "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
-    for i, cam in enumerate(cameras, start=1):
-        q = rotmat_to_qvec(cam.R)
-        t = cam.t
-        img_lines.append(f"{i} {q[0]:.12g} {q[1]:.12g} {q[2]:.12g} {q[3]:.12g} {t[0]:.12g} {t[1]:.12g} {t[2]:.12g} {i} {cam.name}")
-        img_lines.append(" ".join(f"{u:.3f} {v:.3f} {pid}" for u, v, pid in obs[cam.name]))
-
-    pt_lines = ["# 3D point list with one line of data per point:",
-                "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"] + track_lines
-    folder.mkdir(parents=True, exist_ok=True)
-    write_text(folder / "cameras.txt", "\n".join(cam_lines) + "\n")
-    write_text(folder / "images.txt", "\n".join(img_lines) + "\n")
-    write_text(folder / "points3D.txt", "\n".join(pt_lines) + "\n")
+    with tempfile.TemporaryDirectory(prefix="igs-colmap-") as tmp:
+        rec.write_text(tmp)
+        for name in MODEL_FILES:
+            write_bytes(folder / name, (Path(tmp) / name).read_bytes())
 
 
 # pycolmap's messages for broken models name its internals; say what is wrong in the files instead.
