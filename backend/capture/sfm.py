@@ -12,15 +12,20 @@ import select
 import shutil
 import signal
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, get_args
 
 import numpy as np
 
 from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import Cancelled, IGSError
+
+if TYPE_CHECKING:
+    import pycolmap
 
 Matching = Literal["auto", "sequential", "exhaustive"]
 MATCHING: tuple[Matching, ...] = get_args(Matching)
@@ -131,6 +136,61 @@ def token_watching_cancel():
     return token, _Watch(stop, thread, fds, old_fd)
 
 
+@contextmanager
+def pycolmap_calls(during: str, verbose: bool = False) -> Iterator[pycolmap.CancellationToken]:
+    """Run pycolmap calls: yields a CancellationToken that the user's cancel trips, keeps COLMAP's own
+    log quiet unless ``verbose`` (its lines would drown the progress bars; its errors are reported as
+    one message of ours) and turns a cancelled call into :class:`Cancelled` ("... during ``during``")."""
+    import pycolmap
+
+    token, watch = token_watching_cancel()
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if verbose else 3
+    try:
+        yield token
+    except InterruptedError as e:  # pycolmap's answer to a cancelled token
+        raise Cancelled(f"cancelled by user during {during}") from e
+    finally:
+        watch.set()
+        pycolmap.logging.minloglevel = level
+    if token.is_cancelled:
+        raise Cancelled(f"cancelled by user during {during}")
+
+
+def extract_features(db: Path, image_dir: Path, names: list[str], config: SfMConfig,
+                     token: pycolmap.CancellationToken, *,
+                     single_camera: bool, camera_model: str) -> None:
+    """SIFT features of ``names`` (files in ``image_dir``) into the database ``db``, on the CPU; one
+    ``camera_model`` camera shared by all images or one per image."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions(camera_model=camera_model)
+    extraction = pycolmap.FeatureExtractionOptions(num_threads=config.num_threads,
+                                                   max_image_size=config.max_image_size)
+    extraction.sift.max_num_features = config.max_features
+    pycolmap.extract_features(db, image_dir, image_names=names,
+                              camera_mode=pycolmap.CameraMode.SINGLE if single_camera
+                              else pycolmap.CameraMode.PER_IMAGE,
+                              reader_options=reader, extraction_options=extraction,
+                              device=pycolmap.Device.cpu, cancellation_token=token)
+
+
+def match_features(db: Path, matching: Literal["sequential", "exhaustive"], config: SfMConfig,
+                   token: pycolmap.CancellationToken) -> None:
+    """Match and geometrically verify the features in ``db``: every pair, or each image with its
+    ``config.sequential_overlap`` followers (and quadratic steps beyond)."""
+    import pycolmap
+
+    mopts = pycolmap.FeatureMatchingOptions(num_threads=config.num_threads)
+    if matching == "sequential":
+        pair = pycolmap.SequentialPairingOptions(overlap=config.sequential_overlap)
+        pycolmap.match_sequential(db, matching_options=mopts, pairing_options=pair,
+                                  device=pycolmap.Device.cpu, cancellation_token=token)
+    else:
+        pycolmap.match_exhaustive(db, matching_options=mopts, device=pycolmap.Device.cpu,
+                                  cancellation_token=token)
+
+
 def _stamp(image_dir: Path, names: list[str], config: SfMConfig, matching: str) -> dict:
     files = [(n, (image_dir / n).stat().st_size, (image_dir / n).stat().st_mtime) for n in names]
     return {"files": files, "config": asdict(config), "matching": matching}
@@ -174,31 +234,13 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
     work_dir.mkdir(parents=True)
     db = work_dir / "database.db"
     pycolmap.set_random_seed(config.seed)
-    token, stop = token_watching_cancel()
-    log_level = pycolmap.logging.minloglevel
-    # COLMAP's own lines would drown the progress bars, and its errors are reported as one message of ours.
-    pycolmap.logging.minloglevel = 0 if config.verbose else 3
-    try:
+    with pycolmap_calls("SfM", config.verbose) as token:
         with events.stage("sfm features", total=1) as bar:
-            reader = pycolmap.ImageReaderOptions(camera_model=config.camera_model)
-            extraction = pycolmap.FeatureExtractionOptions(num_threads=config.num_threads,
-                                                           max_image_size=config.max_image_size)
-            extraction.sift.max_num_features = config.max_features
-            pycolmap.extract_features(db, image_dir, image_names=names,
-                                      camera_mode=pycolmap.CameraMode.SINGLE if config.single_camera
-                                      else pycolmap.CameraMode.PER_IMAGE,
-                                      reader_options=reader, extraction_options=extraction,
-                                      device=pycolmap.Device.cpu, cancellation_token=token)
+            extract_features(db, image_dir, names, config, token, single_camera=config.single_camera,
+                             camera_model=config.camera_model)
             bar.update(1)
         with events.stage(f"sfm matching ({matching})", total=1) as bar:
-            mopts = pycolmap.FeatureMatchingOptions(num_threads=config.num_threads)
-            if matching == "sequential":
-                pair = pycolmap.SequentialPairingOptions(overlap=config.sequential_overlap)
-                pycolmap.match_sequential(db, matching_options=mopts, pairing_options=pair,
-                                          device=pycolmap.Device.cpu, cancellation_token=token)
-            else:
-                pycolmap.match_exhaustive(db, matching_options=mopts, device=pycolmap.Device.cpu,
-                                          cancellation_token=token)
+            match_features(db, matching, config, token)
             bar.update(1)
         events.check_cancel()
         opts = pycolmap.IncrementalPipelineOptions(num_threads=config.num_threads, random_seed=config.seed,
@@ -221,13 +263,6 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
                                                   next_image_callback=on_image, cancellation_token=token)
         finally:
             bar.close()
-    except InterruptedError as e:  # pycolmap's answer to a cancelled token
-        raise Cancelled("cancelled by user during SfM") from e
-    finally:
-        stop.set()
-        pycolmap.logging.minloglevel = log_level
-    if token.is_cancelled:
-        raise Cancelled("cancelled by user during SfM")
     if not models:
         raise IGSError(f"{label}: SfM could not reconstruct any model from {len(names)} images "
                        "(too little texture or overlap between the frames?)")
