@@ -19,13 +19,15 @@ from backend import __version__
 from backend.core import events, signals
 from backend.core.atomic_io import os_error
 from backend.core.errors import Cancelled, IGSError
+from igs_contract.events import CANCELLED, DONE, ERROR, START
+from igs_contract.exit_codes import EXIT_CANCELLED, EXIT_INTERNAL, EXIT_OK, EXIT_USER
 
 # Errors of the machine rather than of the program (full disk, read-only or missing folder,
 # permissions): one line naming the file, like bad input.
 DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG,
                errno.ENOENT, errno.ENOTDIR, errno.EISDIR}
 
-CANCELLED = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
+CANCELLED_MESSAGE = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
 
 # Modules with a ``register(subparsers)`` function, in the order of the pipeline (and of --help).
 # Imported by build_parser, not here: torch loads with them, after the signal handlers are in.
@@ -48,7 +50,7 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.print_usage(sys.stderr)
         message = re.sub(r"^argument (\S+?)(/\S+)?: ", r"\1 ", message)
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(EXIT_USER, f"{self.prog}: error: {message}\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; the exit code: 0 done, 2 user error, 130 cancelled, 1 internal error.
+    """Run one command; the exit code (:mod:`igs_contract.exit_codes`): 0 done, 2 user error, 130
+    cancelled, 1 internal error.
 
     Without ``argv`` (a process of its own: ``igs``, ``python -m backend``) signals arriving after
     the command has finished are ignored, so that the exit code stays the command's.
@@ -92,39 +95,39 @@ def _main(argv: list[str]) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
     except KeyboardInterrupt:  # only if a library put Python's default handler back while loading
-        print(f"igs: {CANCELLED}", file=sys.stderr)
-        return signals.EXIT_CANCELLED
+        print(f"igs: {CANCELLED_MESSAGE}", file=sys.stderr)
+        return EXIT_CANCELLED
     except SystemExit as e:  # --help, --version, or a bad option (argparse printed it): its exit code
-        return e.code if isinstance(e.code, int) else 2
+        return e.code if isinstance(e.code, int) else EXIT_USER
     events.enable_json(args.events)
     events.install_signal_handlers()
     t0 = time.perf_counter()
-    events.emit("start", command=args.command, argv=argv)
+    events.emit(START, command=args.command, argv=argv)
     try:
         events.check_cancel()  # a signal that came while loading
         args.func(args)
     except IGSError as e:
-        events.emit("error", message=str(e))
+        events.emit(ERROR, message=str(e))
         print(f"igs {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_USER
     except OSError as e:
         if e.errno not in DISK_ERRORS:  # a bug, not the machine: the traceback below
             return _internal_error(e)
         msg = str(os_error(e.filename or "?", e, "could not read or write"))
-        events.emit("error", message=msg)
+        events.emit(ERROR, message=msg)
         print(f"igs {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+        return EXIT_USER
     except (Cancelled, KeyboardInterrupt):
-        events.emit("cancelled", message=CANCELLED)
-        print(f"igs {args.command}: {CANCELLED}", file=sys.stderr)
-        return signals.EXIT_CANCELLED
+        events.emit(CANCELLED, message=CANCELLED_MESSAGE)
+        print(f"igs {args.command}: {CANCELLED_MESSAGE}", file=sys.stderr)
+        return EXIT_CANCELLED
     except Exception as e:  # a bug, not bad input: keep the traceback but still report one line
         return _internal_error(e)
-    events.emit("done", command=args.command, seconds=time.perf_counter() - t0)
-    return 0
+    events.emit(DONE, command=args.command, seconds=time.perf_counter() - t0)
+    return EXIT_OK
 
 
 def _internal_error(e: Exception) -> int:
-    events.emit("error", message=f"internal error: {type(e).__name__}: {e}")
+    events.emit(ERROR, message=f"internal error: {type(e).__name__}: {e}")
     traceback.print_exc()
-    return 1
+    return EXIT_INTERNAL
