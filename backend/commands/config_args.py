@@ -38,18 +38,19 @@ class Option:
     fields: str | tuple[str, ...]
     """Dotted path of the config field it sets; several: the same value goes into each."""
     help: str
+    """The text --help shows (argparse formats it: ``%%`` for a percent sign)."""
     type: Callable[[str], Any] | None = None
     """Parser of the value (a checked number type); default: from the field's annotation."""
     default: Any = _FROM_CONFIG
     """Default when it is not the config's value: ``None`` leaves each field as it is."""
     metavar: str | tuple[str, ...] | None = None
+    """The value's name in --help; default: the option's name in capitals."""
     nargs: int | None = None
     """Values the option takes (a tuple field: ``--size W H``); default one."""
 
     @property
     def paths(self) -> tuple[str, ...]:
         return (self.fields,) if isinstance(self.fields, str) else self.fields
-
 
 
 def add_config_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, base: Any,
