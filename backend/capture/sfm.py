@@ -219,15 +219,9 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
     stamp = _stamp(image_dir, names, config, matching)
     model_dir = work_dir / "model"
     stamp_path = work_dir / "sfm.json"
-    if stamp_path.exists() and (model_dir / "images.bin").exists():
-        try:
-            old = json.loads(stamp_path.read_text())
-        except json.JSONDecodeError:
-            old = {}
-        if old.get("stamp") == json.loads(json.dumps(stamp)):
-            rec = pycolmap.Reconstruction(str(model_dir))
-            events.log(f"sfm: reusing the model in {model_dir} ({rec.num_reg_images()} images registered)")
-            return _result(rec, names, old.get("num_models", 1), matching, config, label)
+    reused = _reused_model(stamp_path, model_dir, stamp)
+    if reused is not None:
+        return _result(*reused, names=names, matching=matching, config=config, label=label)
 
     if work_dir.exists():
         shutil.rmtree(work_dir)
@@ -243,13 +237,6 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
             match_features(db, matching, config, token)
             bar.update(1)
         events.check_cancel()
-        opts = pycolmap.IncrementalPipelineOptions(num_threads=config.num_threads, random_seed=config.seed,
-                                                   min_model_size=max(3, config.min_registered))
-        err = float(config.max_reproj_error)
-        opts.mapper.filter_max_reproj_error = err
-        opts.mapper.init_max_error = err
-        opts.triangulation.merge_max_reproj_error = err
-        opts.triangulation.complete_max_reproj_error = err
         bar = events.Progress("sfm mapping", total=len(names), unit="image")
         try:
             def on_image() -> None:
@@ -259,7 +246,7 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
                     bar.bar.update(1)
                     events.emit("progress", stage=bar.stage, step=bar.step, total=bar.total)
 
-            models = pycolmap.incremental_mapping(db, image_dir, work_dir / "models", options=opts,
+            models = pycolmap.incremental_mapping(db, image_dir, work_dir / "models", options=_mapping_options(config),
                                                   next_image_callback=on_image, cancellation_token=token)
         finally:
             bar.close()
@@ -270,10 +257,42 @@ def run_sfm(image_dir: str | Path, names: list[str], work_dir: str | Path, confi
     model_dir.mkdir(parents=True, exist_ok=True)
     rec.write(str(model_dir))
     write_json(stamp_path, {"stamp": stamp, "num_models": len(models)})
-    return _result(rec, names, len(models), matching, config, label)
+    return _result(rec, len(models), names=names, matching=matching, config=config, label=label)
 
 
-def _result(rec, names: list[str], num_models: int, matching: str, config: SfMConfig | None = None,
+def _reused_model(stamp_path: Path, model_dir: Path, stamp: dict):
+    """(pycolmap.Reconstruction, number of models) of an earlier run with the same ``stamp``, or None."""
+    import pycolmap
+
+    if not (stamp_path.exists() and (model_dir / "images.bin").exists()):
+        return None
+    try:
+        old = json.loads(stamp_path.read_text())
+    except json.JSONDecodeError:
+        return None
+    if old.get("stamp") != json.loads(json.dumps(stamp)):
+        return None
+    rec = pycolmap.Reconstruction(str(model_dir))
+    events.log(f"sfm: reusing the model in {model_dir} ({rec.num_reg_images()} images registered)")
+    return rec, old.get("num_models", 1)
+
+
+def _mapping_options(config: SfMConfig):
+    """COLMAP's incremental mapping options: ``config``'s threads, seed, minimum model size and
+    reprojection threshold (for creating, merging, completing and keeping points, and the initial pair)."""
+    import pycolmap
+
+    opts = pycolmap.IncrementalPipelineOptions(num_threads=config.num_threads, random_seed=config.seed,
+                                               min_model_size=max(3, config.min_registered))
+    err = float(config.max_reproj_error)
+    opts.mapper.filter_max_reproj_error = err
+    opts.mapper.init_max_error = err
+    opts.triangulation.merge_max_reproj_error = err
+    opts.triangulation.complete_max_reproj_error = err
+    return opts
+
+
+def _result(rec, num_models: int, *, names: list[str], matching: str, config: SfMConfig | None = None,
             label: str = "") -> SfMResult:
     registered = sorted(img.name for img in rec.images.values() if img.has_pose)
     reg = set(registered)
