@@ -61,58 +61,62 @@ def turntable_orbit(capture) -> tuple[str, float, float]:
     return ",".join(f"{v:.4f}" for v in centre), round(radius, 3), round(height, 3)
 
 
+def _decompose(ws: Path, iterations: int) -> None:
+    """As ``igs decompose WS --iterations N``."""
+    outcome = decompose(str(ws), decompose_command.config_with_iterations(iterations))
+    decompose_command.show(evaluate_decomposition(outcome))
+
+
+def _fit_plane(ws: Path, edit: dict) -> bool:
+    """As ``igs edit fit-plane`` under the decal's rectangle; False when the fit failed."""
+    try:
+        meta = fit_proxy(str(ws), "plane", edit["edit_view"], [float(v) for v in edit["rect"]], DEMO_EDIT)
+    except IGSError as e:
+        # A short decomposition can leave the wall too fuzzy for RANSAC; the synthetic capture
+        # knows the true plane, so the demo goes on with it and says so.
+        events.log(f"plane fit failed ({e}); baking on the capture's ground-truth plane instead")
+        return False
+    edit_command.show_fit("plane", meta)
+    return True
+
+
+def _bake(ws: Path, plane_file: Path, texture: Path, view: str, iterations: int) -> None:
+    """As ``igs edit bake WS --plane P --texture T --view V --iterations N --name wall_decal``."""
+    proxy, name = resolve_bake_input(BakeInput(plane=str(plane_file), texture=str(texture), name=DEMO_EDIT))
+    edit_command.show_bake(bake_edit(str(ws), proxy, name, BakeConfig(view=view, iterations=iterations)))
+
+
 def run(args: argparse.Namespace) -> dict:
     ws = Path(args.workspace)
     iterations = args.iterations or ITERATIONS[args.preset]
     t0 = time.perf_counter()
     steps: dict[str, float] = {}
 
-    def timed(name: str, fn) -> None:
+    def timed(name: str, fn):
         events.log(f"[{len(steps) + 1}/5] {name}")
         t = time.perf_counter()
-        fn()
+        value = fn()
         steps[name] = round(time.perf_counter() - t, 1)
-
-    def decomposition() -> None:
-        outcome = decompose(str(ws), decompose_command.config_with_iterations(iterations))
-        decompose_command.show(evaluate_decomposition(outcome))
+        return value
 
     timed("synthetic capture", lambda: synthesize(ws, preset=args.preset, seed=args.seed))
-    timed("decompose", decomposition)
-
+    timed("decompose", lambda: _decompose(ws, iterations))
     edit_json = ws / "gt_edit" / DEMO_EDIT / "edit.json"
     if not edit_json.exists():
         raise IGSError(f"{edit_json}: missing; the synthetic capture should have written it")
     edit = json.loads(edit_json.read_text())
-    plane = {"file": ws / "edits" / DEMO_EDIT / "edit.json", "source": "fitted"}
-
-    def fit() -> None:
-        try:
-            meta = fit_proxy(str(ws), "plane", edit["edit_view"], [float(v) for v in edit["rect"]], DEMO_EDIT)
-        except IGSError as e:
-            # A short decomposition can leave the wall too fuzzy for RANSAC; the synthetic capture
-            # knows the true plane, so the demo goes on with it and says so.
-            events.log(f"plane fit failed ({e}); baking on the capture's ground-truth plane instead")
-            plane.update(file=edit_json, source="ground truth (fit failed)")
-            return
-        edit_command.show_fit("plane", meta)
-
-    def bake() -> None:
-        proxy, name = resolve_bake_input(BakeInput(plane=str(plane["file"]), name=DEMO_EDIT,
-                                                   texture=str(edit_json.parent / edit["texture"])))
-        cfg = BakeConfig(view=edit["edit_view"], iterations=BAKE_ITERATIONS[args.preset])
-        edit_command.show_bake(bake_edit(str(ws), proxy, name, cfg))
-
-    timed("fit a plane under the decal's rectangle", fit)
-    timed("bake the decal into the albedo field", bake)
-    turntable = ws / "renders" / f"{DEMO_EDIT}-turntable"
+    fitted = timed("fit a plane under the decal's rectangle", lambda: _fit_plane(ws, edit))
+    plane_file = ws / "edits" / DEMO_EDIT / "edit.json" if fitted else edit_json
+    timed("bake the decal into the albedo field",
+          lambda: _bake(ws, plane_file, edit_json.parent / edit["texture"], edit["edit_view"],
+                        BAKE_ITERATIONS[args.preset]))
     center, radius, height = turntable_orbit(load_capture(ws))
     render = RenderConfig(edit=DEMO_EDIT, turntable=True, center=center, up="0,0,1", radius=radius, height=height,
-                          frames=args.frames, out=str(turntable), mp4=True)
+                          frames=args.frames, out=str(ws / "renders" / f"{DEMO_EDIT}-turntable"), mp4=True)
     timed("turntable of the edited scene", lambda: render_command.show(render_workspace(str(ws), render)))
 
     summary = {"workspace": str(ws), "preset": args.preset, "iterations": iterations, "steps_seconds": steps,
-               "edit_plane": plane["source"],
+               "edit_plane": "fitted" if fitted else "ground truth (fit failed)",
                "seconds": round(time.perf_counter() - t0, 1), "capture": capture_summary(load_capture(ws))}
     write_json(ws / "demo_summary.json", summary)
     events.output("summary", ws / "demo_summary.json")
