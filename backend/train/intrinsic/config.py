@@ -93,7 +93,8 @@ class DecomposeConfig:
     device: str = "auto"
     """Where the stages train: auto (CUDA when gsplat is installed), cpu, cuda or cuda:N."""
 
-    def stage(self, name: str) -> TrainConfig:
+    def stage(self, name: StageName) -> TrainConfig:
+        """The training config of stage ``name``."""
         return getattr(self, name)
 
     def set_all(self, **changes: Any) -> DecomposeConfig:
