@@ -38,7 +38,7 @@ from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
 from backend.core.paths import plain_name
 from backend.eval.video import Mp4Writer
-from backend.render import render_layers
+from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
@@ -104,14 +104,20 @@ def camera_from_dict(d: Any, where: str) -> Camera:
     return Camera(str(d.get("name", where)), w, h, fx, fy, cx, cy, R, t)
 
 
-def read_cameras(path: str | Path) -> list[Camera]:
-    path = Path(path)
+def _read_json(path: Path, what: str) -> Any:
+    """The JSON value in ``path``; a missing or unreadable file is one error naming ``what`` it is."""
     try:
-        data = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except FileNotFoundError:
-        raise IGSError(f"{path}: cameras file not found") from None
+        raise IGSError(f"{path}: {what} not found") from None
     except (OSError, json.JSONDecodeError) as e:
         raise IGSError(f"{path}: not a readable JSON file ({e})") from e
+
+
+def read_cameras(path: str | Path) -> list[Camera]:
+    """A cameras.json (module docstring); cameras that share a name get their index as a prefix."""
+    path = Path(path)
+    data = _read_json(path, "cameras file")
     if isinstance(data, dict):
         data = data.get("cameras")
     if not isinstance(data, list) or not data:
@@ -127,12 +133,7 @@ def read_cameras(path: str | Path) -> list[Camera]:
 def read_path(path: str | Path) -> list[Camera]:
     """A nerfstudio-style transforms.json camera path."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise IGSError(f"{path}: camera path file not found") from None
-    except (OSError, json.JSONDecodeError) as e:
-        raise IGSError(f"{path}: not a readable JSON file ({e})") from e
+    data = _read_json(path, "camera path file")
     frames = data.get("frames") if isinstance(data, dict) else None
     if not isinstance(frames, list) or not frames:
         raise IGSError(f"{path}: expected an object with a non-empty 'frames' list")
@@ -236,7 +237,7 @@ def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, 
 
 
 def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: list[str], out: Path,
-                 backend: str = "auto", mp4: bool = False, fps: float = 24.0) -> dict[str, Any]:
+                 backend: Backend = "auto", mp4: bool = False, fps: float = 24.0) -> dict[str, Any]:
     """Render ``wanted`` layers for every camera into ``out``; returns what was written."""
     kinds = [k for k in ("albedo", "shading", "residual") if k in layers]
     splats = [layers[k] for k in kinds]

@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import Any
 
 from backend.splats.gaussians import GaussianSet
-from backend.splats.ply import ENCODINGS
 from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.setup import Setup
 from backend.train.loop import TrainConfig, TrainResult
+from igs_contract.layer_ply import ENCODINGS
 
 
 @dataclass
