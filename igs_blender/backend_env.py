@@ -1,7 +1,8 @@
 """Where the backend is and how to run it: interpreter, shipped sources, pinned requirements (no bpy).
 
-The extension ships the backend sources and ``pyproject.toml`` beside the add-on; jobs run the
-configured interpreter with that folder first on PYTHONPATH, so Blender never imports them. The
+The extension ships the backend sources (``backend/`` and the ``igs_contract/`` it shares with the
+add-on) and ``pyproject.toml`` beside the add-on; jobs run the configured interpreter with that
+folder first on PYTHONPATH, so Blender never imports the backend. The
 pins carry PEP 508 ``python_version`` markers (one set per Python); the scripts that create and
 check an environment run in its interpreter and pick the set for it (check_env.py's evaluator).
 """
@@ -15,6 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..igs_contract import events
 from . import check_env
 from .client import BackendJob, backend_command
 from .errors import UserError
@@ -58,11 +60,12 @@ def pinned_requirements(root: Path = ADDON_ROOT, include_bpy: bool = True) -> li
 
 
 def backend_root(configured: str = "") -> Path:
-    """The folder holding ``backend/`` (the configured one, else the extension's own)."""
+    """The folder holding ``backend/`` and ``igs_contract/`` (the configured one, else the extension's own)."""
     root = Path(configured).expanduser() if configured else ADDON_ROOT
-    if not (root / "backend" / "__main__.py").is_file():
-        raise UserError(f"{root}: no backend sources here (backend/__main__.py is missing); "
-                        "reinstall the extension or fix 'Backend Sources' in the preferences")
+    for needed in ("backend/__main__.py", "igs_contract/__init__.py"):
+        if not (root / needed).is_file():
+            raise UserError(f"{root}: no backend sources here ({needed} is missing); "
+                            "reinstall the extension or fix 'Backend Sources' in the preferences")
     return root
 
 
@@ -185,7 +188,7 @@ def _torch_report(env: dict) -> tuple[str, str, list[str]]:
 def env_report_lines(job: BackendJob) -> tuple[bool, list[str]]:
     """(everything present, lines for the user) from a finished check job: the first line says what is
     wrong and how to fix it (or that the backend is ready), the others are the details."""
-    env = next((e for e in job.state.other if e.get("event") == "env"), None)
+    env = next((e for e in job.state.other if e.get(events.EVENT) == events.ENV), None)
     if env is None:
         return False, [job.report()]
     minor = ".".join(env["python"].split(".")[:2])

@@ -15,7 +15,7 @@ from .cameras import (
     blender_matrix_world,
     from_blender_matrix_world,
     intrinsics_from_blender,
-    read_colmap_text,
+    read_workspace_cameras,
 )
 from .errors import UserError
 
@@ -41,8 +41,8 @@ def sfm_cameras(scene: bpy.types.Scene | None = None) -> list[bpy.types.Object]:
 
 def import_cameras(scene: bpy.types.Scene, workspace: Path, *, backgrounds: bool = True,
                    ) -> list[bpy.types.Object]:
-    """Create one Blender camera per registered view of ``<ws>/sparse/0`` (replacing earlier ones)."""
-    views = read_colmap_text(workspace / "sparse" / "0")
+    """Create one Blender camera per registered view of the workspace (replacing earlier ones)."""
+    views = read_workspace_cameras(workspace)
     coll = scene_objects.collection(COLLECTION)
     for old in sfm_cameras():
         scene_objects.remove_object(old)

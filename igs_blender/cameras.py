@@ -1,6 +1,8 @@
-"""SfM cameras <-> Blender cameras.
+"""The workspace's SfM cameras <-> Blender cameras.
 
-COLMAP/OpenCV cameras look down +z with y down (``x_cam = R x_world + t``, pixel u = fx x/z + cx
+The add-on reads the capture's cameras from the workspace's ``transforms.json`` (the contract's
+``camera_json``; ``igs import`` and ``igs synth`` write it beside the COLMAP model). COLMAP/OpenCV
+cameras look down +z with y down (``x_cam = R x_world + t``, pixel u = fx x/z + cx
 with the top-left pixel's centre at (0.5, 0.5)); Blender cameras look down -z with y up, so the
 camera-to-world rotation is ``R_blender = R^T diag(1, -1, -1)``.
 
@@ -21,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..igs_contract import camera_json
+from ..igs_contract.errors import ContractError
 from .errors import UserError
 
 CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
@@ -29,7 +33,7 @@ SENSOR_WIDTH_MM = 36.0
 
 @dataclass
 class SfmView:
-    """One registered image of a COLMAP model (PINHOLE)."""
+    """One registered view of the capture (an undistorted pinhole camera)."""
 
     name: str
     """Image file name relative to the workspace's images/ folder."""
@@ -61,81 +65,28 @@ class SfmView:
         z = pc[:, 2]
         return np.stack([self.fx * pc[:, 0] / z + self.cx, self.fy * pc[:, 1] / z + self.cy], axis=1), z
 
+    @classmethod
+    def from_json(cls, entry: dict) -> SfmView:
+        """The view of a contract camera entry (``igs_contract.camera_json.camera_entry``)."""
+        return cls(entry["name"], entry["width"], entry["height"], entry["fx"], entry["fy"], entry["cx"], entry["cy"],
+                   np.array(entry["R"], dtype=np.float64), np.array(entry["t"], dtype=np.float64))
+
     def to_json(self) -> dict:
-        """The camera as the backend's ``render --camera`` file holds it."""
-        return {"name": self.name, "width": int(self.width), "height": int(self.height),
-                "fx": float(self.fx), "fy": float(self.fy), "cx": float(self.cx), "cy": float(self.cy),
-                "R": np.asarray(self.R, dtype=float).tolist(), "t": np.asarray(self.t, dtype=float).tolist()}
+        """The camera as the backend's ``render --cameras`` file holds it."""
+        return camera_json.camera_entry(self.name, self.width, self.height, self.fx, self.fy, self.cx, self.cy,
+                                        np.asarray(self.R, dtype=float), np.asarray(self.t, dtype=float))
 
 
-def qvec_to_rotmat(q) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) -> 3x3 rotation matrix."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def _data_lines(path: Path) -> list[str]:
-    """Lines of a COLMAP text file without comments (blank lines kept: images.txt may have empty point lines)."""
-    return [ln.rstrip("\n") for ln in path.read_text(encoding="utf-8", errors="replace").splitlines()
-            if not ln.lstrip().startswith("#")]
-
-
-def read_colmap_text(folder: str | os.PathLike) -> list[SfmView]:
-    """The registered views of a COLMAP text model (``cameras.txt`` + ``images.txt``), sorted by name."""
-    folder = Path(folder)
-    cams_path, imgs_path = folder / "cameras.txt", folder / "images.txt"
-    if not cams_path.is_file() or not imgs_path.is_file():
-        if (folder / "cameras.bin").is_file():
-            raise UserError(f"{folder}: binary COLMAP model; the workspace holds a text model after "
-                            "'Import' (cameras.txt, images.txt)")
-        raise UserError(f"{folder}: no COLMAP model (cameras.txt and images.txt expected); import a capture first")
-    intr: dict[int, tuple[int, int, float, float, float, float]] = {}
-    for ln in _data_lines(cams_path):
-        parts = ln.split()
-        if not parts:
-            continue
-        try:
-            cam_id, model, w, h = int(parts[0]), parts[1], int(parts[2]), int(parts[3])
-            params = [float(p) for p in parts[4:]]
-        except (ValueError, IndexError):
-            raise UserError(f"{cams_path}: malformed camera line '{ln}'") from None
-        if model == "PINHOLE" and len(params) == 4:
-            intr[cam_id] = (w, h, *params)
-        elif model == "SIMPLE_PINHOLE" and len(params) == 3:
-            intr[cam_id] = (w, h, params[0], params[0], params[1], params[2])
-        else:
-            raise UserError(f"{cams_path}: camera {cam_id} is {model}; only undistorted PINHOLE cameras are "
-                            "supported (import the capture to undistort it)")
-    views = []
-    lines = _data_lines(imgs_path)
-    i = 0
-    while i < len(lines):
-        parts = lines[i].split()
-        if not parts:  # stray blank line where a header is expected (e.g. at the end)
-            i += 1
-            continue
-        if len(parts) < 10:
-            raise UserError(f"{imgs_path}: malformed image line '{lines[i]}'")
-        try:
-            q = [float(v) for v in parts[1:5]]
-            t = np.array([float(v) for v in parts[5:8]])
-            cam_id = int(parts[8])
-        except ValueError:
-            raise UserError(f"{imgs_path}: malformed image line '{lines[i]}'") from None
-        name = " ".join(parts[9:])
-        if cam_id not in intr:
-            raise UserError(f"{imgs_path}: image '{name}' refers to camera {cam_id}, which {cams_path.name} lacks")
-        w, h, fx, fy, cx, cy = intr[cam_id]
-        views.append(SfmView(name, w, h, fx, fy, cx, cy, qvec_to_rotmat(q), t))
-        i += 2  # the next line lists the image's 2D points (possibly empty)
-    if not views:
-        raise UserError(f"{imgs_path}: the COLMAP model has no registered images")
-    views.sort(key=lambda v: v.name)
-    return views
+def read_workspace_cameras(workspace: str | os.PathLike) -> list[SfmView]:
+    """The registered views of a workspace, sorted by name, from its ``transforms.json``."""
+    path = Path(workspace) / "transforms.json"
+    if not path.is_file():
+        raise UserError(f"{path}: not found (a workspace from an older version); import the capture again to "
+                        "write it (Capture panel > Import, or `igs import`)")
+    try:
+        return [SfmView.from_json(entry) for entry in camera_json.read_transforms(path)]
+    except ContractError as e:
+        raise UserError(f"{e}; import the capture again to rewrite it (Capture panel > Import, or `igs import`)") from None
 
 
 def blender_matrix_world(R: np.ndarray, t: np.ndarray) -> np.ndarray:

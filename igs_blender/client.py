@@ -1,18 +1,14 @@
 """Run the backend as a subprocess and follow its JSON-lines events without ever blocking.
 
 Pure Python (no bpy): Blender's modal operators call :meth:`BackendJob.poll` from a timer, tests
-and scripts call :meth:`BackendJob.wait`. The protocol is the one of ``backend/events.py``: every
-stdout line that is a JSON object with an ``event`` key is an event (``start``, ``stage``,
-``progress``, ``log``, ``output``, ``done``, ``error``, ``cancelled``); other lines are ignored.
-Human progress (tqdm) arrives on stderr and is kept as a log tail for error reports.
-
-Exit codes: 0 ok, 2 user error (message in the ``error`` event), 130 cancelled (the workspace keeps
-its last checkpoint), 1 internal error, negative = killed by a signal.
+and scripts call :meth:`BackendJob.wait`. The events and the exit codes are the contract's
+(``igs_contract.events``, ``igs_contract.exit_codes``); lines that are not events are ignored.
+Human progress (tqdm) arrives on stderr and is kept as a log tail for error reports. A negative
+exit code means the process was killed by a signal.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import queue
 import signal
@@ -25,28 +21,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-EXIT_OK = 0
-EXIT_INTERNAL = 1
-EXIT_USER = 2
-EXIT_CANCELLED = 130
+from ..igs_contract import events
+from ..igs_contract.events import parse_event
+from ..igs_contract.exit_codes import EXIT_CANCELLED, EXIT_OK, EXIT_USER
 
 
 class BackendError(Exception):
     """A job could not be started (missing interpreter, bad arguments); the message is for the user."""
-
-
-def parse_event(line: str) -> dict[str, Any] | None:
-    """The event on one stdout line, or None when the line is not a JSON object with an ``event`` key."""
-    line = line.strip()
-    if not line.startswith("{"):
-        return None
-    try:
-        obj = json.loads(line)
-    except ValueError:
-        return None
-    if not isinstance(obj, dict) or not isinstance(obj.get("event"), str):
-        return None
-    return obj
 
 
 def format_eta(seconds: float | None) -> str:
@@ -103,10 +84,10 @@ class JobState:
 
     def apply(self, ev: dict[str, Any]) -> None:
         """Update the state with one event."""
-        kind = ev.get("event")
-        if kind == "stage":
+        kind = ev.get(events.EVENT)
+        if kind == events.STAGE:
             self._begin_stage(str(ev.get("stage", "")), _int(ev.get("total")))
-        elif kind == "progress":
+        elif kind == events.PROGRESS:
             name = str(ev.get("stage", self.stage))
             if name != self.stage or name not in self.stages:
                 self._begin_stage(name, _int(ev.get("total")))
@@ -115,23 +96,23 @@ class JobState:
             st.total = _int(ev.get("total")) or st.total
             eta = ev.get("eta_s")
             self.eta_s = float(eta) if isinstance(eta, (int, float)) else None
-            self.metrics = {k: v for k, v in ev.items() if k not in ("event", "stage", "step", "total", "eta_s")}
-        elif kind == "log":
+            self.metrics = {k: v for k, v in ev.items() if k != events.EVENT and k not in events.FIELDS[events.PROGRESS]}
+        elif kind == events.LOG:
             self.messages.append(str(ev.get("message", "")))
-        elif kind == "output":
+        elif kind == events.OUTPUT:
             self.outputs.append((str(ev.get("kind", "")), str(ev.get("path", ""))))
-        elif kind == "done":
+        elif kind == events.DONE:
             self.done = True
             secs = ev.get("seconds")
             self.seconds = float(secs) if isinstance(secs, (int, float)) else None
             self._finish_stage("done")
-        elif kind == "error":
+        elif kind == events.ERROR:
             self.error = str(ev.get("message", "unknown error"))
             self._finish_stage("failed")
-        elif kind == "cancelled":
+        elif kind == events.CANCELLED:
             self.cancelled = str(ev.get("message", "cancelled"))
             self._finish_stage("cancelled")
-        elif kind != "start":
+        elif kind != events.START:
             self.other.append(ev)
 
     def _begin_stage(self, name: str, total: int) -> None:
@@ -197,8 +178,9 @@ def backend_command(interpreter: str | os.PathLike, args: list[str], backend_roo
                     ) -> tuple[list[str], dict[str, str]]:
     """The argv and environment that run ``python -m backend --events ARGS`` with ``interpreter``.
 
-    ``backend_root`` (the folder that holds ``backend/``) goes first on PYTHONPATH so the backend
-    shipped with the extension is the one that runs, whatever else the interpreter has installed.
+    ``backend_root`` (the folder that holds ``backend/`` and ``igs_contract/``) goes first on
+    PYTHONPATH so the backend shipped with the extension is the one that runs, whatever else the
+    interpreter has installed.
     """
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"  # events must arrive as they are printed

@@ -24,9 +24,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from igs_blender import backend_env, check_env  # noqa: E402
-from igs_blender.client import BackendJob, parse_event  # noqa: E402
-from igs_blender.errors import UserError  # noqa: E402
+import _addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
+from intrinsic_splats.igs_blender import backend_env, check_env  # noqa: E402
+from intrinsic_splats.igs_blender.client import BackendJob, parse_event  # noqa: E402
+from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
 
 PYTHON = sys.executable
 PINS = backend_env.pinned_requirements(ROOT)

@@ -110,7 +110,9 @@ def need_command(name: str) -> None:
 def test_zip_ships_the_addon_and_the_backend_but_no_tests(ext_zip):
     names = set(zipfile.ZipFile(ext_zip).namelist())
     for needed in ("blender_manifest.toml", "__init__.py", "igs_blender/client.py", "igs_blender/compat.py",
-                   "operators/edit.py", "panels/main.py", "backend/__main__.py", "backend/cli.py", "pyproject.toml"):
+                   "operators/edit.py", "panels/main.py", "backend/__main__.py", "backend/commands/cli.py",
+                   "igs_contract/__init__.py", "igs_contract/layer_ply.py", "igs_contract/camera_json.py",
+                   "pyproject.toml"):
         assert needed in names, needed
     assert not any(n.startswith(("tests/", ".venv/", ".git", ".ci/")) or "__pycache__" in n for n in names)
 
@@ -186,6 +188,9 @@ def check_cameras_match_colmap(scene, ws: Path, rng_points: np.ndarray) -> int:
 
 
 def test_sfm_cameras_become_blender_cameras_that_project_like_colmap(scene, tmp_path):
+    from backend.capture.colmap_io import read_model
+    from backend.capture.transforms_io import write_transforms
+
     ws = tmp_path / "ws"
     make_tiny_workspace(ws)
     # one camera with non-square pixels and an off-centre principal point
@@ -193,6 +198,7 @@ def test_sfm_cameras_become_blender_cameras_that_project_like_colmap(scene, tmp_
     lines = (sparse / "cameras.txt").read_text().splitlines()
     lines[-1] = "3 PINHOLE 16 12 14.5 16.0 9.25 5.0"
     (sparse / "cameras.txt").write_text("\n".join(lines) + "\n")
+    write_transforms(ws / "transforms.json", read_model(sparse).cameras)  # as import writes both
     scene.igs.workspace = str(ws)
     assert bpy.ops.igs.load_cameras() == {"FINISHED"}
     pts = np.random.default_rng(3).uniform(-0.5, 0.5, (30, 3))
@@ -205,7 +211,7 @@ def test_sfm_cameras_become_blender_cameras_that_project_like_colmap(scene, tmp_
     root.matrix_world = Matrix.Rotation(0.7, 4, "X") @ Matrix.Scale(2.0, 4)
     bpy.context.view_layer.update()
     view = sub("camera_objects").sfm_view_from_object(scene, cam)
-    ref = sub("cameras").read_colmap_text(sparse)[0]
+    ref = sub("cameras").read_workspace_cameras(ws)[0]
     np.testing.assert_allclose(view.R, ref.R, atol=1e-5)
     np.testing.assert_allclose(view.t, ref.t, atol=1e-4)
     assert not np.allclose(np.array(cam.matrix_world), sub("cameras").blender_matrix_world(ref.R, ref.t), atol=1e-3)
@@ -663,8 +669,9 @@ CONTRACT_DOUBLE = r'''#!{python}
 import argparse, json, sys, time
 from pathlib import Path
 import numpy as np
-sys.path.insert(0, {root!r})
-from igs_blender.ply_io import SplatLayer, read_splat_ply, write_splat_ply, C0
+sys.path[:0] = [{root!r}, str(Path({root!r}) / "tests")]
+import _addon_package  # the extension as a package, as Blender imports it
+from intrinsic_splats.igs_blender.ply_io import SplatLayer, read_splat_ply, write_splat_ply, C0
 
 def emit(ev, **f):
     print(json.dumps({{"event": ev, **f}}), flush=True)
@@ -830,7 +837,7 @@ def test_operators_follow_the_backend_contract_from_import_to_turntable(scene, t
     assert tuple(bpy.data.images["IGS Render"].size) == (32, 24)
     view_dir = next((ws / "renders").glob("view-*"))
     sent = json.loads((view_dir / "cameras.json").read_text())["cameras"][0]
-    ref = sub("cameras").read_colmap_text(ws / "sparse" / "0")[1]
+    ref = sub("cameras").read_workspace_cameras(ws)[1]
     np.testing.assert_allclose(sent["R"], ref.R, atol=1e-5)
     np.testing.assert_allclose([sent["fx"], sent["cx"]], [ref.fx, ref.cx], rtol=1e-6)
     assert (view_dir / "edit.txt").read_text() == "decal"

@@ -21,10 +21,18 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).parent))
 
-from igs_blender import backend_env  # noqa: E402
-from igs_blender.client import BackendError, BackendJob, JobState, backend_command, parse_event  # noqa: E402
+import _addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
+from intrinsic_splats.igs_blender import backend_env  # noqa: E402
+from intrinsic_splats.igs_blender.client import (  # noqa: E402
+    BackendError,
+    BackendJob,
+    JobState,
+    backend_command,
+    parse_event,
+)
+from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
 
 PYTHON = sys.executable
 
@@ -196,10 +204,11 @@ def test_real_backend_unknown_command_is_readable():
 
 
 def make_tiny_workspace(ws: Path, n_views: int = 3, size=(16, 12)) -> None:
-    """A valid workspace of ``n_views`` small frames (COLMAP text model, images, capture.json)."""
+    """A valid workspace of ``n_views`` small frames (COLMAP text model, transforms.json, images, capture.json)."""
     import cv2
 
     from backend.capture.colmap_io import write_model
+    from backend.capture.transforms_io import write_transforms
     from backend.core.cameras import Camera
 
     w, h = size
@@ -208,6 +217,7 @@ def make_tiny_workspace(ws: Path, n_views: int = 3, size=(16, 12)) -> None:
     rng = np.random.default_rng(0)
     pts = rng.uniform(-0.3, 0.3, (20, 3))
     write_model(ws / "sparse" / "0", cams, pts, rng.integers(0, 255, (20, 3)))
+    write_transforms(ws / "transforms.json", cams)
     (ws / "images").mkdir(parents=True, exist_ok=True)
     for cam in cams:
         cv2.imwrite(str(ws / "images" / cam.name), rng.integers(0, 255, (h, w, 3), dtype=np.uint8))
@@ -277,3 +287,12 @@ def test_pinned_requirements_come_from_the_shipped_pyproject():
     assert any(r.startswith("torch==") for r in reqs) and any(r.startswith("bpy==") for r in reqs)
     assert not any(r.startswith("bpy") for r in backend_env.pinned_requirements(ROOT, include_bpy=False))
     assert os.path.isfile(ROOT / "backend" / "__main__.py")
+
+
+def test_backend_sources_need_the_contract_beside_the_backend(tmp_path):
+    """The backend imports igs_contract from the same folder: a Backend Sources folder without it is refused."""
+    assert backend_env.backend_root(str(ROOT)) == ROOT
+    (tmp_path / "backend").mkdir()
+    (tmp_path / "backend" / "__main__.py").write_text("")
+    with pytest.raises(UserError, match="igs_contract/__init__.py is missing"):
+        backend_env.backend_root(str(tmp_path))

@@ -1,19 +1,20 @@
-"""What the add-on reads and writes without bpy: splat PLYs (numpy only) and COLMAP <-> Blender cameras."""
+"""What the add-on reads and writes without bpy: splat PLYs (numpy only) and the workspace's cameras
+(transforms.json) <-> Blender cameras, checked against the backend's own files."""
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from igs_blender import cameras as bcam  # noqa: E402
-from igs_blender.errors import UserError  # noqa: E402
-from igs_blender.ply_io import C0, read_splat_ply, write_splat_ply  # noqa: E402
+sys.path.insert(0, str(Path(__file__).parent))
+import _addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
+from intrinsic_splats.igs_blender import cameras as bcam  # noqa: E402
+from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
+from intrinsic_splats.igs_blender.ply_io import C0, read_splat_ply, write_splat_ply  # noqa: E402
 
 
 def random_gaussians(kind: str, n: int, sh_degree: int = 0, seed: int = 0):
@@ -95,7 +96,7 @@ def _ply_bytes(header_lines: list[str], data: bytes) -> bytes:
     ("ascii", "format is 'ascii'"),
     ("truncated", "truncated PLY"),
     ("missing", "missing PLY properties rot_0"),
-    ("nan", "NaN/inf values in 'position'"),
+    ("nan", "NaN/inf values in 'means'"),
     ("no_vertex", "no 'vertex' element"),
     ("zero_quat", "zero rotation quaternion"),
 ])
@@ -130,16 +131,36 @@ def test_malformed_plys_are_rejected_with_the_file_and_reason(tmp_path, case, ma
     assert str(path) in str(err.value)
 
 
-def test_colmap_text_model_reads_like_the_backend(tmp_path):
-    from backend.capture.colmap_io import write_model
+def test_workspace_cameras_are_the_colmap_models(tmp_path):
+    """An imported workspace holds sparse/0 and transforms.json: the add-on's cameras from the one are
+    the backend's from the other."""
+    from _import_scene import write_capture
+
+    from backend.capture.colmap_io import read_model
+    from backend.capture.importer import ImportConfig, import_capture
+
+    write_capture(tmp_path / "proj", n=5, width=48, height=36)
+    import_capture(tmp_path / "proj", tmp_path / "ws", ImportConfig())
+    model = read_model(tmp_path / "ws" / "sparse" / "0").cameras
+    views = bcam.read_workspace_cameras(tmp_path / "ws")
+    assert [v.name for v in views] == sorted(c.name for c in model) and len(views) == 5
+    for v, c in zip(views, sorted(model, key=lambda c: c.name)):
+        assert (v.width, v.height) == (c.width, c.height)
+        np.testing.assert_allclose([v.fx, v.fy, v.cx, v.cy], [c.fx, c.fy, c.cx, c.cy], atol=1e-6)
+        np.testing.assert_allclose(v.R, c.R, atol=1e-6)
+        np.testing.assert_allclose(v.t, c.t, atol=1e-6)
+
+
+def test_transforms_json_reads_like_the_backend_wrote_it(tmp_path):
+    from backend.capture.transforms_io import write_transforms
     from backend.core.cameras import Camera, blender_matrix_world
 
     cams = [Camera.look_at(f"frame_{i:04d}.png", [3 * np.cos(i), 3 * np.sin(i), 1.0], [0, 0, 0.2], [0, 0, 1],
                            64, 48, 55 + i) for i in range(4)]
     # an off-centre principal point and non-square pixels must survive too
     cams[1] = Camera(cams[1].name, 64, 48, 50.0, 55.0, 30.5, 20.25, cams[1].R, cams[1].t)
-    write_model(tmp_path, cams, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), None)
-    views = bcam.read_colmap_text(tmp_path)
+    write_transforms(tmp_path / "transforms.json", cams[::-1])
+    views = bcam.read_workspace_cameras(tmp_path)
     assert [v.name for v in views] == [c.name for c in cams]
     for v, c in zip(views, cams):
         np.testing.assert_allclose(v.R, c.R, atol=1e-9)
@@ -152,17 +173,42 @@ def test_colmap_text_model_reads_like_the_backend(tmp_path):
         np.testing.assert_allclose(t, v.t, atol=1e-12)
 
 
-def test_colmap_errors_name_the_file(tmp_path):
-    with pytest.raises(UserError, match="no COLMAP model"):
-        bcam.read_colmap_text(tmp_path)
-    (tmp_path / "cameras.txt").write_text("1 OPENCV 64 48 50 50 32 24 0.1 0 0 0\n")
-    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 1 a.png\n\n")
-    with pytest.raises(UserError, match="cameras.txt: camera 1 is OPENCV"):
-        bcam.read_colmap_text(tmp_path)
-    (tmp_path / "cameras.txt").write_text("1 PINHOLE 64 48 50 50 32 24\n")
-    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 2 a.png\n\n")
-    with pytest.raises(UserError, match="refers to camera 2"):
-        bcam.read_colmap_text(tmp_path)
+def test_synthetic_captures_shared_intrinsics_are_read(tmp_path):
+    """``igs synth`` writes one OPENCV camera with zero distortion at the top level."""
+    m = np.eye(4)
+    m[:3, 3] = [0, -3, 1]
+    (tmp_path / "transforms.json").write_text(json.dumps({
+        "camera_model": "OPENCV", "fl_x": 40.0, "fl_y": 40.0, "cx": 16.0, "cy": 12.0, "w": 32, "h": 24,
+        "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+        "frames": [{"file_path": "images/b.png", "transform_matrix": m.tolist()},
+                   {"file_path": "images/a.png", "fl_x": 30.0, "transform_matrix": m.tolist()}]}))
+    a, b = bcam.read_workspace_cameras(tmp_path)
+    assert (a.name, a.fx, a.fy, b.name, b.fx) == ("a.png", 30.0, 40.0, "b.png", 40.0)  # a frame's own keys win
+    np.testing.assert_allclose(a.center, [0, -3, 1], atol=1e-12)
+
+
+@pytest.mark.parametrize("edit,match", [
+    (None, r"transforms.json: not found \(a workspace from an older version\).*igs import"),
+    ("{", r"transforms.json: not valid JSON.*igs import"),
+    ('{"frames": []}', "no 'frames' list"),
+    ({"k1": 0.1}, "frame 0: distortion coefficients other than 0"),
+    ({"camera_model": "OPENCV_FISHEYE"}, "not a pinhole model"),
+    ({"file_path": "../x.png"}, "must name an image in the workspace's images/ folder"),
+    ({"fl_x": float("nan")}, "'fl_x' must be a finite number > 0"),
+    ({"w": 31.5}, "'w' must be a whole number of pixels"),
+    ({"transform_matrix": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}, "not orthonormal"),
+    ({"transform_matrix": [[1, 0], [0, 1]]}, "must be a finite 4x4 matrix"),
+])
+def test_bad_transforms_json_is_one_error_naming_the_file(tmp_path, edit, match):
+    frame = {"file_path": "images/a.png", "fl_x": 30, "w": 32, "h": 24, "transform_matrix": np.eye(4).tolist()}
+    path = tmp_path / "transforms.json"
+    if isinstance(edit, dict):
+        path.write_text(json.dumps({"frames": [{**frame, **edit}]}))
+    elif edit is not None:
+        path.write_text(edit)
+    with pytest.raises(UserError, match=match) as err:
+        bcam.read_workspace_cameras(tmp_path)
+    assert str(path) in str(err.value)
 
 
 @pytest.mark.parametrize("w,h,fx,fy,cx,cy", [(64, 48, 50, 50, 32, 24), (640, 480, 500, 520, 300.5, 260.0),

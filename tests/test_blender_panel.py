@@ -118,10 +118,10 @@ def test_fields_are_labelled_and_zero_says_default(scene):
 
 
 def test_iterations_tooltip_and_shown_defaults_are_the_backends(addon):
-    from backend.edit.bake import BakeConfig
-    from backend.edit.fit import MIN_SELECTED
     from backend.commands.train import DEFAULT_ITERATIONS
-    from backend.train.intrinsic import split_iterations
+    from backend.edit.bake_config import BakeConfig
+    from backend.edit.fit import MIN_SELECTED
+    from backend.train.intrinsic.config import split_iterations
 
     props_mod = sub("props")
     tip = bpy.context.scene.igs.bl_rna.properties["iterations"].description
@@ -256,7 +256,7 @@ def fit_python(tmp_path_factory) -> Path:
 def draw_border(scene, cam, rect, depth: float = 2.0) -> None:
     """Ctrl+B as the artist drags it around SfM pixels ``rect`` (x0 y0 x1 y1) in the camera view, whatever
     the scene's output size: the border is where those pixels' rays land in the camera frame."""
-    view = next(v for v in sub("cameras").read_colmap_text(Path(scene.igs.workspace) / "sparse" / "0")
+    view = next(v for v in sub("cameras").read_workspace_cameras(Path(scene.igs.workspace))
                 if v.name == cam["igs_frame"])
     xs, ys = [], []
     for u, v in ((rect[0], rect[1]), (rect[2], rect[3])):

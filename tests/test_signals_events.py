@@ -15,7 +15,8 @@ from _train_scene import make_layered_workspace
 from backend.commands.cli import main
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from igs_blender.client import JobState, parse_event  # noqa: E402
+import _addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
+from intrinsic_splats.igs_blender.client import JobState, parse_event  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

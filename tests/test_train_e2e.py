@@ -15,7 +15,7 @@ from _synth_capture import needs_synth_renderer
 
 from backend.commands.cli import main
 from backend.train.loop import load_checkpoint
-from igs_blender.client import parse_event
+from igs_contract.events import parse_event
 
 ITERATIONS = 100
 EVERY = 30

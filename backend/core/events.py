@@ -1,19 +1,8 @@
 """Progress reporting for the terminal (tqdm on stderr) and for the Blender side (JSON lines on stdout).
 
 The Blender add-on starts ``python -m backend --events <command> ...`` and reads stdout line by
-line. Every event is one JSON object with an ``event`` key:
-
-- ``{"event": "start", "command": str, "argv": [...]}``
-- ``{"event": "stage", "stage": str, "total": int}``      a stage with ``total`` steps begins
-- ``{"event": "progress", "stage": str, "step": int, "total": int, "eta_s": float, ...metrics}``
-- ``{"event": "log", "message": str}``
-- ``{"event": "output", "kind": str, "path": str}``       a file the user may want to open
-- ``{"event": "result", "command": str, "data": {...}}``  the command's summary (printed as JSON without --events)
-- ``{"event": "done", "command": str, "seconds": float}``
-- ``{"event": "error", "message": str}`` / ``{"event": "cancelled", "message": str}``
-
-In ``--events`` mode every stdout line is such an event (human text goes to stderr). Lines that
-are not JSON objects must still be ignored by readers.
+line. The events, their fields and the rule that every stdout line is one of them in ``--events``
+mode (human text goes to stderr) are the contract's: :mod:`igs_contract.events`.
 """
 
 from __future__ import annotations
@@ -31,6 +20,7 @@ from tqdm import tqdm
 
 from backend.core import signals
 from backend.core.errors import Cancelled
+from igs_contract.events import CANCELLED, EVENT, LOG, OUTPUT, PROGRESS, RESULT, STAGE
 
 _state = {"json": False}
 _cancel = signals.cancel_event
@@ -49,7 +39,7 @@ def emit(event: str, **fields: Any) -> None:
     """Write one JSON-lines event to stdout (only in ``--events`` mode)."""
     if not _state["json"]:
         return
-    line = json.dumps({"event": event, **fields}, default=_jsonable)
+    line = json.dumps({EVENT: event, **fields}, default=_jsonable)
     with _lock:
         sys.stdout.write(line + "\n")
         sys.stdout.flush()
@@ -66,18 +56,18 @@ def _jsonable(obj: Any) -> Any:
 def log(message: str) -> None:
     """A human line on stderr (and a ``log`` event)."""
     tqdm.write(message, file=sys.stderr)
-    emit("log", message=message)
+    emit(LOG, message=message)
 
 
 def output(kind: str, path: Any) -> None:
-    emit("output", kind=kind, path=str(path))
+    emit(OUTPUT, kind=kind, path=str(path))
 
 
 def result(command: str, data: dict[str, Any], text: str | None = None, indent: int | None = 2) -> None:
     """The command's summary on stdout: a ``result`` event in ``--events`` mode (where stdout carries
     only events; ``text`` then goes to stderr), otherwise ``text`` or the JSON of ``data``."""
     if _state["json"]:
-        emit("result", command=command, data=data)
+        emit(RESULT, command=command, data=data)
         if text is not None:
             tqdm.write(text, file=sys.stderr)
         return
@@ -113,7 +103,7 @@ def stop_now_event() -> None:
     """The ``cancelled`` event of a second signal, written without the lock (the signal may have
     interrupted a write that holds it); the leading newline ends any line cut short."""
     if _state["json"]:
-        line = json.dumps({"event": "cancelled", "message": "stopped at once (second signal); the workspace keeps "
+        line = json.dumps({EVENT: CANCELLED, "message": "stopped at once (second signal); the workspace keeps "
                            "the last checkpoint, run the same command again to resume"})
         os.write(1, f"\n{line}\n".encode())
 
@@ -131,7 +121,7 @@ class Progress:
         self._every = every_s
         self.bar = tqdm(total=total, initial=initial, desc=stage, unit=unit, file=sys.stderr,
                         dynamic_ncols=True, leave=True, disable=None if not _state["json"] else False)
-        emit("stage", stage=stage, total=total)
+        emit(STAGE, stage=stage, total=total)
 
     def update(self, n: int = 1, **metrics: Any) -> None:
         self.step += n
@@ -144,7 +134,7 @@ class Progress:
             done = self.step - self._initial
             rate = done / max(now - self._t0, 1e-9)
             eta = (self.total - self.step) / rate if rate > 0 else None
-            emit("progress", stage=self.stage, step=self.step, total=self.total, eta_s=eta, **metrics)
+            emit(PROGRESS, stage=self.stage, step=self.step, total=self.total, eta_s=eta, **metrics)
         check_cancel()
 
     def close(self) -> None:

@@ -3,7 +3,7 @@
 The first signal sets :data:`cancel_event`; long loops check it and stop at their next checkpoint
 (:func:`backend.core.events.check_cancel`). A second signal stops the process at once with exit code
 130: writes are atomic, so nothing half-written is left in place. This module imports only the
-standard library, so ``python -m backend`` installs it first and a Ctrl-C while torch and the
+standard library (and the contract's exit codes), so ``python -m backend`` installs it first and a Ctrl-C while torch and the
 commands load is a cancel, not a KeyboardInterrupt traceback.
 """
 
@@ -14,7 +14,8 @@ import signal
 import threading
 from collections.abc import Callable
 
-EXIT_CANCELLED = 130
+from igs_contract.exit_codes import EXIT_CANCELLED
+
 cancel_event = threading.Event()
 _stop_hooks: list[Callable[[], None]] = []
 

@@ -1,0 +1,14 @@
+"""What the Blender add-on and the backend agree on, in one place both import (no torch, no bpy).
+
+- ``exit_codes``: the exit codes of ``python -m backend`` / ``igs``.
+- ``events``: the JSON-lines events the backend writes with ``--events`` and the add-on reads.
+- ``ply_header``: PLY headers (parse, check the data size they declare).
+- ``layer_ply``: the layer PLY layout (properties, SH counts, the ``igs_*`` header comments) and
+  its one validator; ``layer_values`` checks the values read (numpy, which both sides have).
+- ``camera_json``: the cameras.json the add-on writes for ``igs render --cameras`` and the
+  workspace's transforms.json the add-on reads its cameras from.
+
+The backend imports this package as ``igs_contract`` (the add-on runs it with the extension folder
+first on PYTHONPATH); the add-on imports it relatively, as part of the extension. Nothing here
+imports ``backend`` or ``igs_blender``; only ``layer_values`` imports numpy.
+"""

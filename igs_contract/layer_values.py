@@ -1,0 +1,55 @@
+"""The values of a layer PLY, as arrays both readers build and check the same way (numpy).
+
+numpy is the one dependency here: the backend has it, and Blender ships it.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .errors import ContractError
+from .layer_ply import FILTER, GROUPS, LayerLayout
+
+
+def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout) -> dict[str, np.ndarray]:
+    """float32 arrays of the vertex ``data`` (a structured array): ``means`` (N, 3), ``f_dc`` (N, 3),
+    ``f_rest`` (N, 3(K-1)) channel-major as stored, ``opacity`` (N,), ``scales`` (N, 3), ``rot`` (N, 4)
+    and ``eps2d`` (N,) when the file has it. Non-finite values, zero quaternions and negative low-pass
+    values are one ContractError naming the file and the first bad vertex."""
+    n = len(data)
+
+    def columns(names) -> np.ndarray:
+        if not names:
+            return np.zeros((n, 0), dtype=np.float32)
+        return np.stack([np.asarray(data[p], dtype=np.float32) for p in names], axis=1)
+
+    arrays = {"means": columns(GROUPS["means"]), "f_dc": columns(GROUPS["f_dc"]), "f_rest": columns(layout.rest),
+              "opacity": columns(GROUPS["opacity"])[:, 0], "scales": columns(GROUPS["scales"]),
+              "rot": columns(GROUPS["rot"])}
+    if layout.low_pass:
+        arrays[FILTER] = columns([FILTER])[:, 0]
+        if (arrays[FILTER] < 0).any():
+            raise ContractError(f"{path}: negative '{FILTER}' (screen-space low-pass) values")
+    for name, arr in arrays.items():
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            rows = np.unique(np.nonzero(bad)[0])
+            raise ContractError(f"{path}: {len(rows)} of {n} Gaussians have NaN/inf values in '{name}' "
+                                f"(first at vertex {rows[0]})")
+    zero_q = np.linalg.norm(arrays["rot"], axis=1) == 0
+    if zero_q.any():
+        raise ContractError(f"{path}: {int(zero_q.sum())} Gaussians have a zero rotation quaternion "
+                            f"(first at vertex {int(np.nonzero(zero_q)[0][0])})")
+    return arrays
+
+
+def coefficient_major(f_rest: np.ndarray) -> np.ndarray:
+    """(N, K-1, 3) SH coefficients of the stored channel-major (N, 3(K-1)) ``f_rest``."""
+    return f_rest.reshape(len(f_rest), 3, f_rest.shape[1] // 3).transpose(0, 2, 1)
+
+
+def channel_major(coefficients: np.ndarray) -> np.ndarray:
+    """The stored (N, 3(K-1)) ``f_rest`` of (N, K-1, 3) SH coefficients."""
+    return coefficients.transpose(0, 2, 1).reshape(len(coefficients), 3 * coefficients.shape[1])
