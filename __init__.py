@@ -3,14 +3,59 @@
 Decompose a capture into albedo, shading and residual Gaussians with the PyTorch backend, which
 runs as a separate process (``python -m backend``), repaint surfaces with textured proxies placed
 with Blender's gizmos, and render the edited scene. Blender's Python never imports the backend.
+
+This module registers the add-on; ``igs_blender`` holds its core, ``operators`` and ``panels``
+its UI (they import ``igs_blender``, never the other way round), ``igs_contract`` what it shares
+with the backend. The UI modules import bpy, so they are imported when Blender registers the add-on.
 """
 
-from . import igs_blender
+
+def classes() -> tuple:
+    """Every class to register, in order (property groups before users, parent panels before children)."""
+    from . import operators, panels
+    from .igs_blender import preferences, props
+
+    return (*props.CLASSES, *preferences.CLASSES, *operators.CLASSES, *panels.CLASSES)
+
+
+def _on_load_pre(*_args) -> None:
+    # A new file drops the modal operator that follows the job: stop the job cleanly (it keeps
+    # its checkpoint) rather than leave an unwatched process behind.
+    from .igs_blender import jobs
+
+    jobs.request_cancel()
 
 
 def register() -> None:
-    igs_blender.register()
+    import atexit
+
+    import bpy
+
+    from .igs_blender import jobs, props
+
+    atexit.unregister(jobs.stop_all)  # Blender quitting: do not leave a backend process behind
+    atexit.register(jobs.stop_all)
+
+    for cls in classes():
+        if not getattr(cls, "is_registered", False):
+            bpy.utils.register_class(cls)
+    props.register_pointer()
+    if _on_load_pre not in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.append(_on_load_pre)
 
 
 def unregister() -> None:
-    igs_blender.unregister()
+    import atexit
+
+    import bpy
+
+    from .igs_blender import jobs, props
+
+    jobs.stop_all()
+    atexit.unregister(jobs.stop_all)
+    if _on_load_pre in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(_on_load_pre)
+    props.unregister_pointer()
+    for cls in reversed(classes()):
+        if getattr(cls, "is_registered", False):
+            bpy.utils.unregister_class(cls)

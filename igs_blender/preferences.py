@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
-from . import ADDON_ID
+from .addon_id import ADDON_ID
 from .backend_env import CPU_TORCH_INDEX
 from .errors import UserError
 
@@ -34,7 +34,7 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
     )
     backend_root: StringProperty(
         name="Backend Sources",
-        description="Folder that holds backend/ (empty: the copy shipped inside this extension)",
+        description="Folder that holds backend/ and igs_contract/ (empty: the copy shipped inside this extension)",
         subtype="DIR_PATH",
     )
     base_python: StringProperty(

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import bpy
 import numpy as np
-from mathutils import Matrix
+from mathutils import Matrix, Vector
+
+from .errors import UserError
 
 ROOT_NAME = "IGS Capture"
 COLLECTION_NAME = "Intrinsic Splats"
@@ -138,3 +140,14 @@ def show_point_colours(context) -> bool:
             shading.type = "MATERIAL"
             changed = True
     return changed
+
+
+def selection_center(context) -> Vector:
+    """Centre of the selected objects' bounding boxes (cameras and lights left out): a turntable's target."""
+    objs = [o for o in context.selected_objects if o.type not in {"CAMERA", "LIGHT"}]
+    if not objs:
+        raise UserError("nothing selected: select the objects to turn around, or use the 3D cursor")
+    corners = [o.matrix_world @ Vector(c) for o in objs for c in o.bound_box]
+    lo = Vector([min(c[i] for c in corners) for i in range(3)])
+    hi = Vector([max(c[i] for c in corners) for i in range(3)])
+    return (lo + hi) / 2

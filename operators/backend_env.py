@@ -6,7 +6,8 @@ from pathlib import Path
 
 import bpy
 
-from ..igs_blender import ADDON_ID, backend_env, compat, preferences
+from ..igs_blender import backend_env, compat, preferences
+from ..igs_blender.addon_id import ADDON_ID
 from ..igs_blender.client import BackendJob
 from .job import BackendOperator
 

@@ -28,8 +28,8 @@ from ..igs_blender.errors import UserError
 from ..igs_blender.props import MIN_SELECTED
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
 from .job import BackendOperator, backend_job, show_job
-from .layers import tell
-from .modes import in_object_mode, leave_mode, mode_set, view3d_override
+from .modes import leave_mode, mode_set, view3d_override
+from .reports import load_from_workspace, tell
 
 FIT_SETTINGS = "Edit panel > Fit Settings"
 # The backend's fit errors name its command-line flags; the panel has settings for them instead.
@@ -55,6 +55,13 @@ def target_proxy(context) -> tuple[str, bpy.types.Object]:
     if item.proxy is None or item.proxy.name not in context.scene.objects:
         raise UserError(f"the proxy of edit '{item.name}' was deleted; fit it again or remove the edit")
     return item.name, item.proxy
+
+
+def selected_edit_folder(context) -> tuple[Path, str, bpy.types.Object, Path]:
+    """(workspace, edit name, proxy object, ``<ws>/edits/<name>``) of the edit selected in the list."""
+    ws = existing_workspace(context.scene.igs.workspace)
+    name, obj = target_proxy(context)
+    return ws, name, obj, ws / "edits" / name
 
 
 def select_only(context, obj: bpy.types.Object) -> None:
@@ -218,9 +225,7 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
-        ws = existing_workspace(props.workspace)
-        name, obj = target_proxy(context)
-        edit_dir = ws / "edits" / name
+        ws, name, obj, edit_dir = selected_edit_folder(context)
         json_path = edit_dir / "proxy.json"
         texture = proxies.texture_file_for_bake(obj, edit_dir)
         data = proxies.proxy_dict(obj, name, proxies.texture_ref(texture, json_path) if texture else None)
@@ -285,10 +290,7 @@ class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
     bl_label = "Paint"
 
     def make_job(self, context) -> BackendJob:
-        props = context.scene.igs
-        ws = existing_workspace(props.workspace)
-        name, obj = target_proxy(context)
-        edit_dir = ws / "edits" / name
+        ws, name, obj, edit_dir = selected_edit_folder(context)
         # The proxy's geometry and pose as they are now. A proxy file needs a fill; the projection
         # replaces it, so a neutral grey stands in for whatever the material shows.
         state = edit_dir / "paint_proxy.json"
@@ -377,14 +379,11 @@ class IGS_OT_load_edits(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
-        try:
-            with in_object_mode(context):
-                ws = existing_workspace(props.workspace)
-                loaded, failed = edits.load_workspace_edits(props, ws, max_points=props.max_points,
-                                                            radius_scale=props.radius_scale)
-        except UserError as e:
-            tell(self, context, "ERROR", str(e))
+        result = load_from_workspace(self, context, lambda ws: edits.load_workspace_edits(
+            props, ws, max_points=props.max_points, radius_scale=props.radius_scale))
+        if result is None:
             return {"CANCELLED"}
+        ws, (loaded, failed) = result
         if not loaded:
             why = "; ".join(failed) if failed else "none yet (Fit Plane / Fit Cylinder, or igs edit fit-plane)"
             tell(self, context, "ERROR" if failed else "WARNING", f"{ws / 'edits'}: no edit loaded: {why}")

@@ -10,15 +10,8 @@ from bpy.props import StringProperty
 from ..igs_blender import edits, layers, scene_objects
 from ..igs_blender.errors import UserError
 from ..igs_blender.ply_io import write_splat_ply
-from ..igs_blender.workspace_files import existing_workspace, metrics_summary
-from .modes import in_object_mode
-
-
-def tell(op: bpy.types.Operator, context, level: str, message: str) -> None:
-    """Report ``message`` (status bar, Info log) and leave it in the panel's status box, which would
-    otherwise still show the previous job's outcome."""
-    context.scene.igs.last_report = message
-    op.report({level}, message)
+from ..igs_blender.workspace_files import metrics_summary
+from .reports import load_from_workspace, tell
 
 
 def loaded_summary(objs: dict) -> str:
@@ -34,14 +27,11 @@ class IGS_OT_load_layers(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
-        try:
-            with in_object_mode(context):
-                ws = existing_workspace(props.workspace)
-                objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
-                                                    composite=props.build_composite)
-        except UserError as e:
-            tell(self, context, "ERROR", str(e))
+        loaded = load_from_workspace(self, context, lambda ws: layers.load_workspace_layers(
+            ws, max_points=props.max_points, radius_scale=props.radius_scale, composite=props.build_composite))
+        if loaded is None:
             return {"CANCELLED"}
+        ws, objs = loaded
         props.metrics_info = metrics_summary(ws)
         edits.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"

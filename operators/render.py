@@ -5,9 +5,9 @@ path follows any animation), except for a turntable around the *capture* (the de
 the backend derives from the capture's cameras (``render --turntable --frames N --size W H``). Around
 the cursor or the selection, Radius 0 (the default) fits the orbit's radius and height to the SfM
 cameras, so it runs through the free space they filmed rather than through a wall. Blender's cameras are
-written as ``{"cameras": [{"name", "width", "height", "fx",
-"fy", "cx", "cy", "R", "t"}, ...]}`` (OpenCV convention in SfM coordinates: ``x_cam = R x + t``);
-``render --cameras`` writes ``OUT/<layer>/<name>.png`` per camera and ``OUT/<layer>.mp4``.
+written as the contract's cameras.json (``igs_contract.camera_json``: pinhole intrinsics and the OpenCV
+world-to-camera pose in SfM coordinates); ``render --cameras`` writes ``OUT/<layer>/<name>.png`` per
+camera and ``OUT/<layer>.mp4``.
 """
 
 from __future__ import annotations
@@ -21,12 +21,13 @@ import numpy as np
 from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
-from ..igs_blender import compat, edits, images
+from ..igs_blender import compat, edits, images, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
+from ..igs_contract import camera_json
 from .job import BackendOperator, backend_job
 
 
@@ -61,7 +62,8 @@ def edit_args(props) -> list:
 
 def write_cameras(path: Path, views: list) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"cameras": [v.to_json() for v in views]}, indent=1) + "\n", encoding="utf-8")
+    document = camera_json.cameras_document([v.to_json() for v in views])
+    path.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
     return path
 
 
@@ -69,16 +71,6 @@ def layer_frames(out: Path, layer: str) -> list[Path]:
     """The frames ``render`` wrote for ``layer``, in camera order (names end with the frame number)."""
     folder = out / layer
     return sorted(p for p in folder.glob("*") if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
-
-
-def selection_center(context) -> Vector:
-    objs = [o for o in context.selected_objects if o.type not in {"CAMERA", "LIGHT"}]
-    if not objs:
-        raise UserError("nothing selected: select the objects to turn around, or use the 3D cursor")
-    corners = [o.matrix_world @ Vector(c) for o in objs for c in o.bound_box]
-    lo = Vector([min(c[i] for c in corners) for i in range(3)])
-    hi = Vector([max(c[i] for c in corners) for i in range(3)])
-    return (lo + hi) / 2
 
 
 def _render_job(context, cameras: Path | list, out: Path, label: str, mp4: bool = False) -> BackendJob:
@@ -130,7 +122,7 @@ class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
         props = scene.igs
         cam = scene.camera
         if self.mode == "TURNTABLE":
-            target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else selection_center(context)
+            target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else scene_objects.selection_center(context)
             radius, height = orbit(context, target)
             mats = turntable_matrices(np.array(target), radius, height, props.turntable_frames)
             return [sfm_view_from_object(scene, cam, name=f"turntable_{i:04d}", matrix_world=Matrix(m.tolist()))

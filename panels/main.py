@@ -6,7 +6,7 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import compat, edits, layers
+from ..igs_blender import compat, edits, layers, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT
@@ -20,6 +20,12 @@ class _Panel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = CATEGORY
+
+
+class _SubPanel(_Panel):
+    """A section under the main panel."""
+
+    bl_parent_id = "IGS_PT_main"
 
 
 def _wrap(text: str, context) -> list[str]:
@@ -84,9 +90,8 @@ class IGS_PT_main(_Panel, bpy.types.Panel):
             _lines(layout, props.capture_info, icon="FILE_FOLDER")
 
 
-class IGS_PT_capture(_Panel, bpy.types.Panel):
+class IGS_PT_capture(_SubPanel, bpy.types.Panel):
     bl_label = "Capture"
-    bl_parent_id = "IGS_PT_main"
 
     def draw(self, context):
         layout = self.layout
@@ -116,9 +121,8 @@ class IGS_PT_capture(_Panel, bpy.types.Panel):
         row.operator("igs.load_cameras", text="", icon="CAMERA_DATA")
 
 
-class IGS_PT_decompose(_Panel, bpy.types.Panel):
+class IGS_PT_decompose(_SubPanel, bpy.types.Panel):
     bl_label = "Decompose"
-    bl_parent_id = "IGS_PT_main"
 
     def draw(self, context):
         layout = self.layout
@@ -140,9 +144,8 @@ class IGS_PT_decompose(_Panel, bpy.types.Panel):
             _table(box, props.metrics_info)
 
 
-class IGS_PT_layers(_Panel, bpy.types.Panel):
+class IGS_PT_layers(_SubPanel, bpy.types.Panel):
     bl_label = "Layers"
-    bl_parent_id = "IGS_PT_main"
 
     def draw(self, context):
         layout = self.layout
@@ -181,9 +184,8 @@ class IGS_UL_edits(bpy.types.UIList):
         row.operator("igs.remove_edit", text="", icon="X", emboss=False).name = item.name
 
 
-class IGS_PT_edit(_Panel, bpy.types.Panel):
+class IGS_PT_edit(_SubPanel, bpy.types.Panel):
     bl_label = "Edit"
-    bl_parent_id = "IGS_PT_main"
 
     def draw(self, context):
         layout = self.layout
@@ -234,9 +236,8 @@ class IGS_PT_edit(_Panel, bpy.types.Panel):
         row.operator("igs.bake_edit", icon="RENDER_STILL")
 
 
-class IGS_PT_render(_Panel, bpy.types.Panel):
+class IGS_PT_render(_SubPanel, bpy.types.Panel):
     bl_label = "Render"
-    bl_parent_id = "IGS_PT_main"
 
     def draw(self, context):
         layout = self.layout
@@ -267,11 +268,9 @@ class IGS_PT_render(_Panel, bpy.types.Panel):
 
 def _fitted_orbit(context) -> str:
     """The orbit Radius 0 gives around the cursor or the selection, as one line."""
-    from ..operators.render import selection_center
-
     try:
         target = context.scene.cursor.location if context.scene.igs.turntable_target == "CURSOR" else \
-            selection_center(context)
+            scene_objects.selection_center(context)
         radius, height = capture_orbit(target)
     except UserError as e:
         return str(e).split(":")[0]
