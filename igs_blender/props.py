@@ -14,7 +14,7 @@ from bpy.props import (
     StringProperty,
 )
 
-# The backend's defaults, shown in the panel (backend/train/intrinsic.py, baseline.py, edit/bake.py, edit/fit.py).
+# The backend's defaults, shown in the panel (backend/train/intrinsic/config.py, baseline.py, edit/bake_config.py, edit/fit.py).
 DECOMPOSE_DEFAULT = 7000
 TRAIN_3DGS_DEFAULT = 3500
 BAKE_DEFAULT = 2000
