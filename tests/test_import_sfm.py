@@ -13,7 +13,6 @@ import pytest
 from _import_scene import render, write_capture
 
 from backend.capture.colmap_io import read_model, write_model
-from backend.commands.import_capture import import_with_priors
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.load import load_capture
 from backend.capture.pose_eval import compare_cameras
@@ -21,6 +20,7 @@ from backend.capture.sfm import SfMConfig
 from backend.capture.transforms_io import cv_w2c_to_opengl_c2w, read_transforms, write_transforms
 from backend.capture.undistort import Intrinsics, make_undistorter
 from backend.capture.video import FrameSelection
+from backend.commands.import_capture import import_with_priors
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import (

@@ -8,9 +8,9 @@ import pytest
 import torch
 from _import_scene import write_capture
 
-from backend.commands.import_capture import import_with_priors
 from backend.capture.importer import ImportConfig
 from backend.capture.load import load_capture
+from backend.commands.import_capture import import_with_priors
 from backend.core.errors import IGSError
 from backend.priors.albedo import AlbedoOptions, MarigoldAlbedo, make_albedo_predictor
 from backend.priors.apply import PriorsConfig, compute_priors
