@@ -148,7 +148,11 @@ def camera_path(n_views: int, width: int, height: int, seed: int, fov_x_deg: flo
 
 
 def build_scene(seed: int) -> SynthScene:
-    """Clear Blender and build the room for ``seed`` (textures, colours and small placements vary)."""
+    """Clear Blender and build the room for ``seed`` (textures, colours and small placements vary).
+
+    The parts are built in a fixed order: each draws from the one random stream, so the order is
+    part of the scene.
+    """
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -161,8 +165,26 @@ def build_scene(seed: int) -> SynthScene:
 
     edits: list[EditSpec] = []
     switches: dict[str, Any] = {}
+    _room_shell(b, rng, edits, switches)
+    _painting(b, rng)
+    rug = _rug(b, rng, edits, switches)
+    table = _table(b, rng)
+    _monkey(b, rng)
+    column = _column(b, rng, edits, switches)
+    lights = _add_lights(bpy, rng, tuple(table["table_top_center"][:2]))
+    objects = [{"name": o.name, "type": o.type} for o in scene.objects if o.type == "MESH"]
+    description = {
+        "room": {"x": [-ROOM_HALF_X, ROOM_HALF_X], "y": [-ROOM_HALF_Y, ROOM_HALF_Y], "z": [0.0, ROOM_HEIGHT]},
+        **table, "column": column, "rug": rug, "lights": lights, "objects": objects,
+    }
+    s = SynthScene(seed, edits, description, switches)
+    s.set_edit(None)
+    return s
 
-    # Room shell: six planes (Cycles' diffuse BSDF is two-sided, so winding does not matter).
+
+def _room_shell(b: _Builder, rng: np.random.Generator, edits: list[EditSpec], switches: dict[str, Any]) -> None:
+    """Six planes (Cycles' diffuse BSDF is two-sided, so winding does not matter); the back wall
+    carries the wall-decal edit."""
     hx, hy, hz = ROOM_HALF_X, ROOM_HALF_Y, ROOM_HEIGHT
     floor_mat = b.textured_material("floor", tex.wood(rng), origin=(0, 0, 0), u_axis=(1, 0, 0),
                                     v_axis=(0, 1, 0), tile=(1.6, 1.6))
@@ -186,14 +208,18 @@ def build_scene(seed: int) -> SynthScene:
     b.quad("wall_right", [(hx, -hy, 0), (hx, -hy, hz), (hx, hy, hz), (hx, hy, 0)],
            b.flat_material("wall_right", _jitter(rng, (0.55, 0.60, 0.70))))
 
-    # A painting on the right wall (1 cm proud of it).
-    p_c = (hx - 0.01, float(rng.uniform(-0.6, 0.2)), 1.5)
+
+def _painting(b: _Builder, rng: np.random.Generator) -> None:
+    """A painting on the right wall, 1 cm proud of it."""
+    p_c = (ROOM_HALF_X - 0.01, float(rng.uniform(-0.6, 0.2)), 1.5)
     paint_mat = b.textured_material("painting", tex.painting(rng), origin=(p_c[0], p_c[1] + 0.5, p_c[2] - 0.35),
                                     u_axis=(0, -1, 0), v_axis=(0, 0, 1), tile=(1.0, 0.7))
     b.quad("painting", [(p_c[0], p_c[1] + 0.5, p_c[2] - 0.35), (p_c[0], p_c[1] - 0.5, p_c[2] - 0.35),
                         (p_c[0], p_c[1] - 0.5, p_c[2] + 0.35), (p_c[0], p_c[1] + 0.5, p_c[2] + 0.35)], paint_mat)
 
-    # Rug: a plane 4 mm above the floor; its middle is the recolour region.
+
+def _rug(b: _Builder, rng: np.random.Generator, edits: list[EditSpec], switches: dict[str, Any]) -> dict[str, Any]:
+    """A rug 4 mm above the floor; its middle is the recolour region. Returns its description."""
     rug_c = (float(rng.uniform(-1.2, -0.9)), float(rng.uniform(-0.7, -0.4)), 0.004)
     rug_size = (1.8, 1.2)
     rug_recolor = EditSpec("rug_recolor", "recolor",
@@ -207,8 +233,11 @@ def build_scene(seed: int) -> SynthScene:
     rx, ry = rug_size[0] / 2, rug_size[1] / 2
     b.quad("rug", [(rug_c[0] - rx, rug_c[1] - ry, rug_c[2]), (rug_c[0] + rx, rug_c[1] - ry, rug_c[2]),
                    (rug_c[0] + rx, rug_c[1] + ry, rug_c[2]), (rug_c[0] - rx, rug_c[1] + ry, rug_c[2])], rug_mat)
+    return {"center": list(rug_c), "size": list(rug_size)}
 
-    # Table with a glossy sphere and a checker cube.
+
+def _table(b: _Builder, rng: np.random.Generator) -> dict[str, Any]:
+    """A table with a glossy sphere and a checker cube. Returns the table top's centre and the sphere."""
     tc = (0.55 + float(rng.uniform(-0.1, 0.1)), 0.35 + float(rng.uniform(-0.1, 0.1)))
     wood = _jitter(rng, (0.36, 0.22, 0.12))
     wood_mat = b.flat_material("table", wood)
@@ -223,14 +252,21 @@ def build_scene(seed: int) -> SynthScene:
     cube = b.box("checker_cube", (tc[0] + 0.3, tc[1] - 0.05, top + 0.12), (0.24, 0.24, 0.24),
                  b.checker_material("checker", (0.85, 0.82, 0.75), (0.12, 0.10, 0.10), scale=12.0))
     cube.rotation_euler[2] = float(rng.uniform(0.3, 0.7))
+    return {"table_top_center": [tc[0], tc[1], 0.75], "sphere": {"center": list(sphere_c), "radius": 0.17}}
 
-    # A glossy monkey on a plinth near the left wall.
+
+def _monkey(b: _Builder, rng: np.random.Generator) -> None:
+    """A glossy monkey on a plinth near the left wall."""
     pl = (-2.2, float(rng.uniform(0.6, 1.0)))
     b.box("plinth", (pl[0], pl[1], 0.3), (0.45, 0.45, 0.6), b.flat_material("plinth", (0.75, 0.74, 0.70)))
     b.monkey("monkey", (pl[0], pl[1], 0.8), 0.22, rng.uniform(-0.6, -0.2) + math.pi / 2,
              b.glossy_material("monkey", _jitter(rng, (0.60, 0.12, 0.08)), 0.5, 0.2))
 
-    # Mosaic column in the back-right corner; its decal faces the middle of the room.
+
+def _column(b: _Builder, rng: np.random.Generator, edits: list[EditSpec],
+            switches: dict[str, Any]) -> dict[str, Any]:
+    """A mosaic column in the back-right corner; its decal faces the middle of the room. Returns its
+    description."""
     col_base = (2.2 + float(rng.uniform(-0.05, 0.05)), 1.65 + float(rng.uniform(-0.05, 0.05)), 0.0)
     radius, col_h = 0.35, 2.2
     to_mid = -np.array(col_base[:2]) / np.linalg.norm(col_base[:2])
@@ -243,20 +279,8 @@ def build_scene(seed: int) -> SynthScene:
                                                             tile_height=0.35, tiles_around=4, edit=column_decal)
     edits.append(column_decal)
     b.cylinder("column", col_base, radius, col_h, col_mat)
-
-    lights = _add_lights(bpy, rng, tc)
-    objects = [{"name": o.name, "type": o.type} for o in scene.objects if o.type == "MESH"]
-    description = {
-        "room": {"x": [-hx, hx], "y": [-hy, hy], "z": [0.0, hz]},
-        "table_top_center": [tc[0], tc[1], 0.75], "sphere": {"center": list(sphere_c), "radius": 0.17},
-        "column": {"base_center": list(col_base), "axis": [0.0, 0.0, 1.0], "radius": radius, "height": col_h,
-                   "mesh_segments": COLUMN_SEGMENTS},
-        "rug": {"center": list(rug_c), "size": list(rug_size)},
-        "lights": lights, "objects": objects,
-    }
-    s = SynthScene(seed, edits, description, switches)
-    s.set_edit(None)
-    return s
+    return {"base_center": list(col_base), "axis": [0.0, 0.0, 1.0], "radius": radius, "height": col_h,
+            "mesh_segments": COLUMN_SEGMENTS}
 
 
 def _jitter(rng: np.random.Generator, rgb: tuple[float, float, float], amount: float = 0.05) -> tuple[float, ...]:
