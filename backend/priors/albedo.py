@@ -4,14 +4,16 @@ A predictor returns an sRGB-*encoded* albedo map in [0, 1] (H', W', 3), any reso
 (Implementation) treats predicted albedo like the input photos, inverse-gamma'd to pseudo-linear
 when used, so the workspace stores albedo/NAME.png sRGB-encoded like images/.
 
-Spec strings (``igs import --albedo``): ``none``, ``gt``, ``folder:<path>``, ``marigold:<model dir>``.
+Spec strings (``igs import --albedo``): ``none``, ``gt``, ``folder:<path>``, ``marigold`` (the default
+model id), ``marigold:<org/name>`` (any Hugging Face model id) or ``marigold:<model dir>`` (a folder).
 
 ``folder:`` is how DiffusionRenderer's output comes in (run it on the video elsewhere, for long videos
 with the brick-window schedule of :mod:`backend.priors.brick`); maps are matched by name or index.
-``marigold:`` loads a diffusers ``MarigoldIntrinsicsPipeline`` checkpoint from disk, e.g.
-``prs-eth/marigold-iid-appearance-v1-1`` (targets albedo, roughness, metallicity) or
-``prs-eth/marigold-iid-lighting-v1-1`` (albedo, shading, residual), downloaded beforehand; it is a
-single-image model, so its maps are less consistent across frames than a video model's.
+``marigold`` loads a diffusers ``MarigoldIntrinsicsPipeline`` checkpoint, e.g.
+``prs-eth/marigold-iid-appearance-v1-1`` (the default; targets albedo, roughness, metallicity) or
+``prs-eth/marigold-iid-lighting-v1-1`` (albedo, shading, residual), from a folder or by id through the
+Hugging Face cache (:mod:`backend.priors.model_hub`); it is a single-image model, so its maps are less
+consistent across frames than a video model's.
 """
 
 from __future__ import annotations
@@ -26,8 +28,11 @@ import numpy as np
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb
 from backend.priors.folder import FolderMaps, PriorFrame, read_map
+from backend.priors.model_hub import fetch_model, parse_model_arg
 
-ALBEDO_SPECS = "none, gt, folder:<path>, marigold:<model dir>"
+MARIGOLD_DEFAULT = "prs-eth/marigold-iid-appearance-v1-1"
+ALBEDO_SPECS = "none, gt, folder:<path>, marigold (= marigold:" + MARIGOLD_DEFAULT + "), marigold:<org/name>, " \
+    "marigold:<model dir>"
 
 
 @dataclass(frozen=True)
@@ -98,17 +103,18 @@ class GroundTruthAlbedo(FolderAlbedo):
 
 
 class MarigoldAlbedo(AlbedoPredictor):
-    """Marigold intrinsic image decomposition (diffusers), the 'albedo' target, from a local checkpoint."""
+    """Marigold intrinsic image decomposition (diffusers), the 'albedo' target, from a checkpoint on disk
+    (a folder, or the Hugging Face cache's snapshot of ``model_id``)."""
 
     label = "marigold"
     warp = False
 
-    def __init__(self, model_dir: str | Path, options: AlbedoOptions = AlbedoOptions()):
-        self.model_dir = Path(model_dir)
+    def __init__(self, model_dir: str | Path, options: AlbedoOptions = AlbedoOptions(), model_id: str | None = None):
+        self.model_dir, self.model_id = Path(model_dir), model_id
         index = self.model_dir / "model_index.json"
         if not index.exists():
-            raise IGSError(f"{self.model_dir}: not a diffusers checkpoint folder (no model_index.json); download "
-                           "e.g. prs-eth/marigold-iid-appearance-v1-1 to a folder first")
+            raise IGSError(f"{self.model_dir}: not a diffusers checkpoint folder (no model_index.json); give a "
+                           f"Marigold model id (e.g. marigold:{MARIGOLD_DEFAULT}) or its downloaded folder")
         try:
             info = json.loads(index.read_text())
         except json.JSONDecodeError as e:
@@ -164,7 +170,10 @@ class MarigoldAlbedo(AlbedoPredictor):
 
     def stamp(self) -> dict:
         o = self.options
-        return {"label": self.label, "model": str(self.model_dir.resolve()), "steps": o.steps,
+        # By id: the id and the snapshot's commit, wherever the cache is; a folder: its path.
+        model = ({"model": self.model_id, "revision": self.model_dir.name} if self.model_id
+                 else {"model": str(self.model_dir.resolve())})
+        return {"label": self.label, **model, "steps": o.steps,
                 "ensemble": o.ensemble, "resolution": o.resolution, "seed": o.seed}
 
 
@@ -182,6 +191,9 @@ def make_albedo_predictor(spec: str, gt_dir: Path | None, num_frames: int, num_v
     if kind == "folder" and arg:
         return FolderAlbedo(FolderMaps(Path(arg).expanduser(), "albedo", num_frames, num_video_frames),
                             options.folder_space)
-    if kind == "marigold" and arg:
-        return MarigoldAlbedo(Path(arg).expanduser(), options)
+    if kind == "marigold":
+        source = parse_model_arg("--albedo marigold", arg, MARIGOLD_DEFAULT)
+        if source.folder is not None:
+            return MarigoldAlbedo(source.folder, options)
+        return MarigoldAlbedo(fetch_model(source.repo_id, "marigold:<dir>"), options, source.repo_id)
     raise IGSError(f"--albedo '{spec}': expected one of {ALBEDO_SPECS}")

@@ -4,10 +4,10 @@ Every predictor returns a map plus what it holds (``depth`` or ``disparity`` = i
 which fit brings it to SfM units (``scale`` for metric/ground-truth depth, ``scale_shift`` for
 relative predictions); :mod:`backend.priors.align` does the fit on the sparse points.
 
-Spec strings (``igs import --depth``): ``none``, ``gt``, ``folder:<path>``, ``depth-anything:<model dir>``.
-The model directory is a Hugging Face checkpoint on disk (``config.json``, ``model.safetensors``,
-``preprocessor_config.json``), e.g. ``depth-anything/Depth-Anything-V2-Small-hf`` downloaded beforehand;
-nothing is ever downloaded here.
+Spec strings (``igs import --depth``): ``none``, ``gt``, ``folder:<path>``, ``depth-anything`` (Small),
+``depth-anything:base``, ``depth-anything:large``, ``depth-anything:<org/name>`` (any Hugging Face model id)
+or ``depth-anything:<model dir>`` (a transformers checkpoint folder: ``config.json``, weights,
+``preprocessor_config.json``). Ids go through the Hugging Face cache (:mod:`backend.priors.model_hub`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,13 @@ import numpy as np
 
 from backend.core.errors import IGSError
 from backend.priors.folder import FolderMaps, PriorFrame, read_map
+from backend.priors.model_hub import fetch_model, parse_model_arg
 
-DEPTH_SPECS = "none, gt, folder:<path>, depth-anything:<model dir>"
+DEPTH_ANYTHING_DEFAULT = "depth-anything/Depth-Anything-V2-Small-hf"
+DEPTH_ANYTHING_NAMED = {"small": DEPTH_ANYTHING_DEFAULT, "base": "depth-anything/Depth-Anything-V2-Base-hf",
+                        "large": "depth-anything/Depth-Anything-V2-Large-hf"}
+DEPTH_SPECS = ("none, gt, folder:<path>, depth-anything (= Small), depth-anything:base, depth-anything:large, "
+               "depth-anything:<org/name>, depth-anything:<model dir>")
 
 
 @dataclass(frozen=True)
@@ -88,7 +93,8 @@ class GroundTruthDepth(FolderDepth):
 
 
 class DepthAnythingV2(DepthPredictor):
-    """Depth Anything V2 through transformers, loaded from a local checkpoint directory only.
+    """Depth Anything V2 through transformers, loaded from a checkpoint on disk (a folder, or the Hugging
+    Face cache's snapshot of ``model_id``).
 
     Relative checkpoints predict affine-invariant inverse depth (fit scale and shift in disparity);
     metric checkpoints (``depth_estimation_type: metric``) predict metres (fit a scale in depth).
@@ -97,12 +103,12 @@ class DepthAnythingV2(DepthPredictor):
     label = "depth-anything-v2"
     warp = False
 
-    def __init__(self, model_dir: str | Path, device: str = "cpu", fit: str = "auto"):
-        self.model_dir = Path(model_dir)
+    def __init__(self, model_dir: str | Path, device: str = "cpu", fit: str = "auto", model_id: str | None = None):
+        self.model_dir, self.model_id = Path(model_dir), model_id
         config = self.model_dir / "config.json"
         if not config.exists():
-            raise IGSError(f"{self.model_dir}: not a Depth Anything V2 checkpoint folder (no config.json); download "
-                           "e.g. depth-anything/Depth-Anything-V2-Small-hf to a folder first")
+            raise IGSError(f"{self.model_dir}: not a Depth Anything V2 checkpoint folder (no config.json); give a "
+                           f"model id (e.g. depth-anything:{DEPTH_ANYTHING_DEFAULT}) or its downloaded folder")
         if not (self.model_dir / "preprocessor_config.json").exists():
             raise IGSError(f"{self.model_dir}: preprocessor_config.json missing (download the whole checkpoint folder)")
         try:
@@ -146,6 +152,9 @@ class DepthAnythingV2(DepthPredictor):
         return out[0].float().cpu().numpy()
 
     def stamp(self) -> dict:
+        # By id: the id and the snapshot's commit, wherever the cache is; a folder: its path.
+        if self.model_id:
+            return {**super().stamp(), "model": self.model_id, "revision": self.model_dir.name}
         return {**super().stamp(), "model": str(self.model_dir.resolve())}
 
 
@@ -167,6 +176,10 @@ def make_depth_predictor(spec: str, gt_dir: Path | None, num_frames: int, num_vi
     if kind == "folder" and arg:
         return FolderDepth(FolderMaps(Path(arg).expanduser(), "depth", num_frames, num_video_frames),
                            options.folder_kind, "scale_shift" if fit == "auto" else fit)
-    if kind in ("depth-anything", "dav2") and arg:
-        return DepthAnythingV2(Path(arg).expanduser(), options.device, fit)
+    if kind in ("depth-anything", "dav2"):
+        source = parse_model_arg(f"--depth {kind}", arg, DEPTH_ANYTHING_DEFAULT, DEPTH_ANYTHING_NAMED)
+        if source.folder is not None:
+            return DepthAnythingV2(source.folder, options.device, fit)
+        return DepthAnythingV2(fetch_model(source.repo_id, "depth-anything:<dir>"), options.device, fit,
+                               source.repo_id)
     raise IGSError(f"--depth '{spec}': expected one of {DEPTH_SPECS}")
