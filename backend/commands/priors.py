@@ -11,14 +11,17 @@ from backend.priors.apply import PriorsConfig, compute_priors
 from backend.priors.depth import DEPTH_SPECS
 
 PRIOR_OPTIONS = (
-    Option("--albedo", "albedo", f"albedo prior: {ALBEDO_SPECS}"),
+    Option("--albedo", "albedo", f"albedo prior: {ALBEDO_SPECS}. Model ids come from the Hugging Face cache "
+           "(HF_HOME, HF_HUB_CACHE; downloaded when missing unless HF_HUB_OFFLINE=1); Marigold is a Stable "
+           "Diffusion 2 sized pipeline, several GB, and slow per frame on a CPU: use --device cuda"),
     Option("--albedo-space", "albedo_options.folder_space",
            "folder albedo maps (8/16-bit) hold sRGB-encoded (default) or linear values"),
     Option("--albedo-steps", "albedo_options.steps", "model denoising steps (0: the model's default)", type=opt.COUNT0),
     Option("--albedo-ensemble", "albedo_options.ensemble", "model predictions averaged per frame", type=opt.COUNT),
     Option("--albedo-resolution", "albedo_options.resolution", "model processing resolution (0: default)",
            type=opt.COUNT0),
-    Option("--depth", "depth", f"depth prior: {DEPTH_SPECS}"),
+    Option("--depth", "depth", f"depth prior: {DEPTH_SPECS}. Depth Anything V2 Small/Base/Large have 25M/98M/"
+           "335M parameters (about 0.1/0.4/1.3 GB in float32); ids come from the Hugging Face cache as for --albedo"),
     Option("--depth-kind", "depth_options.folder_kind",
            "what folder depth maps hold: z-depth (any unit) or disparity = inverse depth"),
     Option("--depth-fit", "depth_options.fit",
