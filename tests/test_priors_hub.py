@@ -3,6 +3,7 @@ layout huggingface_hub keeps (models--org--name/snapshots/<commit>, refs/main), 
 `igs priors` loading them by id end to end. Nothing is downloaded."""
 
 import hashlib
+import json
 import shutil
 from pathlib import Path
 
@@ -117,3 +118,56 @@ def test_one_weight_format_per_folder_without_precision_variants():
     assert select_files(files) == ["model_index.json", "text_encoder/pytorch_model.bin", "tokenizer/vocab.json",
                                    "unet/config.json", "unet/diffusion_pytorch_model.safetensors",
                                    "vae/diffusion_pytorch_model.fp16.safetensors"]
+
+
+def test_a_missing_model_is_downloaded_with_progress_then_found_offline(offline_cache, models, monkeypatch, capsys):
+    """The Hub's two calls stand in for the network (listing, one file): what is fetched, the bytes stage,
+    refs/main for later offline runs and cancelling are ours."""
+    import huggingface_hub
+    from huggingface_hub.file_download import repo_folder_name
+
+    from backend.core import events
+    from backend.core.errors import Cancelled
+
+    _, dav2 = models
+    repo_id, commit = "org/tiny-depth", "c" * 40
+    files = {p.relative_to(dav2).as_posix(): p.stat().st_size for p in dav2.rglob("*") if p.is_file()}
+    listed = {**files, "pytorch_model.bin": 7, "README.md": 3}
+    info = type("Info", (), {"sha": commit, "siblings": [type("S", (), {"rfilename": n, "size": s})()
+                                                         for n, s in listed.items()]})()
+    fetched = []
+
+    def fake_download(repo, name, revision, cache_dir, tqdm_class):
+        fetched.append(name)
+        target = offline_cache / repo_folder_name(repo_id=repo, repo_type="model") / "snapshots" / revision / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(dav2 / name, target)
+        bar = tqdm_class(total=listed[name])
+        bar.update(listed[name] // 2)
+        bar.update(listed[name])  # more than the file holds: capped
+        return str(target)
+
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", False)
+    monkeypatch.setattr(huggingface_hub.HfApi, "model_info", lambda self, repo, files_metadata: info)
+    monkeypatch.setattr(huggingface_hub, "hf_hub_download", fake_download)
+    monkeypatch.setattr(events, "_state", {"json": True})
+    pred = make_depth_predictor(f"depth-anything:{repo_id}", None, 3, None)
+    assert sorted(fetched) == sorted(files) and pred.stamp()["revision"] == commit
+    progress = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    progress = [e for e in progress if e.get("stage") == f"download {repo_id}" and "step" in e]
+    assert progress[-1]["step"] == progress[-1]["total"] == sum(files.values())
+    assert (offline_cache / "models--org--tiny-depth" / "refs" / "main").read_text() == commit
+
+    # Offline, in a new process (nothing remembered): found in the cache through refs/main.
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", True)
+    monkeypatch.setattr(model_hub, "_resolved", {})
+    assert model_hub.fetch_model(repo_id, "depth-anything:<dir>") == pred.model_dir
+
+    # A cancel during a download stops it.
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", False)
+    monkeypatch.setattr(model_hub, "_resolved", {})
+    monkeypatch.setattr(events, "_cancel", type("Flag", (), {"is_set": lambda self: bool(fetched)})())
+    fetched.clear()
+    with pytest.raises(Cancelled):
+        model_hub.fetch_model(repo_id, "depth-anything:<dir>")
+    assert len(fetched) == 1
