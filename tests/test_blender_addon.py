@@ -193,10 +193,10 @@ def test_sfm_cameras_become_blender_cameras_that_project_like_colmap(scene, tmp_
 
     ws = tmp_path / "ws"
     make_tiny_workspace(ws)
-    # one camera with non-square pixels and an off-centre principal point
+    # the views' one shared camera gets non-square pixels and an off-centre principal point
     sparse = ws / "sparse" / "0"
     lines = (sparse / "cameras.txt").read_text().splitlines()
-    lines[-1] = "3 PINHOLE 16 12 14.5 16.0 9.25 5.0"
+    lines[-1] = "1 PINHOLE 16 12 14.5 16.0 9.25 5.0"
     (sparse / "cameras.txt").write_text("\n".join(lines) + "\n")
     write_transforms(ws / "transforms.json", read_model(sparse).cameras)  # as import writes both
     scene.igs.workspace = str(ws)

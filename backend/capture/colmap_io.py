@@ -32,12 +32,13 @@ class SparseModel:
 
 def write_model(folder: str | Path, cameras: list[Camera], points: np.ndarray, colors: np.ndarray,
                 tracks: list[list[str]] | None = None) -> None:
-    """Write ``cameras.txt``, ``images.txt``, ``points3D.txt`` (PINHOLE, one COLMAP camera per image).
+    """Write ``cameras.txt``, ``images.txt``, ``points3D.txt`` (PINHOLE; one COLMAP camera per distinct
+    size and focal lengths/centre, shared by the images that have them).
 
     points: (N, 3) world positions; colors: (N, 3) uint8 RGB. ``tracks`` optionally names, per point,
     the images that see it; their 2D observations are written as the point's projection so that
-    COLMAP tools show them. Camera and image ids are 1.. in the order of ``cameras``, point ids 1.. in
-    the order of ``points``.
+    COLMAP tools show them. Image ids are 1.. in the order of ``cameras``, camera ids 1.. in the order
+    of their first image, point ids 1.. in the order of ``points``.
     """
     import pycolmap
 
@@ -51,11 +52,15 @@ def write_model(folder: str | Path, cameras: list[Camera], points: np.ndarray, c
         elements.append([pycolmap.TrackElement(image_id[n], len(observed[n])) for n in names])
         for n in names:
             observed[n].append(pid)
+    camera_id: dict[tuple, int] = {}  # exact intrinsics -> COLMAP camera (its trivial rig has the same id)
     for i, cam in enumerate(cameras, start=1):
-        rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
-                                                        params=[cam.fx, cam.fy, cam.cx, cam.cy], camera_id=i))
+        key = (cam.width, cam.height, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy))
+        if key not in camera_id:
+            camera_id[key] = len(camera_id) + 1
+            rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
+                                                            params=list(key[2:]), camera_id=camera_id[key]))
         uv = cam.project(points[observed[cam.name]])[0]
-        image = pycolmap.Image(name=cam.name, keypoints=uv.reshape(-1, 2), camera_id=i, image_id=i)
+        image = pycolmap.Image(name=cam.name, keypoints=uv.reshape(-1, 2), camera_id=camera_id[key], image_id=i)
         rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.hstack([cam.R, cam.t.reshape(3, 1)])))
     for p, c, el in zip(points, np.asarray(colors, dtype=np.uint8).reshape(-1, 3), elements):
         rec.add_point3D(p, pycolmap.Track(el), c)

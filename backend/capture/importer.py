@@ -51,6 +51,9 @@ SourceKind = Literal["auto", "video", "photos", "colmap", "transforms"]
 SOURCE_KINDS: tuple[SourceKind, ...] = get_args(SourceKind)
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 FRAME_NAME = "frame_{:04d}.png"
+# Known-pose triangulation keeps points within 2 px at an angle of at least COLMAP's default 1.5 deg.
+TRIANGULATE_MAX_ERROR_PX = 2.0
+TRIANGULATE_MIN_ANGLE_DEG = 1.5
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,10 @@ class Posed:
     tracks: list[list[str]]
     dropped: list[str]
     summary: dict
+    listed: int = 0
+    """Frames the source lists (a transforms.json or COLMAP project), 0 when it lists none."""
+    skipped: list[dict] = field(default_factory=list)
+    """Frames the source lists but whose image is missing: ``{"source", "reason"}``; not imported."""
 
 
 # ----------------------------------------------------------------------------------------- sources
@@ -254,7 +261,7 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
     except Exception as e:
         raise colmap_error(model_dir, e) from e
     images = sorted(rec.images.values(), key=lambda im: im.name)
-    frames, intr, poses, dropped = [], {}, {}, []
+    frames, intr, poses, dropped, skipped = [], {}, {}, [], []
     name_of: dict[int, str] = {}
     for img in images:
         raw = inside(image_dir, img.name, f"{model_dir} (image name)")
@@ -262,7 +269,8 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
             dropped.append(img.name)
             continue
         if not raw.is_file():
-            raise IGSError(f"{raw}: image of the COLMAP model not found (images are looked for in {image_dir})")
+            skipped.append({"source": img.name, "reason": "image not found"})
+            continue
         name = FRAME_NAME.format(len(frames))
         frames.append(RawFrame(name, raw, img.name))
         name_of[img.image_id] = name
@@ -273,8 +281,9 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
         m = np.asarray(img.cam_from_world().matrix())
         check_pose(m[:3, :3], m[:3, 3], f"{model_dir}: image '{img.name}'")
         poses[name] = (m[:3, :3], m[:3, 3])
-    if not frames:
+    if len(dropped) == len(images):
         raise IGSError(f"{model_dir}: the COLMAP model has no registered images")
+    _check_enough(model_dir, len(images) - len(dropped), frames, skipped, 1, f"images are looked for in {image_dir}")
     ids = sorted(rec.points3D)
     pts = np.array([rec.points3D[i].xyz for i in ids], dtype=np.float64).reshape(-1, 3)
     cols = np.array([rec.points3D[i].color for i in ids], dtype=np.uint8).reshape(-1, 3)
@@ -283,7 +292,7 @@ def poses_from_colmap(source: Path, work: Path) -> tuple[list[RawFrame], Posed]:
     if len(pts) and not any(tracks):  # a model written without observations: use visibility instead
         tracks = _visibility_tracks(pts, frames, intr, poses)
     summary = {"method": f"COLMAP model {model_dir}", "registered": len(frames), "points": int(len(pts))}
-    return frames, Posed(intr, poses, pts, cols, tracks, dropped, summary)
+    return frames, Posed(intr, poses, pts, cols, tracks, dropped, summary, len(images), skipped)
 
 
 def _check_size(raw: Path, intr: Intrinsics, where: Path) -> None:
@@ -293,14 +302,30 @@ def _check_size(raw: Path, intr: Intrinsics, where: Path) -> None:
         raise IGSError(f"{raw}: image is {w}x{h} but its camera in {where} is {intr.width}x{intr.height}")
 
 
+def _check_enough(where: Path, posed: int, frames: list[RawFrame], skipped: list[dict], need: int,
+                  why: str) -> None:
+    """Warn once about frames skipped for a missing image; refuse when fewer than ``need`` are left."""
+    if skipped:
+        first = ", ".join(f"'{s['source']}'" for s in skipped[:3])
+        events.log(f"import: {where}: {len(skipped)} of {posed} posed frames skipped, their image is missing "
+                   f"({first}{', ...' if len(skipped) > 3 else ''}); listed in import_report.json")
+    if len(frames) < need:
+        raise IGSError(f"{where}: {len(frames)} of its {posed} posed frames have their image "
+                       f"({len(skipped)} missing); the import needs at least {need} ({why})")
+
+
 def poses_from_transforms(source: Path, config: ImportConfig, work: Path) -> tuple[list[RawFrame], Posed]:
     ds = read_transforms(source)
+    skipped = [{"source": s["file_path"], "reason": s["reason"]} for s in ds.skipped]
+    # Points come from the PLY, or are triangulated from matches between at least two views.
+    need, why = (1, f"points from {ds.ply.name}") if ds.ply is not None else (2, "points are triangulated between views")
     frames, intr, poses = [], {}, {}
     for i, fr in enumerate(ds.frames):
         name = FRAME_NAME.format(i)
         frames.append(RawFrame(name, fr.image, fr.image.name))
         intr[name] = fr.intrinsics
         poses[name] = (fr.R, fr.t)
+    _check_enough(ds.path, ds.frames_in_file, frames, skipped, need, why)
     if ds.ply is not None:
         pts, cols = read_ply_points(ds.ply)
         tracks = _visibility_tracks(pts, frames, intr, poses)
@@ -308,10 +333,11 @@ def poses_from_transforms(source: Path, config: ImportConfig, work: Path) -> tup
     else:
         from backend.capture.triangulate import triangulate_known_poses
 
-        pts, cols, tracks = triangulate_known_poses(frames, intr, poses, work / "triangulate", config.sfm)
+        pts, cols, tracks = triangulate_known_poses(frames, intr, poses, work / "triangulate", config.sfm,
+                                                    TRIANGULATE_MAX_ERROR_PX, TRIANGULATE_MIN_ANGLE_DEG)
         method = "transforms.json poses, points triangulated from SIFT matches"
     summary = {"method": method, "registered": len(frames), "points": int(len(pts))}
-    return frames, Posed(intr, poses, pts, cols, tracks, [], summary)
+    return frames, Posed(intr, poses, pts, cols, tracks, [], summary, ds.frames_in_file, skipped)
 
 
 def _visibility_tracks(pts, frames, intr, poses) -> list[list[str]]:
@@ -452,9 +478,27 @@ def import_capture(source: str | Path, workspace: str | Path, config: ImportConf
     events.output("sparse", ws.sparse)
     events.output("capture", ws.capture_json)
     events.output("report", ws.root / "import_report.json")
-    events.log(f"import: {report['registered']} views ({len(report['dropped'])} dropped), {report['points']} points "
+    events.log(f"import: {report['registered']} views ({len(report['dropped'])} dropped"
+               + (f", {len(report['skipped'])} skipped" if report.get("skipped") else "") + f"), {report['points']} points "
                f"-> {ws.root}")
     return report
+
+
+def _settings_used(kind: str, config: ImportConfig, posed: Posed, n_frames: int) -> dict:
+    """The settings of the steps that ran (an SfM setting means nothing for a capture with its own poses)."""
+    sel, sfm = asdict(config.selection), asdict(config.sfm)
+    if kind == "video":
+        return {"selection": sel, "sfm": sfm}
+    if kind == "photos":  # every/sharpest pick video frames
+        return {"selection": {k: sel[k] for k in ("max_frames", "max_side")}, "sfm": sfm}
+    out: dict = {"selection": {"max_side": sel["max_side"]}}  # the undistorted frames' longer side
+    if "triangulated" in posed.summary.get("method", ""):
+        matching = "exhaustive" if n_frames <= sfm["exhaustive_max"] else "sequential"
+        out["triangulation"] = {"matching": matching,
+                                **({"sequential_overlap": sfm["sequential_overlap"]} if matching == "sequential" else {}),
+                                **{k: sfm[k] for k in ("max_features", "max_image_size", "seed", "num_threads")},
+                                "max_error_px": TRIANGULATE_MAX_ERROR_PX, "min_angle_deg": TRIANGULATE_MIN_ANGLE_DEG}
+    return out
 
 
 def _write_results(ws: Workspace, staging: Staging, source: Path, kind: str, config: ImportConfig,
@@ -479,8 +523,7 @@ def _write_results(ws: Workspace, staging: Staging, source: Path, kind: str, con
     # capture.json and the report
     gt = {k: str(v) for k, v in gt_dir_for(source).items() if v is not None}
     source_info = {"kind": kind, "path": str(source.resolve()), **info, **({"gt": gt} if gt else {}),
-                   "frames_in": len(frames),
-                   "settings": {"selection": asdict(config.selection), "sfm": asdict(config.sfm)}}
+                   "frames_in": len(frames), "settings": _settings_used(kind, config, posed, len(frames))}
     import_frames = []
     for i, f in enumerate(frames):
         if f.name not in outs:
@@ -492,8 +535,9 @@ def _write_results(ws: Workspace, staging: Staging, source: Path, kind: str, con
                                              "params": list(intr.params)}})
     dropped = [{"name": f.name, "source": f.source_name} for f in frames if f.name not in outs]
     dropped += [{"name": None, "source": n} for n in posed.dropped if n not in {f.name for f in frames}]
-    report = {"source": source_info["path"], "kind": kind, "frames_in": len(frames), "registered": len(registered),
-              "dropped": dropped, "poses": posed.summary, "size": [cameras[0].width, cameras[0].height],
+    report = {"source": source_info["path"], "kind": kind,
+              **({"frames_listed": posed.listed, "skipped": posed.skipped} if posed.listed else {}),
+              "frames_in": len(frames), "registered": len(registered), "dropped": dropped, "poses": posed.summary, "size": [cameras[0].width, cameras[0].height],
               "points": len(keep), "timings_s": {k: round(v, 3) for k, v in timings.items()},
               "seconds": round(time.perf_counter() - t0, 3)}
     meta = {"source": source_info, "priors": {"albedo": "none", "depth": "none"},

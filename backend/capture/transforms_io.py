@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,11 +41,17 @@ class TransformsFrame:
 
 @dataclass(frozen=True)
 class TransformsDataset:
-    """A parsed transforms.json: its frames and, if it names one, the sparse point cloud file."""
+    """A parsed transforms.json: its frames whose image exists, the frames skipped, and the sparse point
+    cloud file if it names one."""
 
     path: Path
     frames: list[TransformsFrame]
     ply: Path | None
+    frames_in_file: int = 0
+    """How many frames the file lists (imported or skipped)."""
+    skipped: list[dict] = field(default_factory=list)
+    """Frames left out: ``{"index", "file_path", "reason"}`` (published datasets often list images
+    they do not ship)."""
 
 
 def opengl_c2w_to_cv_w2c(c2w_gl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,6 +69,10 @@ def cv_w2c_to_opengl_c2w(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return c2w @ GL_TO_CV
 
 
+class _MissingImage(Exception):
+    """The frame's image file is not there (the frame is skipped, not the file refused)."""
+
+
 def _resolve_image(root: Path, file_path: str, where: str) -> Path:
     p = inside(root, file_path, f"{where} file_path")
     if p.is_file():
@@ -74,7 +84,7 @@ def _resolve_image(root: Path, file_path: str, where: str) -> Path:
             q = p.with_name(p.name + suffix)
             if q.is_file():
                 return q
-    raise IGSError(f"{where}: image '{file_path}' not found")
+    raise _MissingImage(file_path)
 
 
 def _number(spec: dict, key: str, where: str, positive: bool = False) -> float:
@@ -168,7 +178,7 @@ def read_transforms(path: str | Path) -> TransformsDataset:
         raise IGSError(f"{path}: no 'frames' list")
     root = path.parent
     base = {k: data[k] for k in _INTRINSIC_KEYS if k in data}
-    frames = []
+    frames, skipped = [], []
     for i, fr in enumerate(frames_in):
         where = f"{path} frame {i}"
         if not isinstance(fr, dict):
@@ -176,7 +186,11 @@ def read_transforms(path: str | Path) -> TransformsDataset:
         if "file_path" not in fr or "transform_matrix" not in fr:
             raise IGSError(f"{where}: needs 'file_path' and 'transform_matrix'")
         m = _matrix(fr, where)
-        image = _resolve_image(root, fr["file_path"], where)
+        try:
+            image = _resolve_image(root, fr["file_path"], where)
+        except _MissingImage:
+            skipped.append({"index": i, "file_path": fr["file_path"], "reason": "image not found"})
+            continue
         intr = _intrinsics({**base, **{k: fr[k] for k in _INTRINSIC_KEYS if k in fr}}, image, where)
         R, t = opengl_c2w_to_cv_w2c(m)
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or abs(np.linalg.det(R) - 1.0) > 1e-3:
@@ -186,7 +200,10 @@ def read_transforms(path: str | Path) -> TransformsDataset:
     ply = inside(root, ply_ref, f"{path} ply_file_path") if ply_ref else None
     if ply is not None and not ply.is_file():
         raise IGSError(f"{path}: ply_file_path '{ply_ref}' not found")
-    return TransformsDataset(path, frames, ply)
+    if not frames:
+        raise IGSError(f"{path}: none of the images of its {len(frames_in)} frames was found "
+                       f"(first: '{skipped[0]['file_path']}', looked for under {root})")
+    return TransformsDataset(path, frames, ply, len(frames_in), skipped)
 
 
 def write_transforms(path: str | Path, cameras: list[Camera], image_dir: str = "images",
