@@ -134,3 +134,21 @@ def test_a_model_with_one_camera_per_image_still_reads(scene, tmp_path):
     for a, b in zip(model.cameras, cams):
         assert (a.fx, a.cx, a.width) == pytest.approx((b.fx, b.cx, b.width))
         np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+
+
+def test_bench_import_measures_a_known_pose_import_through_the_command(scene, tmp_path, capsys):
+    from backend.eval.bench_import import STAGES
+    from backend.eval.bench_import import main as bench_main
+
+    src, _ = scene
+    out = tmp_path / "bench.json"
+    assert bench_main([str(src), "--views", "4,8", "--threads", "2", "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["results"]
+    assert [r["views"] for r in rows] == [4, 8] and "reproj px" in capsys.readouterr().out
+    for r in rows:
+        assert r["registered"] == r["views"] and r["size"] == [160, 120]
+        assert 0 < r["frames_with_points"] <= r["views"] and r["points"] == r["triangulated_points"] > 20
+        assert 0 < r["mean_reprojection_error_px"] <= 2.0 and r["mean_track_length"] >= 2  # the 2 px filter
+        assert set(STAGES) <= set(r["stages_s"]) and r["import_s"] < r["process_wall_s"]
+    assert rows[1]["points"] > rows[0]["points"]
+    assert bench_main([str(src), "--views", "99", "--out", str(out)]) == 2  # more views than the capture has
