@@ -18,11 +18,12 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
 
-from backend.capture.colmap_io import check_camera, read_model
+from backend.capture.colmap_io import SparseModel, check_camera, read_model
 from backend.capture.load import load_capture
 from backend.capture.undistort import FrameWarp, Intrinsics, make_undistorter
 from backend.core import events
@@ -34,6 +35,7 @@ from backend.core.staging import Staging
 from backend.core.workspace import CAPTURE_SCHEMA, Workspace
 from backend.priors.albedo import AlbedoOptions, AlbedoPredictor, make_albedo_predictor
 from backend.priors.align import AlignConfig, align_depth, points_in_view
+from backend.priors.consistency import TrackSamples, apply_gain, fit_gains, sample_view, spread
 from backend.priors.depth import DepthOptions, DepthPredictor, make_depth_predictor
 from backend.priors.folder import PriorFrame
 
@@ -52,6 +54,9 @@ class PriorsConfig:
     """Settings of depth predictors."""
     align: AlignConfig = field(default_factory=AlignConfig)
     """Robust fit of depth maps to the SfM points."""
+    albedo_consistency: Literal["auto", "none", "tracks"] = "auto"
+    """Per-frame colour gains fitted on SfM tracks so a point has the same albedo in every view:
+    'tracks', 'none', or 'auto' = tracks for model predictions, none for gt and folder maps."""
 
 
 @dataclass
@@ -194,11 +199,13 @@ def _compute(ws: Workspace, meta: dict, views: list[_View], config: PriorsConfig
                     _raw_check(v)
                 amap = cache.get(v.frame.name, v.image, lambda v=v: albedo_pred.predict(v.frame, _rgb(v.image)))
                 amap = v.warp.image(amap) if albedo_pred.warp else v.warp.resize(amap)
-                data = (np.clip(amap, 0, 1) * 65535 + 0.5).astype(np.uint16)[:, :, ::-1]
-                write_image_file(albedo_dir / v.frame.name, data)
+                _write_albedo(albedo_dir / v.frame.name, amap)
                 bar.update(1)
         report["albedo"] = {"prior": albedo_pred.label, "views": len(views),
+                            "consistency": albedo_consistency(config, albedo_pred),
                             "seconds": round(time.perf_counter() - t, 3)}
+        if report["albedo"]["consistency"] == "tracks":
+            report["albedo"]["gains"] = _even_out_albedo(albedo_dir, views, read_model(ws.sparse))
 
     if depth_pred is not None:
         t = time.perf_counter()
@@ -246,11 +253,79 @@ def _compute(ws: Workspace, meta: dict, views: list[_View], config: PriorsConfig
         if pred is not None:
             priors[kind] = pred.label
             settings[kind] = {"spec": spec, **pred.stamp(), "options": asdict(opts)}
+    if albedo_pred is not None:
+        settings["albedo"]["consistency"] = report["albedo"]["consistency"]
     if depth_pred is not None:
         settings["depth"]["align"] = asdict(config.align)
     new_meta = {k: v for k, v in meta.items() if k != "schema"}
     new_meta.update(priors=priors, prior_settings=settings)
     write_json(staging.path(ws.capture_json), {"schema": CAPTURE_SCHEMA, **new_meta})
+
+
+def albedo_consistency(config: PriorsConfig, pred: AlbedoPredictor) -> str:
+    """'tracks' or 'none'. Left to 'auto', only model predictions (made on the workspace images, not
+    warped) are evened out: ground truth is consistent by construction, and folder maps are usually
+    from a video model whose frames already agree; ``--albedo-consistency tracks`` asks for it anyway."""
+    if config.albedo_consistency == "auto":
+        return "none" if pred.warp else "tracks"
+    return config.albedo_consistency
+
+
+def _write_albedo(path: Path, srgb: np.ndarray) -> None:
+    write_image_file(path, (np.clip(srgb, 0, 1) * 65535 + 0.5).astype(np.uint16)[:, :, ::-1])
+
+
+def _read_albedo(path: Path) -> np.ndarray:
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None:
+        raise IGSError(f"{path}: unreadable albedo map")
+    return data[:, :, ::-1].astype(np.float32) / 65535.0
+
+
+def albedo_track_samples(albedo_dir: Path, cameras: list[Camera], model: SparseModel) -> TrackSamples:
+    """Linear albedo of the maps ``albedo_dir/<camera name>`` at each view's SfM observations; frame
+    indices are positions in ``cameras``."""
+    index = {cam.name: i for i, cam in enumerate(cameras)}
+    seen: list[list[int]] = [[] for _ in cameras]
+    for j, track in enumerate(model.tracks):
+        for name in track:
+            if name in index:
+                seen[index[name]].append(j)
+    parts = []
+    for i, cam in enumerate(cameras):
+        ids = np.asarray(seen[i], dtype=int)
+        parts.append(sample_view(_read_albedo(albedo_dir / cam.name), cam, model.points[ids], ids, i))
+    return TrackSamples.concat(parts)
+
+
+def _even_out_albedo(albedo_dir: Path, views: list[_View], model: SparseModel) -> dict:
+    """Fit per-frame gains on the SfM tracks and rewrite the maps with them; what was done."""
+    if not any(model.tracks):
+        events.log("albedo: the SfM model lists no tracks (which images see a point), so the frames' colour "
+                   "gains cannot be evened out; the maps are kept as predicted")
+        return {"fitted": 0, "reason": "no tracks in the SfM model"}
+    samples = albedo_track_samples(albedo_dir, [v.camera for v in views], model)
+    fit = fit_gains(samples, len(views))
+    before = spread(samples)
+    with events.stage("albedo consistency", total=len(views), unit="image") as bar:
+        for i, v in enumerate(views):
+            if fit.fitted[i]:
+                _write_albedo(albedo_dir / v.frame.name, apply_gain(_read_albedo(albedo_dir / v.frame.name),
+                                                                    fit.gains[i]))
+            bar.update(1)
+    corrected = TrackSamples(samples.frame, samples.point,
+                             samples.value * fit.gains[samples.frame].astype(np.float32))
+    after = spread(corrected)
+    out = {"fitted": int(fit.fitted.sum()), "points": fit.points, "observations": fit.observations,
+           "gain_min": [round(float(x), 4) for x in fit.gains.min(axis=0)],
+           "gain_max": [round(float(x), 4) for x in fit.gains.max(axis=0)],
+           "spread_before": before, "spread_after": after,
+           "per_view": {v.frame.name: [round(float(x), 4) for x in fit.gains[i]] for i, v in enumerate(views)}}
+    if before["mean_std"] is not None:
+        events.log(f"albedo: per-frame gains fitted on {fit.points} SfM points in {out['fitted']} views "
+                   f"(gains {min(out['gain_min']):.3f} to {max(out['gain_max']):.3f}); spread of a point's albedo "
+                   f"across views {before['mean_std']:.4f} -> {after['mean_std']:.4f}")
+    return out
 
 
 def align_summary(alignments: list[dict]) -> dict:
