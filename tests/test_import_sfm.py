@@ -284,7 +284,7 @@ def test_cli_reports_a_bad_prior_spec_before_any_work(distorted_project, tmp_pat
     proj, _ = distorted_project
     assert main(["import", str(proj), str(tmp_path / "ws"), "--depth", "depth-anything:/no/such/model"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "/no/such/model" in err[0] and "config.json" in err[0]
+    assert len(err) == 1 and "/no/such/model" in err[0] and "no such folder" in err[0]
     assert not (tmp_path / "ws").exists()
 
 
