@@ -20,6 +20,9 @@ PRIOR_OPTIONS = (
     Option("--albedo-ensemble", "albedo_options.ensemble", "model predictions averaged per frame", type=opt.COUNT),
     Option("--albedo-resolution", "albedo_options.resolution", "model processing resolution (0: default)",
            type=opt.COUNT0),
+    Option("--albedo-consistency", "albedo_consistency",
+           "per-frame colour gains fitted on SfM tracks so a point has the same albedo in every view: "
+           "auto = for model predictions only (gt and folder maps are kept as they are)"),
     Option("--depth", "depth", f"depth prior: {DEPTH_SPECS}. Depth Anything V2 Small/Base/Large have 25M/98M/"
            "335M parameters (about 0.1/0.4/1.3 GB in float32); ids come from the Hugging Face cache as for --albedo"),
     Option("--depth-kind", "depth_options.folder_kind",
