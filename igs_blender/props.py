@@ -43,6 +43,35 @@ class IGS_EditItem(bpy.types.PropertyGroup):
                           description="Show this edit (its proxy, and its edited albedo instead of the original)")
 
 
+# Model priors: the backend's --albedo / --depth spec for each choice. The backend downloads the weights
+# once into the standard Hugging Face cache (a "download <id>" stage) and runs the model on every frame.
+MODEL_PRIORS = {"MARIGOLD": "marigold", "DA_SMALL": "depth-anything", "DA_BASE": "depth-anything:base",
+                "DA_LARGE": "depth-anything:large"}
+MODEL_NAMES = {"MARIGOLD": "Marigold IID", "DA_SMALL": "Depth Anything V2 Small", "DA_BASE": "Depth Anything V2 Base",
+               "DA_LARGE": "Depth Anything V2 Large"}
+_ONCE = "downloaded once into the Hugging Face cache, then runs once per frame (slow on the CPU)"
+_MARIGOLD_TIP = (f"Marigold IID appearance (prs-eth/marigold-iid-appearance-v1-1), {_ONCE}: "
+                 "a Stable-Diffusion-2-sized pipeline, several GB")
+_DEPTH_ANYTHING_ITEMS = [
+    (key, f"{MODEL_NAMES[key]} (download once)", f"{MODEL_NAMES[key]} (depth-anything/Depth-Anything-V2-{size}-hf), "
+     f"{_ONCE}: {weights}")
+    for key, size, weights in (("DA_SMALL", "Small", "24.8M parameters, a 99 MB safetensors file"),
+                               ("DA_BASE", "Base", "97.5M parameters, about 0.4 GB"),
+                               ("DA_LARGE", "Large", "335.3M parameters, about 1.3 GB"))]
+
+
+def cpu_model_warning(props, device: str) -> str:
+    """Why this import may take long: a model prior run on every frame on the CPU ('' when none is)."""
+    if device != "CPU" or props.source_kind == "SYNTHETIC":
+        return ""
+    models = [MODEL_NAMES[m] for m in (props.albedo_prior, props.depth_prior) if m in MODEL_PRIORS]
+    if not models:
+        return ""
+    frames = f"each of up to {props.max_frames} frames" if props.max_frames else "every frame (Max Frames is 0)"
+    verb = "runs" if len(models) == 1 else "run"
+    return f"{' and '.join(models)} {verb} on {frames} on the CPU: the import may take long"
+
+
 class IGS_SceneProps(bpy.types.PropertyGroup):
     # -- workspace and capture ----------------------------------------------------------------------
     workspace: StringProperty(name="Workspace", subtype="DIR_PATH",
@@ -64,13 +93,18 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     max_frames: IntProperty(name="Max Frames", default=0, min=0, description="Keep at most this many frames; 0: all")
     max_side: IntProperty(name="Max Side", default=0, min=0, subtype="PIXEL",
                           description="Downscale so the longer side is at most this many pixels; 0: keep the full size")
+    # The model choices come last: Blender stores an enum by its position, so saved files keep their choice.
     albedo_prior: EnumProperty(name="Albedo", items=[("NONE", "None", "No albedo prior"),
                                                      ("gt", "Ground Truth", "Synthetic captures"),
-                                                     ("FOLDER", "Folder", "Albedo maps computed elsewhere")], default="NONE")
+                                                     ("FOLDER", "Folder", "Albedo maps computed elsewhere"),
+                                                     ("MARIGOLD", "Marigold IID (download once)", _MARIGOLD_TIP)],
+                               default="NONE")
     albedo_folder: StringProperty(name="Albedo Folder", subtype="DIR_PATH")
     depth_prior: EnumProperty(name="Depth", items=[("NONE", "None", "No depth prior"),
                                                    ("gt", "Ground Truth", "Synthetic captures"),
-                                                   ("FOLDER", "Folder", "Depth maps (.npy) computed elsewhere")], default="NONE")
+                                                   ("FOLDER", "Folder", "Depth maps (.npy) computed elsewhere"),
+                                                   *_DEPTH_ANYTHING_ITEMS],
+                              default="NONE")
     depth_folder: StringProperty(name="Depth Folder", subtype="DIR_PATH")
     replace_workspace: BoolProperty(name="Replace Workspace", default=False,
                                     description="Overwrite a workspace that holds another capture (or other settings)")

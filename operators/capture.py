@@ -5,9 +5,10 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import camera_objects, scene_objects
+from ..igs_blender import camera_objects, preferences, scene_objects
 from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.props import MODEL_PRIORS, cpu_model_warning
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, resolve
 from .job import BackendOperator, backend_job
 
@@ -46,7 +47,18 @@ def import_args(props) -> list:
             if not path.is_dir():
                 raise UserError(f"{flag[2:].capitalize()} folder {path} does not exist")
             args += [flag, f"folder:{path}"]
+        elif mode in MODEL_PRIORS:
+            args += [flag, MODEL_PRIORS[mode]]
     return args
+
+
+def model_warning(context, props) -> str:
+    """The CPU warning for a model prior ('' without one); the preferences' Device says where torch runs."""
+    try:
+        device = preferences.get(context).device
+    except UserError:
+        return ""
+    return cpu_model_warning(props, device)
 
 
 class IGS_OT_import_capture(BackendOperator, bpy.types.Operator):
@@ -58,6 +70,10 @@ class IGS_OT_import_capture(BackendOperator, bpy.types.Operator):
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         args = import_args(props)
+        warning = model_warning(context, props) if args[0] == "import" else ""
+        if warning:
+            # Said before the job starts: the report reaches the Info area while the import runs.
+            self.report({"WARNING"}, warning)
         label = f"Synthetic capture ({props.synth_preset})" if args[0] == "synth" else "Import"
         return backend_job(context, args, label)
 

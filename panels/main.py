@@ -6,10 +6,10 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import compat, edits, layers, scene_objects
+from ..igs_blender import compat, edits, layers, preferences, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
-from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT
+from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
 
 CATEGORY = "Intrinsic Splats"
 LAYER_LABELS = {"composite": "Composite A×S+R", "albedo": "Albedo", "shading": "Shading", "residual": "Residual",
@@ -90,6 +90,14 @@ class IGS_PT_main(_Panel, bpy.types.Panel):
             _lines(layout, props.capture_info, icon="FILE_FOLDER")
 
 
+def _device(context) -> str:
+    """Where the backend's torch runs, as the preferences' Device says ('' when the add-on is not enabled)."""
+    try:
+        return preferences.get(context).device
+    except UserError:
+        return ""
+
+
 class IGS_PT_capture(_SubPanel, bpy.types.Panel):
     bl_label = "Capture"
 
@@ -113,6 +121,9 @@ class IGS_PT_capture(_SubPanel, bpy.types.Panel):
             col.prop(props, "depth_prior")
             if props.depth_prior == "FOLDER":
                 col.prop(props, "depth_folder", text="")
+            warning = cpu_model_warning(props, _device(context))
+            if warning:
+                _lines(col, warning, icon="ERROR", context=context)
         col.prop(props, "camera_backgrounds")
         col.prop(props, "replace_workspace")
         row = layout.row(align=True)

@@ -491,3 +491,82 @@ def test_modal_handler_ignores_a_timer_event_that_arrives_while_it_finishes(addo
     assert op.modal(context, timer) == {"FINISHED"}
     assert op.ticks == 1 and removed == ["the timer"] and op._timer is None
     assert op.modal(context, SimpleNamespace(type="MOUSEMOVE")) == {"PASS_THROUGH"}
+
+
+# -- capture priors ---------------------------------------------------------------------------------
+
+
+def test_model_priors_are_sent_by_id_and_the_cpu_warning_names_the_frames(scene, tmp_path):
+    capture = sys.modules[f"{MOD}.operators.capture"]
+    prefs = bpy.context.preferences.addons[MOD].preferences
+    props = scene.igs
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"not decoded here")
+    for name in ("albedo", "depth"):
+        (tmp_path / name).mkdir()
+    props.source_kind, props.source_path, props.workspace = "VIDEO", str(video), str(tmp_path / "ws")
+    props.albedo_folder, props.depth_folder = str(tmp_path / "albedo"), str(tmp_path / "depth")
+
+    def sent(albedo: str, depth: str) -> dict:
+        props.albedo_prior, props.depth_prior = albedo, depth
+        args = [str(a) for a in capture.import_args(props)]
+        return {f: args[args.index(f) + 1] for f in ("--albedo", "--depth") if f in args}
+
+    assert sent("MARIGOLD", "DA_SMALL") == {"--albedo": "marigold", "--depth": "depth-anything"}
+    assert sent("NONE", "DA_BASE") == {"--depth": "depth-anything:base"}
+    assert sent("gt", "DA_LARGE") == {"--albedo": "gt", "--depth": "depth-anything:large"}
+    assert sent("FOLDER", "gt") == {"--albedo": f"folder:{tmp_path / 'albedo'}", "--depth": "gt"}
+
+    # the choices' names and tooltips: what is downloaded, once, and that it runs per frame
+    rna = props.bl_rna.properties
+    albedo = {i.identifier: i for i in rna["albedo_prior"].enum_items}
+    depth = {i.identifier: i for i in rna["depth_prior"].enum_items}
+    assert albedo["MARIGOLD"].name == "Marigold IID (download once)"
+    assert "several GB" in albedo["MARIGOLD"].description and "once per frame" in albedo["MARIGOLD"].description
+    for key, size, words in (("DA_SMALL", "Small", "24.8M parameters, a 99 MB"), ("DA_BASE", "Base", "about 0.4 GB"),
+                             ("DA_LARGE", "Large", "about 1.3 GB")):
+        assert depth[key].name == f"Depth Anything V2 {size} (download once)"
+        assert words in depth[key].description and "slow on the CPU" in depth[key].description
+
+    def warned() -> tuple[list, str]:
+        """The Import operator's reports before its job starts, and the Capture panel's text."""
+        reports = []
+        op = SimpleNamespace(report=lambda level, msg: reports.append((level, msg)))
+        job = capture.IGS_OT_import_capture.make_job(op, bpy.context)
+        assert not job.running  # made, not started
+        return reports, shown_text(draw("IGS_PT_capture"))
+
+    prefs.device = "CPU"
+    props.max_frames = 0
+    sent("MARIGOLD", "NONE")
+    reports, panel = warned()
+    line = "Marigold IID runs on every frame (Max Frames is 0) on the CPU: the import may take long"
+    assert reports == [({"WARNING"}, line)] and line in panel
+    props.max_frames = 40
+    sent("NONE", "DA_LARGE")
+    reports, panel = warned()
+    line = "Depth Anything V2 Large runs on each of up to 40 frames on the CPU: the import may take long"
+    assert reports == [({"WARNING"}, line)] and line in panel
+    sent("MARIGOLD", "DA_SMALL")
+    assert "Marigold IID and Depth Anything V2 Small run on each of up to 40" in warned()[0][0][1]
+    for albedo_mode, depth_mode in (("gt", "gt"), ("FOLDER", "FOLDER"), ("NONE", "NONE")):
+        sent(albedo_mode, depth_mode)
+        reports, panel = warned()
+        assert reports == [] and "on the CPU" not in panel
+    prefs.device = "CUDA"  # a GPU runs the models: nothing to warn about
+    try:
+        sent("MARIGOLD", "DA_SMALL")
+        reports, panel = warned()
+        assert reports == [] and "on the CPU" not in panel
+    finally:
+        prefs.device = "CPU"
+
+
+def test_a_model_download_shows_in_the_progress_line_like_any_stage(addon):
+    client = sub("client")
+    state = client.JobState(label="Import")
+    name = "download depth-anything/Depth-Anything-V2-Small-hf"
+    state.apply({"event": "stage", "stage": name, "total": 99_000_000})
+    state.apply({"event": "progress", "stage": name, "step": 33_000_000, "total": 99_000_000, "eta_s": 20.0})
+    assert state.status_text().startswith(f"{name} 33000000/99000000")
+    assert state.fraction > 0
