@@ -49,6 +49,14 @@ class StageStatus:
     """Last reported step."""
     state: str = "pending"
     """pending, running, done, failed or cancelled."""
+    unit: str = "it"
+    """What a step counts: "it" (steps) or "B" (bytes, shown in MB)."""
+
+    def count_text(self) -> str:
+        """"12/40", or "33.0/99.0 MB" for a stage counting bytes."""
+        if self.unit == "B":
+            return f"{self.step / 1e6:.1f}/{self.total / 1e6:.1f} MB"
+        return f"{self.step}/{self.total}"
 
 
 @dataclass
@@ -87,6 +95,7 @@ class JobState:
         kind = ev.get(events.EVENT)
         if kind == events.STAGE:
             self._begin_stage(str(ev.get("stage", "")), _int(ev.get("total")))
+            self.stages[self.stage].unit = str(ev.get("unit") or "it")
         elif kind == events.PROGRESS:
             name = str(ev.get("stage", self.stage))
             if name != self.stage or name not in self.stages:
@@ -158,7 +167,7 @@ class JobState:
         if not self.stage:
             return self.messages[-1] if self.messages else "Starting…"
         st = self.stages[self.stage]
-        parts = [f"{st.name} {st.step}/{st.total}" if st.total else st.name]
+        parts = [f"{st.name} {st.count_text()}" if st.total else st.name]
         for key, value in list(self.metrics.items())[:3]:
             parts.append(f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}")
         eta = format_eta(self.eta_s)

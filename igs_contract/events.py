@@ -5,7 +5,8 @@ fields below. Human text (tqdm bars, messages) goes to stderr. Readers ignore a 
 JSON object with a string ``event`` (:func:`parse_event`), and events and fields they do not know.
 
 - ``start``      ``command`` (str), ``argv`` (list of str): the command began.
-- ``stage``      ``stage`` (str), ``total`` (int): a stage of ``total`` steps begins.
+- ``stage``      ``stage`` (str), ``total`` (int), ``unit`` (str: ``it`` for steps, ``B`` for bytes):
+  a stage of ``total`` steps begins.
 - ``progress``   ``stage``, ``step`` (int), ``total`` (int), ``eta_s`` (float or null: seconds left in
   the stage); every other key is a metric (``loss``, ``psnr``, ``gaussians``...).
 - ``log``        ``message`` (str): a line for the user.
@@ -41,7 +42,7 @@ ENV = "env"
 
 FIELDS = {
     START: ("command", "argv"),
-    STAGE: ("stage", "total"),
+    STAGE: ("stage", "total", "unit"),
     PROGRESS: ("stage", "step", "total", "eta_s"),
     LOG: ("message",),
     OUTPUT: ("kind", "path"),

@@ -566,7 +566,10 @@ def test_a_model_download_shows_in_the_progress_line_like_any_stage(addon):
     client = sub("client")
     state = client.JobState(label="Import")
     name = "download depth-anything/Depth-Anything-V2-Small-hf"
-    state.apply({"event": "stage", "stage": name, "total": 99_000_000})
+    state.apply({"event": "stage", "stage": name, "total": 99_000_000, "unit": "B"})
     state.apply({"event": "progress", "stage": name, "step": 33_000_000, "total": 99_000_000, "eta_s": 20.0})
-    assert state.status_text().startswith(f"{name} 33000000/99000000")
+    assert state.status_text().startswith(f"{name} 33.0/99.0 MB")
+    state.apply({"event": "stage", "stage": "depth", "total": 40})  # no unit (an older backend): steps
+    state.apply({"event": "progress", "stage": "depth", "step": 3, "total": 40, "eta_s": None})
+    assert state.status_text().startswith("depth 3/40")
     assert state.fraction > 0

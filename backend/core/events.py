@@ -121,7 +121,7 @@ class Progress:
         self._every = every_s
         self.bar = tqdm(total=total, initial=initial, desc=stage, unit=unit, file=sys.stderr,
                         dynamic_ncols=True, leave=True, disable=None if not _state["json"] else False)
-        emit(STAGE, stage=stage, total=total)
+        emit(STAGE, stage=stage, total=total, unit=unit)
 
     def update(self, n: int = 1, **metrics: Any) -> None:
         self.step += n
