@@ -49,27 +49,42 @@ MODEL_PRIORS = {"MARIGOLD": "marigold", "DA_SMALL": "depth-anything", "DA_BASE":
                 "DA_LARGE": "depth-anything:large"}
 MODEL_NAMES = {"MARIGOLD": "Marigold IID", "DA_SMALL": "Depth Anything V2 Small", "DA_BASE": "Depth Anything V2 Base",
                "DA_LARGE": "Depth Anything V2 Large"}
+# Seconds per 1280x720 frame on a 2-core CPU, measured with `python -m backend.eval.bench_prior_models`
+# (the real architectures with random weights; Marigold at its default 4 steps): for the estimate.
+CPU_SECONDS_PER_FRAME = {"MARIGOLD": 71.5, "DA_SMALL": 1.8, "DA_BASE": 5.1, "DA_LARGE": 15.7}
 _ONCE = "downloaded once into the Hugging Face cache, then runs once per frame (slow on the CPU)"
 _MARIGOLD_TIP = (f"Marigold IID appearance (prs-eth/marigold-iid-appearance-v1-1), {_ONCE}: "
-                 "a Stable-Diffusion-2-sized pipeline, several GB")
+                 "a Stable-Diffusion-2-sized pipeline, several GB; about "
+                 f"{CPU_SECONDS_PER_FRAME['MARIGOLD']:.0f} s per 720p frame on a 2-core CPU")
 _DEPTH_ANYTHING_ITEMS = [
-    (key, f"{MODEL_NAMES[key]} (download once)", f"{MODEL_NAMES[key]} (depth-anything/Depth-Anything-V2-{size}-hf), "
-     f"{_ONCE}: {weights}")
+    (key, MODEL_NAMES[key], f"{MODEL_NAMES[key]} (depth-anything/Depth-Anything-V2-{size}-hf), "
+     f"{_ONCE}: {weights}; about {CPU_SECONDS_PER_FRAME[key]} s per 720p frame on a 2-core CPU")
     for key, size, weights in (("DA_SMALL", "Small", "24.8M parameters, a 99 MB safetensors file"),
                                ("DA_BASE", "Base", "97.5M parameters, about 0.4 GB"),
                                ("DA_LARGE", "Large", "335.3M parameters, about 1.3 GB"))]
 
 
 def cpu_model_warning(props, device: str) -> str:
-    """Why this import may take long: a model prior run on every frame on the CPU ('' when none is)."""
+    """Why this import may take long: a model prior run on every frame on the CPU ('' when none is),
+    with an estimate from the measured time per 720p frame."""
     if device != "CPU" or props.source_kind == "SYNTHETIC":
         return ""
-    models = [MODEL_NAMES[m] for m in (props.albedo_prior, props.depth_prior) if m in MODEL_PRIORS]
-    if not models:
+    chosen = [m for m in (props.albedo_prior, props.depth_prior) if m in MODEL_PRIORS]
+    if not chosen:
         return ""
-    frames = f"each of up to {props.max_frames} frames" if props.max_frames else "every frame (Max Frames is 0)"
-    verb = "runs" if len(models) == 1 else "run"
-    return f"{' and '.join(models)} {verb} on {frames} on the CPU: the import may take long"
+    models = " and ".join(MODEL_NAMES[m] for m in chosen)
+    verb = "runs" if len(chosen) == 1 else "run"
+    per_frame = sum(CPU_SECONDS_PER_FRAME[m] for m in chosen)
+    if props.max_frames:
+        estimate = _duration(per_frame * props.max_frames)
+        return (f"{models} {verb} on each of up to {props.max_frames} frames on the CPU: about {estimate} "
+                f"for 720p frames on 2 cores")
+    return (f"{models} {verb} on every frame (Max Frames is 0) on the CPU: about {per_frame:.0f} s per 720p "
+            f"frame on 2 cores")
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds / 3600:.1f} h" if seconds >= 5400 else f"{max(1, round(seconds / 60))} min"
 
 
 class IGS_SceneProps(bpy.types.PropertyGroup):
@@ -97,7 +112,7 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     albedo_prior: EnumProperty(name="Albedo", items=[("NONE", "None", "No albedo prior"),
                                                      ("gt", "Ground Truth", "Synthetic captures"),
                                                      ("FOLDER", "Folder", "Albedo maps computed elsewhere"),
-                                                     ("MARIGOLD", "Marigold IID (download once)", _MARIGOLD_TIP)],
+                                                     ("MARIGOLD", MODEL_NAMES["MARIGOLD"], _MARIGOLD_TIP)],
                                default="NONE")
     albedo_folder: StringProperty(name="Albedo Folder", subtype="DIR_PATH")
     depth_prior: EnumProperty(name="Depth", items=[("NONE", "None", "No depth prior"),

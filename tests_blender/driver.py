@@ -235,7 +235,26 @@ def flow():
     yield 0.5
 
     # -- capture ------------------------------------------------------------------------------------
+    with Step("capture_model_priors") as s:
+        # A video with the model priors, as a user of a real capture picks them: the panel draws the
+        # choices and, on the CPU device, the warning (nothing is imported: there is no video here).
+        pr = props()
+        pr.source_kind = "VIDEO"
+        pr.max_frames = 40
+        pr.albedo_prior = "MARIGOLD"
+        pr.depth_prior = "DA_SMALL"
+        redraw()
+        addon_props = sys.modules[f"{MOD}.igs_blender.props"]
+        s.data["device"] = prefs().device
+        s.data["specs"] = [addon_props.MODEL_PRIORS[pr.albedo_prior], addon_props.MODEL_PRIORS[pr.depth_prior]]
+        s.data["warning"] = addon_props.cpu_model_warning(pr, prefs().device)
+        assert s.data["warning"].startswith("Marigold IID and Depth Anything V2 Small run on each of up to 40 frames on the CPU: about 49 min"), s.data
+    yield 1.0
+    shot("05a-capture-model-priors")
     with Step("import_synthetic") as s:
+        pr = props()
+        pr.albedo_prior = pr.depth_prior = "NONE"
+        pr.max_frames = 0
         for name in ("Cube", "Light", "Camera"):  # the factory scene's objects, as a user deletes them
             if name in bpy.data.objects:
                 bpy.data.objects.remove(bpy.data.objects[name])

@@ -32,8 +32,8 @@ SESSION_TIMEOUT_S = int(os.environ.get("IGS_GUI_TIMEOUT", "3000"))
 DISPLAY = ":91"
 
 STEPS = ["splash", "install", "preferences", "create_backend_env", "check_backend", "close_preferences",
-         "import_synthetic", "decompose", "load_layers", "look_through", "ctrl_b_rectangle", "fit_plane",
-         "colour_and_bake", "render_turntable"]
+         "capture_model_priors", "import_synthetic", "decompose", "load_layers", "look_through",
+         "ctrl_b_rectangle", "fit_plane", "colour_and_bake", "render_turntable"]
 
 
 def _why_not() -> str | None:
