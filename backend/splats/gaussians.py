@@ -32,12 +32,9 @@ import torch
 from torch import nn
 
 from backend.render.projection import EPS2D
+from igs_contract.layer_ply import C0, FILTER, KINDS, SH_KINDS  # the layer kinds and the PLY's SH constant
 
-KINDS = ("albedo", "shading", "residual", "radiance")
-SH_KINDS = ("residual", "radiance")
-C0 = 0.28209479177387814  # SH band-0 constant: rgb = C0 * f_dc + 0.5
 GEOMETRY = ("means", "quats", "log_scales", "opacity_logits")
-FILTER = "eps2d"
 
 
 def sh_coeffs(degree: int) -> int:
