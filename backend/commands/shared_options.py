@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from backend.commands import options as opt
 from backend.commands.config_args import Option
+from backend.train.device import DEVICE_HELP
 
 
 def backend(*fields: str, detail: bool = False) -> Option:
@@ -14,9 +15,7 @@ def backend(*fields: str, detail: bool = False) -> Option:
 
 def device(*fields: str) -> Option:
     """``--device`` of the commands that optimise Gaussians."""
-    return Option("--device", fields or "device",
-                  "where to optimise: auto (default: CUDA when a GPU and gsplat are there, else cpu), cpu, cuda or "
-                  "cuda:N")
+    return Option("--device", fields or "device", DEVICE_HELP)
 
 
 def seed(*fields: str) -> Option:

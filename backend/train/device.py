@@ -45,8 +45,10 @@ def describe(device: torch.device) -> str:
     return "cpu"
 
 
+DEVICE_HELP = "where to optimise: auto (default: CUDA when a GPU and gsplat are there, else cpu), cpu, cuda or cuda:N"
+"""The help of ``--device`` wherever Gaussians are optimised (the commands and the benchmarks)."""
+
+
 def add_device_argument(parser) -> None:
-    """``--device`` for the commands that optimise Gaussians."""
-    parser.add_argument("--device", default="auto",
-                        help="where to optimise: auto (default: CUDA when a GPU and gsplat are there, else cpu), "
-                             "cpu, cuda or cuda:N")
+    """``--device`` for the benchmarks that optimise Gaussians (argparse directly)."""
+    parser.add_argument("--device", default="auto", help=DEVICE_HELP)
