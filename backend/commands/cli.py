@@ -41,6 +41,7 @@ COMMAND_MODULES: list[str] = [
     "backend.commands.decompose",
     "backend.commands.edit",
     "backend.commands.render",
+    "backend.commands.distil",
 ]
 
 
