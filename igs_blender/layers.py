@@ -10,6 +10,7 @@ radius, every Gaussian parameter as a named point attribute:
 - ``rotation``  QUATERNION   unit wxyz rotation
 - ``f_dc``      FLOAT_VECTOR DC colour coefficients as stored
 - ``f_rest_NN`` FLOAT_VECTOR higher SH coefficient NN (1..15) for R, G, B (SH layers only)
+- ``eps2d``     FLOAT        per-Gaussian screen-space low-pass in pixels^2 (only a baked edit's layer has it)
 - ``igs_index`` INT          row of the Gaussian in its PLY (a density-limited proxy keeps a subset)
 
 so a proxy round-trips to the same PLY (:func:`layer_from_object`). The "composite" proxy is a
@@ -27,7 +28,7 @@ import numpy as np
 
 from . import compat, scene_objects
 from .errors import UserError
-from .ply_io import SplatLayer, read_splat_ply
+from .ply_io import FILTER, SplatLayer, read_splat_ply
 
 LAYER_KINDS = ("albedo", "shading", "residual", "radiance")
 COLLECTION = "IGS Layers"
@@ -154,6 +155,8 @@ def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, rad
     _set_attr(pc, "f_dc", "FLOAT_VECTOR", sub.f_dc, "vector")
     for k in range(sub.f_rest.shape[1]):
         _set_attr(pc, f"f_rest_{k + 1:02d}", "FLOAT_VECTOR", sub.f_rest[:, k], "vector")
+    if sub.eps2d is not None:
+        _set_attr(pc, FILTER, "FLOAT", sub.eps2d, "value")
     _set_attr(pc, "igs_index", "INT", idx.astype(np.int32), "value")
     pc.materials.clear()
     pc.materials.append(splat_material())
@@ -194,10 +197,11 @@ def layer_from_object(obj: bpy.types.Object) -> SplatLayer:
     f_rest = np.zeros((n, k1, 3), dtype=np.float32)
     for k in range(k1):
         f_rest[:, k] = _get_attr(pc, f"f_rest_{k + 1:02d}", 3, "vector")
+    eps2d = _get_attr(pc, FILTER, 1, "value") if pc.attributes.get(FILTER) is not None else None
     return SplatLayer(str(obj["igs_layer"]), means, f_dc, f_rest,
                       np.log(opac / (1 - opac)).astype(np.float32), np.log(np.maximum(scales, 1e-30)).astype(np.float32),
                       quats, encoding=str(obj.get("igs_color", "sh")), space=str(obj.get("igs_space", "linear")),
-                      comments=json.loads(obj.get("igs_comments", "[]")))
+                      comments=json.loads(obj.get("igs_comments", "[]")), eps2d=eps2d)
 
 
 def _voxel_mean(points: np.ndarray, values: np.ndarray, weights: np.ndarray, query: np.ndarray,

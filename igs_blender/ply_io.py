@@ -1,23 +1,26 @@
 """Gaussian-splat PLY files read and written with numpy only (Blender's Python has no plyfile).
 
 The layout, its header comments and its validation are the contract's (``igs_contract.layer_ply``,
-shared with the backend); this module reads and writes the binary little-endian files the backend
-writes and turns them into :class:`SplatLayer` arrays. Every encoding shows as ``0.5 + C0 * f_dc``
-(the DC colour a standard viewer shows). A file without the igs comments comes from another 3DGS
-tool: a radiance layer in sRGB.
+shared with the backend), and so is the reader (``igs_contract.ply_data.read_layer``: binary little-
+or big-endian, ASCII, and PlayCanvas compressed PLYs). This module turns what it reads into
+:class:`SplatLayer` arrays and writes them back as the binary little-endian layer PLY the backend
+writes. Every encoding shows as ``0.5 + C0 * f_dc`` (the DC colour a standard viewer shows). A file
+without the igs comments comes from another 3DGS tool: its identity is its sidecar manifest's
+(:func:`sidecar_identity`) or the user's; read alone, it is a radiance layer in sRGB.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..igs_contract import layer_ply, layer_values, ply_header
+from ..igs_contract import layer_ply, layer_values, ply_data
 from ..igs_contract.errors import ContractError
-from ..igs_contract.layer_ply import C0, REST_TO_DEGREE
+from ..igs_contract.layer_ply import C0, ENCODINGS, FILTER, KINDS, REST_TO_DEGREE, SH_KINDS, SPACES
 from .errors import UserError
 
 
@@ -45,6 +48,8 @@ class SplatLayer:
     """Colour space of the values, ``linear`` or ``srgb``."""
     comments: list[str] = field(default_factory=list)
     """Other header comments, kept for round trips."""
+    eps2d: np.ndarray | None = None
+    """(N,) float32 per-Gaussian screen-space low-pass (pixels^2) of an edit's sharp Gaussians, or None."""
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -81,7 +86,8 @@ class SplatLayer:
         """The Gaussians at ``index`` (int array or bool mask)."""
         return SplatLayer(self.kind, self.means[index], self.f_dc[index], self.f_rest[index],
                           self.opacity_logits[index], self.log_scales[index], self.quats[index],
-                          self.encoding, self.space, list(self.comments))
+                          self.encoding, self.space, list(self.comments),
+                          None if self.eps2d is None else self.eps2d[index])
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -95,29 +101,61 @@ def read_splat_ply(path: str | os.PathLike) -> SplatLayer:
     if not path.is_file():
         raise UserError(f"{path}: PLY file not found")
     try:
-        header = ply_header.read_header(path)
-        if header.format != "binary_little_endian":  # read with numpy as it lies on disk
-            raise ContractError(f"{path}: PLY format is '{header.format}'; only binary_little_endian Gaussian splat "
-                                "files are supported (the 3DGS layout)")
-        layout = layer_ply.check_layout(path, header)
-        ply_header.check_data_size(path, header)
-        offset = ply_header.element_offset(path, header, "vertex")
-        dtype = np.dtype([(p.name, "<" + ply_header.TYPES[p.type]) for p in header.element("vertex").properties])
-        data = np.fromfile(path, dtype=dtype, count=layout.count, offset=offset)
-        arrays = layer_values.layer_arrays(path, data, layout)
+        read = ply_data.read_layer(path)
     except ContractError as e:
         raise UserError(str(e)) from None
-    keep = [c for c in header.comments if (c.split() or [""])[0] not in layer_ply.COMMENT_KEYS]  # for round trips
+    except OSError as e:
+        raise UserError(f"{path}: unreadable PLY ({e.strerror or e})") from None
+    layout, arrays = read.layout, read.arrays
+    keep = [c for c in read.comments if (c.split() or [""])[0] not in layer_ply.COMMENT_KEYS]  # for round trips
     return SplatLayer(layout.kind, arrays["means"], arrays["f_dc"], layer_values.coefficient_major(arrays["f_rest"]).copy(),
                       arrays["opacity"], arrays["scales"], arrays["rot"], encoding=layout.encoding, space=layout.space,
-                      comments=keep)
+                      comments=keep, eps2d=arrays.get(FILTER))
+
+
+def with_identity(layer: SplatLayer, kind: str, space: str) -> SplatLayer:
+    """``layer`` as a ``kind`` layer in colour ``space`` (the identity of a file that records none).
+
+    A plain-RGB kind keeps only the DC colour, as the backend reads such a file, so that the layer
+    written back is one the backend reads as that kind.
+    """
+    if kind not in KINDS or space not in SPACES:
+        raise UserError(f"unknown layer identity '{kind}' / '{space}' (kinds: {', '.join(KINDS)}; "
+                        f"spaces: {', '.join(SPACES)})")
+    f_rest = layer.f_rest if kind in SH_KINDS else layer.f_rest[:, :0]
+    return SplatLayer(kind, layer.means, layer.f_dc, f_rest, layer.opacity_logits, layer.log_scales, layer.quats,
+                      encoding=ENCODINGS[kind], space=space, comments=list(layer.comments), eps2d=layer.eps2d)
+
+
+MANIFEST_SUFFIX = ".igs.json"
+"""``<file>.igs.json`` beside a splat file that records no identity itself: its layer kind and colour space."""
+
+
+def sidecar_identity(path: str | os.PathLike) -> tuple[str, str] | None:
+    """(kind, space) the sidecar manifest of ``path`` records, or None without one.
+
+    A manifest that is there but unreadable or names an unknown kind or space is a UserError naming it.
+    """
+    manifest = Path(str(path) + MANIFEST_SUFFIX)
+    if not manifest.is_file():
+        return None
+    try:
+        data = json.loads(manifest.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise UserError(f"{manifest}: unreadable manifest ({e})") from None
+    kind = data.get("kind") if isinstance(data, dict) else None
+    space = data.get("space") if isinstance(data, dict) else None
+    if kind not in KINDS or space not in SPACES:
+        raise UserError(f"{manifest}: expected 'kind' (one of {', '.join(KINDS)}) and 'space' "
+                        f"({', '.join(SPACES)}); found {kind!r} and {space!r}")
+    return kind, space
 
 
 def write_splat_ply(path: str | os.PathLike, layer: SplatLayer) -> Path:
     """Write ``layer`` in the standard 3DGS layout (binary little-endian), atomically."""
     path = Path(path)
     n = len(layer)
-    names = layer_ply.property_names(3 * layer.f_rest.shape[1])
+    names = layer_ply.property_names(3 * layer.f_rest.shape[1]) + ([FILTER] if layer.eps2d is not None else [])
     rec = np.zeros(n, dtype=[(name, "<f4") for name in names])
     columns = {"means": layer.means, "f_dc": layer.f_dc, "opacity": layer.opacity_logits[:, None],
                "scales": layer.log_scales, "rot": layer.quats}
@@ -126,6 +164,8 @@ def write_splat_ply(path: str | os.PathLike, layer: SplatLayer) -> Path:
             rec[name] = columns[group][:, i]
     for i, values in enumerate(layer_values.channel_major(layer.f_rest).T):
         rec[f"f_rest_{i}"] = values
+    if layer.eps2d is not None:
+        rec[FILTER] = layer.eps2d
     comments = layer_ply.header_comments(layer.kind, layer.encoding, layer.space, layer.sh_degree) + layer.comments
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")

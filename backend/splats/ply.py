@@ -4,8 +4,9 @@ The layout (properties, SH coefficient counts, the ``igs_*`` header comments, co
 its validation are :mod:`igs_contract.layer_ply`'s, shared with the Blender add-on. This module
 turns a GaussianSet's parameters into those columns and back: ``rgb01`` (albedo) stores
 ``f_dc = (sigmoid(raw) - 0.5) / C0``, ``rgb`` (shading) the same mapping of the raw colour, ``sh``
-(residual, radiance) the SH coefficients. Data is read with plyfile, so ASCII and big-endian files
-of other tools read too.
+(residual, radiance) the SH coefficients. Files are read with the contract's numpy reader
+(:func:`igs_contract.ply_data.read_layer`, the add-on's too): binary little- or big-endian, ASCII, and
+PlayCanvas compressed PLYs.
 """
 
 from __future__ import annotations
@@ -15,12 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from plyfile import PlyData
 
 from backend.core.atomic_io import write_bytes
 from backend.core.errors import IGSError
 from backend.splats.gaussians import FILTER, SH_KINDS, GaussianSet
-from igs_contract import layer_ply, layer_values, ply_header
+from igs_contract import layer_ply, layer_values, ply_data, ply_header
 from igs_contract.errors import ContractError
 from igs_contract.layer_ply import C0, ENCODINGS, SPACES
 
@@ -77,15 +77,13 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
     if not path.exists():
         raise IGSError(f"{path}: PLY file not found")
     try:
-        header = ply_header.read_header(path)
-        layout = layer_ply.check_layout(path, header, kind)
-        ply_header.check_data_size(path, header)
-        arrays = layer_values.layer_arrays(path, _vertex_data(path), layout)
+        read = ply_data.read_layer(path, kind)
     except ContractError as e:
         raise IGSError(str(e)) from None
     except OSError as e:
         raise IGSError(f"{path}: unreadable PLY ({e.strerror or e})") from e
 
+    layout, arrays = read.layout, read.arrays
     sh_degree = layout.sh_degree
     f_dc = torch.from_numpy(arrays["f_dc"])
     tensors = {"means": torch.from_numpy(arrays["means"]), "quats": torch.from_numpy(arrays["rot"]),
@@ -106,17 +104,6 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
             tensors["colors"] = c
     g = GaussianSet(layout.kind, tensors, sh_degree=sh_degree)
     return g, LayerFile(kind=layout.kind, encoding=layout.encoding, space=layout.space, foreign=layout.foreign)
-
-
-def _vertex_data(path: Path) -> np.ndarray:
-    """The vertex element as a structured array, read with plyfile (any PLY format)."""
-    try:
-        with open(path, "rb") as f:
-            # Memory-mapped: plyfile's non-mmap binary reader parses one value at a time (6 s for 250k
-            # Gaussians against 0.1 s). The copy releases the map, so the file can be replaced at once.
-            return np.array(PlyData.read(f, mmap="r")["vertex"].data)
-    except Exception as e:  # plyfile raises several types for truncated/garbled files
-        raise ContractError(f"{path}: unreadable PLY ({type(e).__name__}: {e}); the file may be truncated") from e
 
 
 def ply_header_comments(path: str | Path) -> list[str]:
