@@ -35,9 +35,10 @@ import torch
 from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.atomic_io import write_json
+from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
-from backend.core.workspace import Workspace, split_frames
+from backend.core.workspace import Capture, Workspace, split_frames
 from backend.render import Backend, render
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
@@ -153,6 +154,28 @@ def initial_student(albedo: GaussianSet, views: list[View], cfg: DistilConfig, b
                                       p["quats"].detach()[rows], sh_degree=cfg.sh_degree)
 
 
+def distil_cameras(capture: Capture, cfg: DistilConfig) -> tuple[list[Camera], list[Camera], list[Camera],
+                                                                  list[Camera]]:
+    """(capture training cameras, jittered training cameras, capture held-out cameras, in-between
+    held-out cameras), at the run's ``downscale``."""
+    train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
+    if not train_frames:
+        raise IGSError(f"{capture.workspace.root}: no training views")
+    train_cams = [view_camera(f.camera, cfg.downscale) for f in train_frames]
+    jitter_cams = jittered_cameras(train_cams, cfg.jitter_views, cfg.jitter, cfg.jitter_degrees, cfg.train.seed)
+    held_cams = [view_camera(f.camera, cfg.downscale) for f in test_frames]
+    between = between_cameras([view_camera(f.camera, cfg.downscale) for f in capture.frames], cfg.between_views)
+    return train_cams, jitter_cams, held_cams, between
+
+
+def init_view_rows(n_train: int, init_views: int) -> list[int]:
+    """Which of the ``n_train`` capture training views colour the initial student: ``init_views``
+    of them spread along the capture (all when 0 or more than there are)."""
+    if init_views <= 0 or init_views >= n_train:
+        return list(range(n_train))
+    return sorted(set(np.linspace(0, n_train - 1, init_views).round().astype(int).tolist()))
+
+
 def _fingerprint(paths: dict[str, Path]) -> dict[str, Any]:
     """What identifies the layer files a checkpoint was distilled from (a re-bake changes it)."""
     out = {}
@@ -229,11 +252,7 @@ def distil(workspace: str | Path, cfg: DistilConfig | None = None, out: str | Pa
         return done
 
     layers = {k: read_ply(p, kind=k)[0].to(device) for k, p in paths.items()}
-    train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
-    train_cams = [view_camera(f.camera, cfg.downscale) for f in train_frames]
-    jitter_cams = jittered_cameras(train_cams, cfg.jitter_views, cfg.jitter, cfg.jitter_degrees, cfg.train.seed)
-    held_cams = [view_camera(f.camera, cfg.downscale) for f in test_frames]
-    between = between_cameras([view_camera(f.camera, cfg.downscale) for f in capture.frames], cfg.between_views)
+    train_cams, jitter_cams, held_cams, between = distil_cameras(capture, cfg)
     t0 = time.perf_counter()
     train_images = teacher_images(layers, train_cams + jitter_cams, backend, "training views")
     test_images = teacher_images(layers, held_cams + between, backend, "held-out views")
@@ -248,8 +267,7 @@ def distil(workspace: str | Path, cfg: DistilConfig | None = None, out: str | Pa
         student = GaussianSet.empty("radiance", cfg.sh_degree)
         init = (state or {}).get("init", {})
     else:
-        step = max(1, len(train_cams) // cfg.init_views) if cfg.init_views else 1
-        init_views = [v.to_(device) for v in train_views[: len(train_cams)][::step]]
+        init_views = [train_views[i].to_(device) for i in init_view_rows(len(train_cams), cfg.init_views)]
         student = initial_student(layers["albedo"], init_views, cfg, backend)
         init = {"from": str(paths["albedo"]), "albedo_gaussians": len(layers["albedo"]), "gaussians": len(student),
                 "coloured_from_views": len(init_views)}
