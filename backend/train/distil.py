@@ -54,7 +54,7 @@ STATE_NAME = "distil.json"  # beside the loop's folder: the inputs the checkpoin
 
 def default_train() -> TrainConfig:
     """The loop's settings for a distillation (CPU-sized; see docs/editing.md for the measurements)."""
-    return TrainConfig(iterations=2_000, densify=DensifyConfig(reset_every=0, max_gaussians=200_000))
+    return TrainConfig(iterations=1_000, densify=DensifyConfig(reset_every=0, max_gaussians=200_000))
 
 
 @dataclass
