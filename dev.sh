@@ -51,12 +51,25 @@ setup() {
   echo "$want" > "$stamp"
 }
 
+npm_tools() {
+  # PlayCanvas's splat-transform (pinned) for the interop tests, into $VENV/npm-tools, when npm exists;
+  # without it (or offline) those tests skip with one line.
+  local want=3.7.0 dir="$VENV/npm-tools"
+  command -v npm >/dev/null 2>&1 || return 0
+  [ "$(cat "$dir/.installed" 2>/dev/null)" = "$want" ] && return 0
+  if npm install --silent --no-audit --no-fund --prefix "$dir" "@playcanvas/splat-transform@$want" >/dev/null 2>&1; then
+    echo "$want" > "$dir/.installed"
+  else
+    echo "dev.sh: npm could not install @playcanvas/splat-transform@$want; the interop tests with it will skip" >&2
+  fi
+}
+
 cmd=${1:-}
 [ $# -gt 0 ] && shift
 case "$cmd" in
   setup) setup ;;
   demo)  setup; exec "$VENV/bin/igs" demo "$@" ;;
-  test)  setup; exec "$VENV/bin/python" -m pytest -q "$@" ;;
+  test)  setup; npm_tools; exec "$VENV/bin/python" -m pytest -q "$@" ;;
   test-blender)
     # The add-on in a real Blender 5.2 window (Debian's, in a cached sid root, under Xvfb): needs root.
     setup

@@ -42,6 +42,8 @@ COMMAND_MODULES: list[str] = [
     "backend.commands.edit",
     "backend.commands.render",
     "backend.commands.distil",
+    "backend.commands.export",
+    "backend.commands.convert",
 ]
 
 
