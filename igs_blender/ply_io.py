@@ -6,19 +6,19 @@ or big-endian, ASCII, and PlayCanvas compressed PLYs). This module turns what it
 :class:`SplatLayer` arrays and writes them back as the binary little-endian layer PLY the backend
 writes. Every encoding shows as ``0.5 + C0 * f_dc`` (the DC colour a standard viewer shows). A file
 without the igs comments comes from another 3DGS tool: its identity is its sidecar manifest's
-(:func:`sidecar_identity`) or the user's; read alone, it is a radiance layer in sRGB.
+(:func:`file_identity`) or the user's (:func:`with_identity`); read alone, it is a radiance layer
+in sRGB.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..igs_contract import layer_ply, layer_values, ply_data
+from ..igs_contract import layer_ply, layer_values, manifest, ply_data, ply_header
 from ..igs_contract.errors import ContractError
 from ..igs_contract.layer_ply import C0, ENCODINGS, FILTER, KINDS, REST_TO_DEGREE, SH_KINDS, SPACES
 from .errors import UserError
@@ -127,28 +127,47 @@ def with_identity(layer: SplatLayer, kind: str, space: str) -> SplatLayer:
                       encoding=ENCODINGS[kind], space=space, comments=list(layer.comments), eps2d=layer.eps2d)
 
 
-MANIFEST_SUFFIX = ".igs.json"
-"""``<file>.igs.json`` beside a splat file that records no identity itself: its layer kind and colour space."""
+PLY_SUFFIXES = (".ply",)
+"""Files the add-on reads itself (standard and compressed PLY); other splat formats go through ``igs convert``."""
 
 
-def sidecar_identity(path: str | os.PathLike) -> tuple[str, str] | None:
-    """(kind, space) the sidecar manifest of ``path`` records, or None without one.
+@dataclass(frozen=True)
+class Identity:
+    """What a splat file is, and what said so."""
 
-    A manifest that is there but unreadable or names an unknown kind or space is a UserError naming it.
-    """
-    manifest = Path(str(path) + MANIFEST_SUFFIX)
-    if not manifest.is_file():
-        return None
+    status: str
+    """``file`` (its igs header comments), ``manifest`` (a sidecar manifest of this exact content),
+    ``manifest-changed`` (a manifest of this name, but a tool rewrote the file since) or ``unknown``."""
+    kind: str | None = None
+    """Layer kind (None when unknown)."""
+    space: str | None = None
+    """Colour space (None when unknown)."""
+
+    @property
+    def known(self) -> bool:
+        return self.status != "unknown"
+
+
+def file_identity(path: str | os.PathLike) -> Identity:
+    """The layer identity of the splat file at ``path``: a PLY's own ``igs_*`` comments, else the
+    sidecar manifest beside it (``<file>.igs.json``, :func:`igs_contract.manifest.identify`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: file not found")
     try:
-        data = json.loads(manifest.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise UserError(f"{manifest}: unreadable manifest ({e})") from None
-    kind = data.get("kind") if isinstance(data, dict) else None
-    space = data.get("space") if isinstance(data, dict) else None
-    if kind not in KINDS or space not in SPACES:
-        raise UserError(f"{manifest}: expected 'kind' (one of {', '.join(KINDS)}) and 'space' "
-                        f"({', '.join(SPACES)}); found {kind!r} and {space!r}")
-    return kind, space
+        if path.suffix.lower() in PLY_SUFFIXES:
+            comments = ply_header.read_header(path).comments
+            kind = layer_ply.comment_value(comments, layer_ply.LAYER_COMMENT)
+            if kind is not None:
+                return Identity("file", kind, layer_ply.comment_value(comments, layer_ply.SPACE_COMMENT) or "linear")
+        found = manifest.identify(path)
+    except ContractError as e:
+        raise UserError(str(e)) from None
+    except OSError as e:
+        raise UserError(f"{path}: unreadable ({e.strerror or e})") from None
+    if found.manifest is None:
+        return Identity("unknown")
+    return Identity(found.status, found.manifest.kind, found.manifest.space)
 
 
 def write_splat_ply(path: str | os.PathLike, layer: SplatLayer) -> Path:
