@@ -242,7 +242,8 @@ class _ExportJob(BackendOperator):
 
     filepath: StringProperty(subtype="FILE_PATH", options={"SKIP_SAVE"})
     edit: StringProperty(name="Edit", default="", options={"SKIP_SAVE"},
-                         description="Export with this baked edit's albedo (empty: the layers as decomposed)")
+                         description="Export with this baked edit's albedo (empty: the layers as decomposed; "
+                         "Export for Viewers then writes the edited albedo layer)")
     browsed: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
 
     @classmethod
@@ -331,7 +332,8 @@ class IGS_OT_export_viewer(_ExportJob, bpy.types.Operator):
         clipped = data.get("clipped")
         if isinstance(clipped, int) and clipped > 0:
             self.finish_level = "WARNING"
-            msg += f"; {clipped:,} values were clipped to the format's range"
+            msg += (f"; {clipped:,} Gaussians had values outside what {self.format} stores and were clipped "
+                    "(the job log lists them)")
         return msg
 
 

@@ -270,16 +270,17 @@ def test_export_for_viewers_sends_the_choice_and_warns_about_clipping(scene, wor
     scene.igs.workspace = str(workspace)
     out = tmp_path / "out" / "wall.spz"
     out.parent.mkdir()
-    assert bpy.ops.igs.export_viewer(filepath=str(out), layer="shading", format="spz", edit="wall") == {"FINISHED"}
-    assert calls(stand_in)[-1] == ["export", str(workspace), "--layer", "shading", "--format", "spz",
+    assert bpy.ops.igs.export_viewer(filepath=str(out), layer="albedo", format="spz", edit="wall") == {"FINISHED"}
+    assert calls(stand_in)[-1] == ["export", str(workspace), "--layer", "albedo", "--format", "spz",
                                    "--edit", "wall", "--out", str(out)]
-    assert "Exported the shading layer with wall" in scene.igs.last_report and "clipped" not in scene.igs.last_report
+    assert "Exported the albedo layer with wall" in scene.igs.last_report and "clipped" not in scene.igs.last_report
     monkeypatch.setenv("IGS_STAND_IN_CLIPPED", "12")
     # the file ending follows the format
-    assert bpy.ops.igs.export_viewer(filepath=str(tmp_path / "out" / "a.ply"), format="compressed-ply") == {"FINISHED"}
+    assert bpy.ops.igs.export_viewer(filepath=str(tmp_path / "out" / "a.ply"), layer="shading",
+                                     format="compressed-ply") == {"FINISHED"}
     argv = calls(stand_in)[-1]
     assert argv[argv.index("--out") + 1] == str(tmp_path / "out" / "a.compressed.ply") and "--edit" not in argv
-    assert "12 values were clipped" in scene.igs.last_report
+    assert "12 Gaussians had values outside what compressed-ply stores" in scene.igs.last_report
     with pytest.raises(RuntimeError, match="edit name"):
         bpy.ops.igs.export_viewer(filepath=str(out), edit="../x")
 
@@ -313,3 +314,26 @@ def test_the_buttons_are_where_an_artist_looks(scene, workspace):
     assert {"igs.import_splat_file", "igs.export_viewer", "igs.export_distilled",
             "igs.export_layer"} <= set(operators_drawn("IGS_PT_layers"))
     assert {"igs.export_viewer", "igs.export_distilled"} <= set(operators_drawn("IGS_PT_edit"))
+
+
+def test_round_trip_through_the_real_backend_export_and_convert(scene, workspace, tmp_path):
+    """Export for Viewers writes an SPZ and its manifest with ``igs export``; Import Splat File brings it back
+    through ``igs convert`` as the albedo it was, without a question (the manifest names its content)."""
+    from test_blender_addon import need_command
+
+    need_command("export")
+    need_command("convert")
+    scene.igs.workspace = str(workspace)
+    out = tmp_path / "viewer" / "albedo.spz"
+    out.parent.mkdir()
+    assert bpy.ops.igs.export_viewer(filepath=str(out), layer="albedo", format="spz") == {"FINISHED"}
+    assert out.is_file() and manifest.manifest_path(out).is_file()
+    assert "200 Gaussians" in scene.igs.last_report
+    assert bpy.ops.igs.import_splat_file(filepath=str(out)) == {"FINISHED"}
+    obj = bpy.data.objects["IGS albedo.spz"]
+    assert obj["igs_layer"] == "albedo" and obj["igs_space"] == "linear" and len(obj.data.points) == 200
+    src, _ = read_ply(workspace / "layers" / "albedo.ply")
+    got = attr(obj, "position", 3, "vector")
+    order = np.argsort(got[:, 0])
+    want = src.means.detach().numpy()
+    np.testing.assert_allclose(got[order], want[np.argsort(want[:, 0])], atol=1e-3)  # SPZ's fixed-point centres
