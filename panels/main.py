@@ -182,6 +182,11 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
                 text = f"{label}: {shown:,}" + (f" of {total:,}" if total != shown else "")
                 col.prop_enum(props, "layer_display", kind, text=text)
         layout.operator("igs.export_layer", icon="EXPORT")
+        row = layout.row(align=True)  # other tools' splat files in, files for other viewers out
+        row.operator("igs.import_splat_file", text="Import File", icon="IMPORT")
+        row.operator("igs.export_viewer", text="For Viewers", icon="EXPORT").layer = \
+            props.layer_display if props.layer_display in ("albedo", "shading", "residual") else "albedo"
+        layout.operator("igs.export_distilled", text="Export Distilled A×S+R", icon="EXPORT")
         if compat.native_splat_display() is None:
             _lines(layout, "Shown as points (no native splats in this Blender)", icon="INFO")
 
@@ -245,6 +250,11 @@ class IGS_PT_edit(_SubPanel, bpy.types.Panel):
         paint.enabled = item is not None and item.proxy is not None
         paint.operator("igs.paint_proxy", icon="BRUSH_DATA")
         row.operator("igs.bake_edit", icon="RENDER_STILL")
+        row = layout.row(align=True)  # the baked edit for other viewers (always drawn: the panel keeps its height)
+        row.enabled = item is not None and item.baked
+        name = item.name if item is not None and item.baked else ""
+        row.operator("igs.export_viewer", text="Export Edit", icon="EXPORT").edit = name
+        row.operator("igs.export_distilled", text="Distilled", icon="EXPORT").edit = name
 
 
 class IGS_PT_render(_SubPanel, bpy.types.Panel):
