@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 import torch
 
+from backend.core import events
 from backend.core.errors import IGSError
 from backend.splats.formats_tools import splat_transform
 from backend.splats.gaussians import GaussianSet
@@ -37,6 +38,7 @@ Format = Literal["ply", "compressed-ply", "spz", "splat", "sog"]
 FORMATS: tuple[Format, ...] = ("ply", "compressed-ply", "spz", "splat", "sog")
 EXTENSIONS: dict[Format, str] = {"ply": ".ply", "compressed-ply": ".compressed.ply", "spz": ".spz",
                                  "splat": ".splat", "sog": ".sog"}
+OPACITY_LOGIT_MAX = 20.0  # sigmoid(20) = 1 - 2e-9: an opacity of 1 as a finite logit
 IdentitySource = Literal["file", "manifest", "manifest-changed", "unknown"]
 SPLAT_RECORD = np.dtype([("pos", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
 """One Gaussian of a ``.splat`` file: position, linear scales, RGBA colour and opacity, wxyz
@@ -160,9 +162,20 @@ def _comments(path: Path) -> list[str]:
 
 
 def _read_standard_ply(path: Path) -> tuple[SplatArrays, list[str]]:
-    """Any 3DGS PLY through our reader; a layer's colours come back as stored (``f_dc``)."""
+    """Any 3DGS PLY through our reader; a layer's colours come back as stored (``f_dc``).
+
+    splat-transform writes an opacity of exactly 1 (a byte of 255 in a compressed file) as an
+    infinite logit, which our reader refuses; such files are read with gsply and those logits set
+    to +-:data:`OPACITY_LOGIT_MAX`, with a warning.
+    """
     comments = _comments(path)
-    g, _ = read_ply(path)
+    try:
+        g, _ = read_ply(path)
+    except IGSError as e:
+        if "values in 'opacity'" not in str(e):
+            raise
+        arrays = _from_gsdata(path, _gsply("plyread", path), finite_opacity=True)
+        return arrays, comments
     return arrays_from_gaussians(g), comments
 
 
@@ -212,15 +225,23 @@ def _gsply(function: str, path: Path):
         raise IGSError(f"{path}: unreadable splat file ({type(e).__name__}: {e})") from None
 
 
-def _from_gsdata(path: Path, data) -> SplatArrays:
-    """gsply's GSData (PLY conventions: log scales, logit opacities, wxyz) as :class:`SplatArrays`."""
+def _from_gsdata(path: Path, data, finite_opacity: bool = False) -> SplatArrays:
+    """gsply's GSData (PLY conventions: log scales, logit opacities, wxyz) as :class:`SplatArrays`;
+    ``finite_opacity``: infinite opacity logits (opacity exactly 0 or 1) are clamped, with a warning."""
     n = len(data.means)
+    opacity = _f32(np.asarray(data.opacities).reshape(n))
+    if finite_opacity:
+        inf = np.isinf(opacity)
+        if inf.any():
+            events.log(f"warning: {path}: {int(inf.sum())} of {n} Gaussians have an infinite opacity logit "
+                       f"(opacity exactly 0 or 1); read as +-{OPACITY_LOGIT_MAX:g}")
+            opacity = np.where(inf, np.sign(opacity) * OPACITY_LOGIT_MAX, opacity).astype(np.float32)
     shn = data.shN if data.shN is not None and np.asarray(data.shN).size else np.zeros((n, 0, 3))
     shn = np.asarray(shn, dtype=np.float32).reshape(n, -1, 3)
     if shn.shape[1] + 1 not in (1, 4, 9, 16):
         raise IGSError(f"{path}: {shn.shape[1]} higher SH coefficients per channel; 0, 3, 8 or 15 are read")
     arrays = SplatArrays(_f32(data.means), _f32(data.scales), _f32(data.quats),
-                         _f32(np.asarray(data.opacities).reshape(n)), _f32(np.asarray(data.sh0).reshape(n, 3)), shn)
+                         opacity, _f32(np.asarray(data.sh0).reshape(n, 3)), shn)
     _check_finite(path, arrays)
     return arrays
 
