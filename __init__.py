@@ -21,9 +21,10 @@ def classes() -> tuple:
 def _on_load_pre(*_args) -> None:
     # A new file drops the modal operator that follows the job: stop the job cleanly (it keeps
     # its checkpoint) rather than leave an unwatched process behind.
-    from .igs_blender import jobs
+    from .igs_blender import jobs, splat_viewport
 
     jobs.request_cancel()
+    splat_viewport.VIEW.free()  # the GPU layers belong to the scene being closed
 
 
 def register() -> None:
@@ -31,7 +32,7 @@ def register() -> None:
 
     import bpy
 
-    from .igs_blender import jobs, props
+    from .igs_blender import jobs, props, splat_viewport
 
     atexit.unregister(jobs.stop_all)  # Blender quitting: do not leave a backend process behind
     atexit.register(jobs.stop_all)
@@ -40,6 +41,7 @@ def register() -> None:
         if not getattr(cls, "is_registered", False):
             bpy.utils.register_class(cls)
     props.register_pointer()
+    splat_viewport.register()
     if _on_load_pre not in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.append(_on_load_pre)
 
@@ -49,9 +51,10 @@ def unregister() -> None:
 
     import bpy
 
-    from .igs_blender import jobs, props
+    from .igs_blender import jobs, props, splat_viewport
 
     jobs.stop_all()
+    splat_viewport.unregister()
     atexit.unregister(jobs.stop_all)
     if _on_load_pre in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.remove(_on_load_pre)

@@ -70,25 +70,6 @@ def quaternion_attribute_type() -> str:
     return "QUATERNION" if "QUATERNION" in items else "FLOAT_COLOR"
 
 
-def native_splat_display() -> str | None:
-    """How this Blender draws Gaussian splats from point-cloud attributes, or None when it cannot.
-
-    Native splat rendering of point clouds is announced for Blender 5.3 and does not exist in the
-    releases this add-on is tested on (up to 5.0.1), so the layers are drawn as spheres with their
-    colour and opacity. The Gaussian parameters are stored on the points as named attributes
-    (``scale``, ``rotation``, ``opacity``, ``f_dc``, ``f_rest_NN``) so that a Blender with native
-    splats can use them; this function is the one place to switch that on once its API is known.
-    """
-    if bpy.app.version < (5, 3, 0):
-        return None
-    # A release with native splats exposes a point-cloud draw/render setting for them; look for it
-    # by name instead of assuming an API that is not published yet.
-    for ident in bpy.types.PointCloud.bl_rna.properties.keys():
-        if "splat" in ident.lower() or "gaussian" in ident.lower():
-            return ident
-    return None
-
-
 def extension_user_dir(package: str, sub: str) -> str:
     """A user-writable folder for this extension (kept across upgrades); 4.2+ has an API for it."""
     return bpy.utils.extension_path_user(package, path=sub, create=True)

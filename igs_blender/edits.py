@@ -44,10 +44,27 @@ def _hide(obj, hidden: bool) -> None:
         obj.hide_render = hidden
 
 
+POINT_DISPLAY = "igs_point_display"
+"""Custom property keeping a layer point cloud's own display type while the splats are drawn."""
+
+
+def _point_display(obj, splats: bool) -> None:
+    """Under the viewport splats a point cloud shows as its bounds (still selectable); back after."""
+    if splats and POINT_DISPLAY not in obj:
+        obj[POINT_DISPLAY] = obj.display_type
+        obj.display_type = "BOUNDS"
+    elif not splats and POINT_DISPLAY in obj:
+        obj.display_type = obj[POINT_DISPLAY]
+        del obj[POINT_DISPLAY]
+
+
 def apply_visibility(_item=None) -> None:
     """Show one layer point cloud, the panel's ``layer_display`` (or the first loaded one), and each
-    visible edit's proxy. A visible baked edit's albedo replaces the original albedo when the albedo is shown."""
+    visible edit's proxy. A visible baked edit's albedo replaces the original albedo when the albedo is shown.
+    While the viewport draws splats, the point clouds show as their bounds."""
     props = bpy.context.scene.igs
+    for obj in [*layers.loaded_layers().values(), *(i.albedo for i in props.edits if i.albedo is not None)]:
+        _point_display(obj, props.splat_view)
     shown = layers.shown_kind(props.layer_display) or "albedo"  # only edits loaded: their albedo shows
     edited_shown = False
     for item in props.edits:

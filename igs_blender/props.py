@@ -33,6 +33,19 @@ def _layer_display(self, context):
     edits.apply_visibility()
 
 
+def _splat_view(self, context):
+    from . import edits, scene_objects
+
+    edits.apply_visibility()
+    scene_objects.tag_redraw(context)
+
+
+def _redraw(self, context):
+    from . import scene_objects
+
+    scene_objects.tag_redraw(context)
+
+
 class IGS_EditItem(bpy.types.PropertyGroup):
     """One edit: its proxy mesh and, once baked, its edited albedo layer."""
 
@@ -155,6 +168,17 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
                                 description="Display radius as a multiple of the Gaussian's footprint")
     build_composite: BoolProperty(name="Composite Preview", default=True,
                                   description="Also build an approximate A*S+R point cloud (the Render panel gives the exact one)")
+    splat_view: BoolProperty(
+        name="Splats in Viewport", default=False, update=_splat_view,
+        description="Draw the loaded layers as true Gaussian splats in the 3D views (perspective), the layer "
+                    "chosen below or the live A x S + R; the point clouds then show as their bounds")
+    splat_resolution: FloatProperty(
+        name="Resolution", default=1.0, min=0.1, max=1.0, subtype="FACTOR",
+        description="Draw the splats at this fraction of the viewport's resolution (lower: faster)")
+    splat_preview_edit: BoolProperty(
+        name="Preview Edit", default=True, update=_redraw,
+        description="Show the shown edit's proxy texture or colour on the albedo, under the captured shading, "
+                    "before baking (a baked edit shows its baked albedo)")
 
     # -- edit -----------------------------------------------------------------------------------
     edit_name: StringProperty(name="Edit Name", default="edit")

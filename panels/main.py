@@ -6,7 +6,7 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import compat, edits, layers, preferences, scene_objects
+from ..igs_blender import edits, layers, preferences, scene_objects, splat_viewport
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
@@ -181,14 +181,28 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
                 label = LAYER_LABELS[kind] + (f" + {', '.join(edited)}" if kind == "albedo" and edited else "")
                 text = f"{label}: {shown:,}" + (f" of {total:,}" if total != shown else "")
                 col.prop_enum(props, "layer_display", kind, text=text)
+        _splat_view(layout.box(), props)
         layout.operator("igs.export_layer", icon="EXPORT")
         row = layout.row(align=True)  # other tools' splat files in, files for other viewers out
         row.operator("igs.import_splat_file", text="Import File", icon="IMPORT")
         row.operator("igs.export_viewer", text="For Viewers", icon="EXPORT").layer = \
             props.layer_display if props.layer_display in ("albedo", "shading", "residual") else "albedo"
         layout.operator("igs.export_distilled", text="Export Distilled A×S+R", icon="EXPORT")
-        if compat.native_splat_display() is None:
-            _lines(layout, "Shown as points (no native splats in this Blender)", icon="INFO")
+
+
+def _splat_view(box, props) -> None:
+    """The viewport splats: on/off, resolution, edit preview and what the draw handler reports."""
+    box.prop(props, "splat_view", icon="SHADING_RENDERED")
+    if not props.splat_view:
+        return
+    col = box.column(align=True)
+    col.prop(props, "splat_resolution", slider=True)
+    col.prop(props, "splat_preview_edit")
+    view = splat_viewport.VIEW
+    if view.error:
+        _lines(box, view.error, icon="ERROR")
+    elif view.status:
+        _lines(box, view.status, icon="INFO")
 
 
 class IGS_UL_edits(bpy.types.UIList):
