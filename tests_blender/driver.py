@@ -298,6 +298,29 @@ def flow():
     yield 20.0  # Material Preview compiles EEVEE's shaders first (many seconds on llvmpipe)
     shot("09-layers")
 
+    # -- the layers as true splats in the viewport, and their agreement with the backend's render ----
+    with Step("splat_view") as s:
+        pr = props()
+        pr.layer_display = "composite"
+        pr.splat_view = True
+        force_redraw()
+        yield 1.0
+        sv = sys.modules[f"{MOD}.igs_blender.splat_viewport"]
+        s.data["status"], s.data["error"] = sv.VIEW.status, sv.VIEW.error
+        s.data["layers"] = {k: v.count for k, v in sv.VIEW.layers.items()}
+        s.data["point_display"] = {o.name: o.display_type for o in bpy.data.objects if o.type == "POINTCLOUD"}
+        assert not sv.VIEW.error, sv.VIEW.error
+        assert sorted(s.data["layers"]) == ["albedo", "residual", "shading"], s.data["layers"]
+        assert all(t == "BOUNDS" for t in s.data["point_display"].values()), s.data["point_display"]
+        bufs = sv.VIEW.buffers
+        s.data["coverage"] = float((bufs.read("albedo")[..., 3] > 0.5).mean())
+        assert s.data["coverage"] > 0.2, s.data["coverage"]
+    shot("09b-splats")
+    with Step("splat_agreement", soft=True) as s:
+        s.data.update(splat_agreement())
+        low = {k: v for k, v in s.data["psnr"].items() if not v >= 30.0}
+        assert not low, f"viewport vs igs render below 30 dB: {low}"
+
     # -- edit: look through the edit's camera, a real Ctrl+B rectangle, fit a plane, colour, bake ----
     edit = json.loads((Path(CONFIG["workspace"]) / "gt_edit" / CONFIG["edit"] / "edit.json").read_text())
     with Step("look_through") as s:
@@ -343,6 +366,25 @@ def flow():
         assert proxies, "no proxy object"
     yield 0.5
     shot("11-fitted")
+    with Step("edit_preview", soft=True) as s:
+        # The edit before any bake: the proxy's colour on the albedo, under the captured shading
+        pr = props()
+        pr.texture_mode = "COLOR"
+        pr.edit_color = (0.8, 0.1, 0.05)
+        with override():
+            bpy.ops.igs.set_proxy_color()
+        force_redraw()
+        yield 1.0
+        sv = sys.modules[f"{MOD}.igs_blender.splat_viewport"]
+        assert not sv.VIEW.error, sv.VIEW.error
+        s.data["proxy"] = getattr(sv.preview_proxy(pr), "name", None)
+        assert s.data["proxy"], "no proxy previewed"
+        bufs = sv.VIEW.buffers
+        depth = bufs.read("proxy_depth")
+        s.data["proxy_pixels"] = int((depth[..., 1] > 0.5).sum())
+        assert s.data["proxy_pixels"] > 100, s.data
+        s.data["status"] = sv.VIEW.status
+    shot("11b-edit-preview")
     with Step("colour_and_bake") as s:
         pr = props()
         pr.texture_mode = "COLOR"
@@ -378,6 +420,46 @@ def flow():
     shot("14-turntable")
     RESULTS["done"] = True
     save_results()
+
+
+def force_redraw() -> None:
+    """Draw the 3D view now (the splats draw in it), as the next event loop turn would."""
+    with override():
+        bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=1)
+
+
+def splat_agreement() -> dict:
+    """The engine's A, S, R and A*S+R of the first capture camera against ``igs render``'s PNGs."""
+    import numpy as np
+
+    import importlib
+
+    mods = {m: importlib.import_module(f"{MOD}.igs_blender.{m}")
+            for m in ("cameras", "splat_camera", "splat_agreement", "ply_io", "client", "backend_env")}
+    cameras, camera, agree = mods["cameras"], mods["splat_camera"], mods["splat_agreement"]
+    ply_io, client, env = mods["ply_io"], mods["client"], mods["backend_env"]
+    ws = Path(CONFIG["workspace"])
+    v = cameras.read_workspace_cameras(ws)[0]
+    view = camera.from_capture_view(v.R, v.t, v.fx, v.fy, v.cx, v.cy, v.width, v.height)
+    layers = {k: ply_io.read_splat_ply(ws / "layers" / f"{k}.ply") for k in ("albedo", "shading", "residual")}
+    t0 = time.time()
+    mine = agree.engine_images(view, layers)
+    engine_s = time.time() - t0
+    out = OUT.parent / "agreement"
+    out.mkdir(exist_ok=True)
+    cams = agree.render_cameras_json(out / "cameras.json", "view", view)
+    argv, environ = client.backend_command(prefs().backend_python, ["render", str(ws), "--cameras", str(cams),
+                                                                    "--out", str(out / "ref")], env.backend_root())
+    res = subprocess.run(argv, env=environ, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    psnr = {}
+    for name, img in mine.items():
+        ref = bpy.data.images.load(str(out / "ref" / name / "view.png"))
+        px = np.array(ref.pixels[:], dtype=np.float32).reshape(ref.size[1], ref.size[0], ref.channels)
+        bpy.data.images.remove(ref)
+        psnr[name] = round(agree.psnr(img, px[::-1, :, :3]), 2)
+    return {"psnr": psnr, "size": [view.width, view.height], "engine_s": round(engine_s, 3),
+            "counts": {k: len(layer.means) for k, layer in layers.items()}}
 
 
 def scroll_sidebar(clicks: int) -> None:

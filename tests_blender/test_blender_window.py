@@ -32,8 +32,8 @@ SESSION_TIMEOUT_S = int(os.environ.get("IGS_GUI_TIMEOUT", "3000"))
 DISPLAY = ":91"
 
 STEPS = ["splash", "install", "preferences", "create_backend_env", "check_backend", "close_preferences",
-         "capture_model_priors", "import_synthetic", "decompose", "load_layers", "look_through",
-         "ctrl_b_rectangle", "fit_plane", "colour_and_bake", "render_turntable"]
+         "capture_model_priors", "import_synthetic", "decompose", "load_layers", "splat_view", "splat_agreement",
+         "look_through", "ctrl_b_rectangle", "fit_plane", "edit_preview", "colour_and_bake", "render_turntable"]
 
 
 def _why_not() -> str | None:
@@ -182,6 +182,19 @@ def test_edit_rectangle_and_results(session):
     assert not s["fit_plane"]["border_after"], "the render border stays on after the fit"
     assert s["colour_and_bake"]["baked"]
     assert any(m.endswith(".mp4") for m in s["render_turntable"]["mp4s"])
+
+
+def test_viewport_splats_agree_with_the_backend_render(session):
+    """The engine's picture of a capture camera, read back, against `igs render` of the same camera."""
+    step = session["steps"]["splat_agreement"]
+    assert set(step["psnr"]) == {"A", "S", "R", "full"}, step
+    assert min(step["psnr"].values()) >= 30.0, step["psnr"]
+
+
+def test_edit_preview_shows_the_proxy_before_the_bake(session):
+    step = session["steps"]["edit_preview"]
+    assert step["proxy"].startswith("IGS proxy"), step
+    assert step["proxy_pixels"] > 100, step
 
 
 def test_screenshots_show_the_window(session):
