@@ -22,73 +22,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from blender_session import DISPLAY, REPO, ROOT_SCRIPT, Mounts, copy_sources, in_root, why_not
 
-REPO = Path(__file__).resolve().parents[1]
-ROOT_SCRIPT = REPO / "scripts" / "blender_root.sh"
 ARTIFACTS = REPO / "artifacts" / "blender-window"
 RUN = "/root/igs-run"  # inside the root; wiped at every session
 ENV_DIR = "/opt/igs-backend-venv"  # inside the root; kept between sessions (the CUDA torch is ~3 GB)
 SESSION_TIMEOUT_S = int(os.environ.get("IGS_GUI_TIMEOUT", "3000"))
-DISPLAY = ":91"
 
 STEPS = ["splash", "install", "preferences", "create_backend_env", "check_backend", "close_preferences",
          "capture_model_priors", "import_synthetic", "decompose", "load_layers", "splat_view", "splat_agreement",
          "look_through", "ctrl_b_rectangle", "fit_plane", "edit_preview", "colour_and_bake", "render_turntable"]
 
 
-def _why_not() -> str | None:
-    if os.name != "posix" or os.geteuid() != 0:
-        return "the real-window tests need root (debootstrap and chroot build Debian's Blender 5.2)"
-    if shutil.which("debootstrap") is None:
-        return "the real-window tests need debootstrap (apt-get install debootstrap)"
-    if shutil.which("chroot") is None:
-        return "the real-window tests need chroot"
-    return None
-
-
-def in_root(root: Path, script: str, timeout: float, env: dict | None = None) -> subprocess.CompletedProcess:
-    """Run a shell script inside the root with a clean environment."""
-    base = {"PATH": "/usr/sbin:/usr/bin:/sbin:/bin", "HOME": "/root", "LANG": "C.UTF-8",
-            "PIP_CERT": "/etc/igs-host-ca.pem", "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
-    argv = ["chroot", str(root), "/usr/bin/env", "-i", *(f"{k}={v}" for k, v in {**base, **(env or {})}.items()),
-            "/bin/sh", "-c", script]
-    return subprocess.run(argv, capture_output=True, text=True, timeout=timeout)
-
-
-class Mounts:
-    """/proc and a tmpfs /dev/shm inside the root, for as long as the session runs."""
-
-    def __init__(self, root: Path):
-        self.root, self.done = root, []
-
-    def __enter__(self):
-        for target, args in (("proc", ["-t", "proc", "proc"]), ("dev/shm", ["-t", "tmpfs", "tmpfs"])):
-            path = self.root / target
-            path.mkdir(parents=True, exist_ok=True)
-            if subprocess.run(["mountpoint", "-q", str(path)]).returncode != 0:
-                subprocess.run(["mount", *args, str(path)], check=True)
-                self.done.append(path)
-        return self
-
-    def __exit__(self, *exc):
-        for path in reversed(self.done):
-            subprocess.run(["umount", "-l", str(path)], check=False)
-
-
-def copy_sources(dst: Path) -> None:
-    """The files git would ship (tracked plus untracked-not-ignored), as the extension build sees them."""
-    names = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=REPO, check=True,
-                           capture_output=True).stdout.decode().split("\0")
-    for name in filter(None, names):
-        src = REPO / name
-        if src.is_file():
-            (dst / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dst / name)
-
-
 @pytest.fixture(scope="module")
 def root() -> Path:
-    why = _why_not()
+    why = why_not()
     if why:
         pytest.skip(why)
     res = subprocess.run([str(ROOT_SCRIPT)], capture_output=True, text=True, timeout=1800)
