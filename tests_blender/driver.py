@@ -430,9 +430,9 @@ def force_redraw() -> None:
 
 def splat_agreement() -> dict:
     """The engine's A, S, R and A*S+R of the first capture camera against ``igs render``'s PNGs."""
-    import numpy as np
-
     import importlib
+
+    import numpy as np
 
     mods = {m: importlib.import_module(f"{MOD}.igs_blender.{m}")
             for m in ("cameras", "splat_camera", "splat_agreement", "ply_io", "client", "backend_env")}
