@@ -11,7 +11,9 @@ For the layers as decomposed (the empty name) and each edit listed, in one run:
 Both are scored against the composite (sRGB-encoded, clipped to [0, 1]) on views no training used:
 the capture's held-out cameras, the cameras halfway between neighbouring capture cameras, and a
 turntable orbit inside the capture's camera path (``igs render --turntable``'s default orbit,
-``--orbit-frames`` cameras), as mean PSNR per view. Time: the distilled row is the command's wall
+``--orbit-frames`` cameras), as mean PSNR per view; for an edit of a synthetic capture with
+``gt_edit/<edit>/mask``, also the PSNR over the edit's pixels in the held-out capture views that see
+it (the region a whole-image PSNR dilutes). Time: the distilled row is the command's wall
 time; the baseline's is the time to colour it (the teacher renders it needs are counted apart).
 Prints a table and writes JSON (default ``<ws>/exports/bench_distil/bench_distil.json``).
 """
@@ -32,6 +34,7 @@ from backend.capture.load import load_capture
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.eval.bench_cli import error, write_result
+from backend.eval.edit_region import RegionPSNR, edit_views
 from backend.eval.render_views import capture_orbit, capture_up, turntable
 from backend.render import Backend, render
 from backend.render.threads import torch_threads
@@ -49,7 +52,7 @@ from backend.train.distil import (
 )
 from backend.train.distil_views import LAYER_KINDS, teacher_image, teacher_images
 from backend.train.image_metrics import psnr
-from backend.train.views import View
+from backend.train.views import View, view_camera
 
 GROUPS = ("capture", "in_between", "orbit")
 
@@ -72,6 +75,25 @@ def _scores(g: GaussianSet, groups: dict[str, tuple[list[Camera], list[torch.Ten
     res = {k: round(float(np.mean(v)), 3) for k, v in per.items() if v}
     res["all"] = round(float(np.mean([x for v in per.values() for x in v])), 3)
     return res
+
+
+def region_psnr(ws_root: Path, edit: str, students: dict[str, GaussianSet], layers: dict[str, GaussianSet],
+                cfg: DistilConfig, backend: Backend) -> dict[str, float]:
+    """PSNR of each student against the composite over the edit's mask in the held-out capture views
+    that see it (empty when the capture has no ``gt_edit/<edit>/mask``)."""
+    if not (ws_root / "gt_edit" / edit / "mask").is_dir():
+        return {}
+    acc = RegionPSNR()
+    for frame, mask in edit_views(ws_root, edit):
+        cam = view_camera(frame.camera, cfg.downscale)
+        if (cam.width, cam.height) != mask.shape[::-1]:
+            return {}  # a downscaled run: the masks are at the capture's size
+        target = teacher_image(layers, cam, backend).numpy()
+        for key, g in students.items():
+            with torch.no_grad():
+                img = render(**g.render_args(), camera=cam, backend=backend).color.clamp(0, 1).cpu().numpy()
+            acc.add(key, img, target, mask > 0.5)
+    return {k: round(v, 3) for k, v in acc.psnr().items()}
 
 
 def bench_one(ws_root: Path, edit: str | None, cfg: DistilConfig, orbit_frames: int, resume: bool,
@@ -105,27 +127,34 @@ def bench_one(ws_root: Path, edit: str | None, cfg: DistilConfig, orbit_frames: 
     write_ply(out_dir / f"{name}-baseline.ply", baseline.to("cpu"), space="srgb")
     distilled, _ = read_ply(summary["ply"], kind="radiance")
     by_group = {k: (groups[k], targets[k]) for k in GROUPS}
+    region = region_psnr(ws_root, edit, {"baseline": baseline, "distilled": distilled.to(device)}, layers, cfg,
+                         backend) if edit else {}
     common = {"edit": edit or "", "held_out_views": {k: len(v) for k, v in groups.items()},
               "held_out_teacher_seconds": round(held_seconds, 2)}
     return [
         {**common, "method": "baseline (albedo Gaussians coloured with A*S+R, no training)",
-         "psnr": _scores(baseline, by_group, backend, device), "count": len(baseline),
+         "psnr": _scores(baseline, by_group, backend, device) | _region(region, "baseline"), "count": len(baseline),
          "seconds": round(colour_seconds, 2), "teacher_seconds": round(teacher_seconds, 2),
          "ply": str(out_dir / f"{name}-baseline.ply")},
         {**common, "method": f"distilled ({summary['iterations']} iterations)",
-         "psnr": _scores(distilled, by_group, backend, device), "count": len(distilled),
+         "psnr": _scores(distilled, by_group, backend, device) | _region(region, "distilled"),
+         "count": len(distilled),
          "seconds": summary["seconds"], "train_seconds": summary["train_seconds"],
          "teacher_seconds": summary["teacher_seconds"], "init_seconds": summary["init_seconds"],
          "resumed_from": summary["resumed_from"], "command_psnr": summary["psnr"], "ply": summary["ply"]},
     ]
 
 
+def _region(region: dict[str, float], key: str) -> dict[str, float]:
+    return {"edit_region": region[key]} if key in region else {}
+
+
 def table(rows: list[dict[str, Any]]) -> str:
-    head = "| composite | method | capture held-out | in-between | orbit | all | Gaussians | seconds |"
-    lines = [head, "|" + "---|" * 8]
+    head = "| composite | method | capture held-out | in-between | orbit | all | edit region | Gaussians | seconds |"
+    lines = [head, "|" + "---|" * 9]
     for r in rows:
         p = r["psnr"]
-        cells = [r["edit"] or "layers", r["method"], *(f"{p[k]:.2f}" if k in p else "" for k in (*GROUPS, "all")),
+        cells = [r["edit"] or "layers", r["method"], *(f"{p[k]:.2f}" if k in p else "" for k in (*GROUPS, "all", "edit_region")),
                  f"{r['count']:,}", f"{r['seconds']:.0f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
