@@ -4,7 +4,9 @@ Formats (:data:`FORMATS`) and who reads them:
 
 - ``ply``: the standard 3DGS PLY (binary little/big-endian or ASCII), ours included:
   :func:`backend.splats.ply.read_ply` (plyfile).
-- ``compressed-ply``: PlayCanvas's chunked PLY (SuperSplat's default export): gsply.
+- ``compressed-ply``: PlayCanvas's chunked PLY (SuperSplat's default export): the contract's own
+  decoder (``igs_contract.compressed_ply``, through :func:`backend.splats.ply.read_ply`), the one the
+  add-on reads it with.
 - ``spz``: Niantic's SPZ (gzip v2/v3 and zstd v4 containers): gsply.
 - ``splat``: the 32-byte-per-Gaussian ``.splat`` of antimatter15's viewer; a fixed numpy record
   read here (its maintained Python reader, ply2splat, hands back one Python object per Gaussian).
@@ -30,7 +32,7 @@ from backend.core.errors import IGSError
 from backend.splats.formats_tools import splat_transform
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
-from igs_contract import layer_ply, manifest, ply_header
+from igs_contract import compressed_ply, layer_ply, manifest, ply_header
 from igs_contract.errors import ContractError
 from igs_contract.layer_ply import C0, SH_KINDS
 
@@ -106,7 +108,7 @@ def detect_format(path: Path) -> Format:
             header = ply_header.read_header(path)
         except ContractError as e:
             raise IGSError(str(e)) from None
-        return "compressed-ply" if header.element("chunk") is not None else "ply"
+        return "compressed-ply" if compressed_ply.is_compressed(header) else "ply"
     if head[:2] == b"PK":
         return "sog"
     name = path.name.lower()
@@ -125,11 +127,8 @@ def read_splat_file(path: str | Path, kind: str | None = None, space: str | None
     path = Path(path)
     fmt = detect_format(path)
     comments: list[str] = []
-    if fmt == "ply":
+    if fmt in ("ply", "compressed-ply"):
         arrays, comments = _read_standard_ply(path)
-    elif fmt == "compressed-ply":
-        arrays = _from_gsdata(path, _gsply("plyread", path))
-        comments = _comments(path)
     elif fmt == "spz":
         arrays = _from_gsdata(path, _gsply("read_spz", path))
     elif fmt == "splat":
