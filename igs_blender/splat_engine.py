@@ -34,6 +34,17 @@ def _texture(data: np.ndarray, fmt: str = "RGBA32F") -> gpu.types.GPUTexture:
     return gpu.types.GPUTexture((data.shape[1], data.shape[0]), format=fmt, data=buf)
 
 
+_BLACK_TEXTURE: gpu.types.GPUTexture | None = None
+
+
+def _black() -> gpu.types.GPUTexture:
+    """One 1x1 zero texture for the samplers a draw does not use (made once, not every frame)."""
+    global _BLACK_TEXTURE
+    if _BLACK_TEXTURE is None:
+        _BLACK_TEXTURE = _texture(_BLACK)
+    return _BLACK_TEXTURE
+
+
 def order_texture(order: np.ndarray) -> gpu.types.GPUTexture:
     """(N,) float32 indices -> a one-channel float texture TEXTURE_WIDTH wide."""
     rows = texture_rows(len(order))
@@ -64,7 +75,7 @@ class GpuLayer:
         self.sh_degree = packed.sh_degree
         self.means = packed.means
         self.geometry = _texture(packed.geometry)
-        self.sh = _texture(packed.sh) if packed.sh is not None else _texture(_BLACK)
+        self.sh = _texture(packed.sh) if packed.sh is not None else _black()
         self.batch = _batch(6 * self.count)
         self.order: gpu.types.GPUTexture | None = None
         self.order_view: PinholeView | None = None
@@ -130,10 +141,7 @@ def draw_proxy(proxy: ProxyMesh, view: PinholeView, feature: str) -> None:
     """Draw the proxy into the bound framebuffer (its own depth test): colour, or ``depth`` (z, 1)."""
     sh = splat_shaders.shader("proxy")
     sh.bind()
-    if proxy.image is not None:
-        sh.uniform_sampler("image", proxy.image)
-    else:
-        sh.uniform_sampler("image", _texture(_BLACK))
+    sh.uniform_sampler("image", proxy.image if proxy.image is not None else _black())
     sh.uniform_float("world_to_camera", cv_matrix(view.world_to_camera))
     sh.uniform_float("intrinsics", (view.fx, view.fy, view.cx, view.cy))
     sh.uniform_float("frame", (float(view.width), float(view.height), NEAR, PROXY_FAR))
