@@ -15,6 +15,7 @@ from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.intrinsic import config, initial, stages
 from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.initial import spawn_residual
+from backend.train.intrinsic.shading_priors import ShadingTerms
 from backend.train.intrinsic.stages import ShadingStage
 from backend.train.loop import TrainConfig, make_optimizer, train
 from backend.train.single_set import LayeredGaussians, SingleSetStage
@@ -40,7 +41,8 @@ def test_frozen_albedo_is_rendered_once_per_view_not_per_iteration(monkeypatch, 
     monkeypatch.setattr(stages, "render_layers", lambda *a, **k: calls.append(1) or real(*a, **k))
     cfg = TrainConfig(iterations=12, checkpoint_every=100, backend="cpu")
     shading = from_points(pts, np.ones_like(cols), "shading")
-    stage = ShadingStage("shading", shading, views[:3], views[3:], cfg, 2.0, albedo=albedo, lambda_gray=0.1,
+    stage = ShadingStage("shading", shading, views[:3], views[3:], cfg, 2.0, albedo=albedo,
+                         terms=ShadingTerms(gray=0.1, dark=0.1, texture=0.02),
                          color_space="linear")
     result = train(stage, tmp_path / "ckpt")
     assert len(calls) == 4  # 3 training + 1 held-out view, once each, for 12 iterations and 2 evaluations

@@ -37,6 +37,12 @@ OPTIONS = (
            f"λ_s of the mean-scale term (default {_D.albedo.lambda_scale}; 0 = off)", type=opt.WEIGHT, default=None),
     Option("--gray-weight", "lambda_gray",
            f"weight of the gray regulariser on shading colours (default {_D.lambda_gray}; 0 = off)", type=opt.WEIGHT),
+    Option("--dark-weight", "lambda_dark",
+           "weight of the term that ties the shading to its lit neighbourhood where the albedo is dark, "
+           f"and to 0 where there is none (default {_D.lambda_dark}; 0 = off)", type=opt.WEIGHT),
+    Option("--texture-weight", "lambda_texture",
+           "weight of the term that keeps albedo edges out of the shading "
+           f"(default {_D.lambda_texture}; 0 = off)", type=opt.WEIGHT),
     Option("--shading-geometry", "shading_geometry",
            "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
            "default) or 'points' (the SfM points, as in the paper)"),

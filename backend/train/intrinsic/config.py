@@ -8,6 +8,7 @@ from typing import Any, Literal, get_args
 from backend.core.errors import IGSError
 from backend.splats.init import InitConfig
 from backend.splats.strategy import DensifyConfig
+from backend.train.intrinsic.shading_priors import ShadingTerms
 from backend.train.loop import LearningRates, TrainConfig
 
 StageName = Literal["albedo", "shading", "residual"]
@@ -70,6 +71,15 @@ class DecomposeConfig:
     """Weight of the gray regulariser max(c) - min(c) on shading colours (paper eq. 6; the paper
     gives no value). 0.03 rather than 0.1: on the demo capture the full image gains ~0.06-0.1 dB and
     A*S ~0.5 dB for ~0.17 dB of shading PSNR (bench_decompose --gray-weight, README)."""
+    lambda_dark: float = 0.1
+    """Weight of the free-shading term: where the frozen albedo is darker than ``dark_level`` the
+    image says nothing about S, so S is tied to a push-pull fill of the lit neighbourhood's S, and
+    where no albedo is rendered, to 0 (:mod:`.shading_priors`). 0 = off."""
+    dark_level: float = 0.05
+    """Albedo luminance (linear) under which the shading counts as free (fully free at black)."""
+    lambda_texture: float = 0.02
+    """Weight of the texture-edge term: S's log gradient penalised where the albedo has an edge,
+    which keeps albedo texture out of the shading. 0 = off."""
     residual_sh_degree: int = 3
     """Highest SH degree of the residual (bands switched on progressively)."""
     spawn: SpawnConfig = field(default_factory=SpawnConfig)
@@ -92,6 +102,11 @@ class DecomposeConfig:
     """Held-out views shown in report.png."""
     device: str = "auto"
     """Where the stages train: auto (CUDA when gsplat is installed), cpu, cuda or cuda:N."""
+
+    def shading_terms(self) -> ShadingTerms:
+        """The shading stage's regulariser weights."""
+        return ShadingTerms(gray=self.lambda_gray, dark=self.lambda_dark, dark_level=self.dark_level,
+                            texture=self.lambda_texture)
 
     def stage(self, name: StageName) -> TrainConfig:
         """The training config of stage ``name``."""

@@ -49,7 +49,7 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
             raise IGSError(f"shading_geometry must be one of {', '.join(SHADING_GEOMETRIES)}, "
                            f"got {cfg.shading_geometry!r}")
         stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
-                             albedo=layers["albedo"], lambda_gray=cfg.lambda_gray, **common).to(setup.device)
+                             albedo=layers["albedo"], terms=cfg.shading_terms(), **common).to(setup.device)
         stage.prepare()  # the albedo cache feeds the ratio initialisation too
         if cfg.shading_geometry == "albedo":
             init, how = shading_from_albedo(layers["albedo"], train_views, cfg)

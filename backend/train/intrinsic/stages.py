@@ -16,6 +16,7 @@ from backend.core import events
 from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
+from backend.train.intrinsic.shading_priors import ShadingTerms, free_shading_loss, texture_edge_loss
 from backend.train.loop import Stage, TrainConfig, sum_terms
 from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
 from backend.train.views import View
@@ -50,7 +51,8 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
 
     ``frozen`` is [G_A] (caches ``A``) or [G_A, G_S] (caches ``AS`` = A * S, one fused pass), each
     (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) (spawning falls back on it
-    without a depth prior). Returns the seconds spent.
+    without a depth prior), its alpha as ``alpha_A`` (H, W) (where no albedo is rendered, the shading
+    stage holds S at 0). Returns the seconds spent.
     """
     key = "A" if len(frozen) == 1 else "AS"
     todo = [v for v in views if key not in v.extras]
@@ -64,17 +66,18 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
             albedo = outs[0].color
             v.extras[key] = (albedo if len(outs) == 1 else compose(albedo, outs[1].color)).contiguous()
             v.extras["depth_A"] = outs[0].depth
+            v.extras["alpha_A"] = outs[0].alpha
             bar.update(1)
     return time.perf_counter() - t0
 
 
 class ShadingStage(Stage):
-    """G_S with G_A frozen: ``I = A * S``, loss on the inverse domain + gray + depth + scale."""
+    """G_S with G_A frozen: ``I = A * S``, loss on the inverse domain + gray + dark + texture + depth + scale."""
 
-    def __init__(self, *args, albedo: GaussianSet, lambda_gray: float, **kw):
+    def __init__(self, *args, albedo: GaussianSet, terms: ShadingTerms, **kw):
         super().__init__(*args, **kw)
         self.albedo = albedo
-        self.lambda_gray = lambda_gray
+        self.terms = terms
         self.cache_seconds = 0.0
 
     def frozen_sets(self) -> list[GaussianSet]:
@@ -89,9 +92,15 @@ class ShadingStage(Stage):
 
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
         cfg = self.config
+        w = self.terms
         terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim)}
-        if self.lambda_gray > 0:
-            terms["gray"] = self.lambda_gray * gray_reg(self.gaussians.colors)
+        if w.gray > 0:
+            terms["gray"] = w.gray * gray_reg(self.gaussians.colors)
+        if w.dark > 0:
+            terms["dark"] = w.dark * free_shading_loss(out.color, view.extras["A"], view.extras["alpha_A"],
+                                                       w.dark_level)
+        if w.texture > 0:
+            terms["texture"] = w.texture * texture_edge_loss(out.color, view.extras["A"])
         if (d := depth_term(cfg, view, out)) is not None:
             terms["depth"] = d
         if cfg.lambda_scale > 0:
