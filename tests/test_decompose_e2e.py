@@ -16,6 +16,7 @@ import torch
 from _synth_capture import needs_synth_renderer
 
 from backend.commands.cli import main
+from backend.eval.layer_metrics import headline_metrics
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.stages import inverse_photometric
 from backend.train.loop import load_checkpoint
@@ -74,6 +75,13 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
         assert set(m["layers"][layer]) >= {"psnr", "ssim", "lpips"}
         assert 5.0 < m["layers"][layer]["psnr"] < 60.0
     assert m["layers"]["albedo"]["psnr"] > 15.0 and m["layers"]["full"]["psnr"] > 15.0
+    # the same metrics on the foreground (ground-truth albedo not black) and the shading's texture leakage
+    fg, leak = m["foreground"], m["leakage"]
+    assert 0.5 < fg["fraction"] <= 1.0 and fg["views"] == m["held_out_views"]
+    assert all(set(fg["layers"][k]) >= {"psnr", "ssim", "lpips"} for k in m["layers"])
+    assert -1.0 <= leak["shading"] <= 1.0 and -1.0 <= leak["gt_shading"] <= 1.0
+    flat = headline_metrics(m)
+    assert {"shading_psnr", "shading_psnr_fg", "full_psnr_fg", "leakage", "leakage_gt"} <= set(flat)
     assert m["decompose_seconds"] > 0 and all(st[s]["train_seconds"] > 0 for s in st)
     assert st["shading"]["cache_seconds"] > 0 and st["residual"]["cache_seconds"] > 0
 

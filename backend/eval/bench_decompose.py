@@ -12,6 +12,10 @@ Runs, in one process on one workspace (ratios hold on a shared machine, absolute
    ``backend.train.single_set``): the albedo target is judged against ``joint``, the stronger one,
    and a ``sequential`` run is reported beside it with its own line in the targets.
 
+Every layer is also scored on the foreground (the ``fg`` columns: the pixels whose ground-truth
+albedo is not black), and the shading's texture leakage is printed beside the ground-truth
+shading's (its floor); see ``backend.eval.foreground`` and ``backend.eval.leakage``.
+
 Every run starts fresh (no resume), with the same resolution, held-out views (every 8th), Gaussian
 budget per field and renderer backend. Training time is the optimisation loop's time; for the
 decomposition it also counts rendering the frozen layers into the per-view caches. Prints a table
@@ -36,6 +40,7 @@ from backend.core.errors import IGSError
 from backend.eval.baseline import record_train_3dgs
 from backend.eval.bench_cli import error, write_result
 from backend.eval.decomposition import evaluate_decomposition
+from backend.eval.foreground import FOREGROUND_ALBEDO_LUMINANCE
 from backend.render import BACKENDS, Backend
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
@@ -115,8 +120,10 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
     v_time = float(vanilla["train_seconds"])
 
     def method(s: dict[str, Any]) -> dict[str, Any]:
-        return {"layers": {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips", "psnr_inverse") if m in v}
-                           for k, v in s["layers"].items()},
+        return {"layers": _layer_numbers(s["layers"]),
+                "layers_foreground": _layer_numbers(s["foreground"]["layers"]) if s.get("foreground") else None,
+                "foreground_fraction": (s.get("foreground") or {}).get("fraction"),
+                "leakage": ({k: s["leakage"].get(k) for k in LEAKAGE_KEYS} if s.get("leakage") else None),
                 "gaussians": s["gaussians"], "train_seconds": s["train_seconds"],
                 "cache_seconds": s["cache_seconds"], "decompose_seconds": s["decompose_seconds"],
                 "time_vs_3dgs": round(s["decompose_seconds"] / max(v_time, 1e-9), 3),
@@ -138,6 +145,8 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
             "device": three["device"],
             "held_out_views": three["held_out_views"],
             "priors": three["priors"], "alignment": three["alignment"], "metric_space": three["metric_space"],
+            "foreground": (three.get("foreground") or {}).get("definition"),
+            "leakage": (three.get("leakage") or {}).get("definition"),
             "time": "optimisation loop seconds (+ frozen-layer caching for the decomposition), same process",
         },
         "vanilla_3dgs": {"full": {m: vanilla.get(m) for m in ("psnr", "ssim", "lpips")},
@@ -151,6 +160,14 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
     }
     result["targets"] = targets(result)
     return result
+
+
+LEAKAGE_KEYS = ("shading", "gt_shading", "shading_gain", "gt_shading_gain")
+
+
+def _layer_numbers(layers: dict[str, Any]) -> dict[str, Any]:
+    """{layer: {"psnr", "ssim", "lpips", ["psnr_inverse"]}} of a metrics entry's per-layer means."""
+    return {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips", "psnr_inverse") if m in v} for k, v in layers.items()}
 
 
 def targets(r: dict[str, Any]) -> dict[str, Any]:
@@ -183,15 +200,18 @@ def targets(r: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def table(r: dict[str, Any]) -> str:
-    def f(x: Any, p: int = 2) -> str:
-        return f"{x:.{p}f}" if isinstance(x, (int, float)) else str(x)
+def _fmt(x: Any, p: int = 2) -> str:
+    return f"{x:.{p}f}" if isinstance(x, (int, float)) else "n/a" if x is None else str(x)
 
-    lines = [f"{'method':<12} {'layer':<9} {'PSNR':>7} {'SSIM':>6} {'LPIPS':>6} {'Gaussians':>10} {'seconds':>8} "
-             f"{'x 3DGS':>6}"]
+
+def table(r: dict[str, Any]) -> str:
+    f = _fmt
+    lines = [f"{'method':<12} {'layer':<9} {'PSNR':>7} {'SSIM':>6} {'LPIPS':>6} {'PSNR fg':>7} {'SSIM fg':>7} "
+             f"{'LPIPS fg':>8} {'Gaussians':>10} {'seconds':>8} {'x 3DGS':>6}"]
     v = r["vanilla_3dgs"]
     lines.append(f"{'3DGS':<12} {'full':<9} {f(v['full']['psnr']):>7} {f(v['full']['ssim'], 3):>6} "
-                 f"{f(v['full']['lpips'], 3):>6} {v['gaussians']:>10} {f(v['train_seconds'], 0):>8} {'1.00':>6}")
+                 f"{f(v['full']['lpips'], 3):>6} {'':>7} {'':>7} {'':>8} {v['gaussians']:>10} "
+                 f"{f(v['train_seconds'], 0):>8} {'1.00':>6}")
     rows = [("three-set", "three_set"), ("single-set", "single_set")]
     if r.get("single_set_sequential") is not None:
         rows.append(("single-seq", "single_set_sequential"))
@@ -208,12 +228,15 @@ def table(r: dict[str, Any]) -> str:
             if layer not in m["layers"]:
                 continue
             x = m["layers"][layer]
+            fg = (m.get("layers_foreground") or {}).get(layer, {})
             count = m["gaussians"].get(layer, "") if name == "three-set" else (m["gaussians"]["total"] if first else "")
             secs = f(m["decompose_seconds"], 0) if first else ""
             ratio = f(m["time_vs_3dgs"]) if first else ""
             lines.append(f"{name if first else '':<12} {layer:<9} {f(x.get('psnr')):>7} {f(x.get('ssim'), 3):>6} "
-                         f"{f(x.get('lpips'), 3):>6} {count!s:>10} {secs:>8} {ratio:>6}")
+                         f"{f(x.get('lpips'), 3):>6} {f(fg.get('psnr', '')):>7} {f(fg.get('ssim', ''), 3):>7} "
+                         f"{f(fg.get('lpips', ''), 3):>8} {count!s:>10} {secs:>8} {ratio:>6}")
             first = False
+        lines.extend(_foreground_lines(m))
     for k, e in r["three_set"]["stages"].items():
         lines.append(f"  stage {k:<9} {e['iterations']} it, {e['gaussians']} Gaussians, {f(e['train_seconds'], 0)} s "
                      f"(+{f(e['cache_seconds'], 1)} s cache), {f(e['seconds_per_iteration'], 3)} s/it")
@@ -221,6 +244,21 @@ def table(r: dict[str, Any]) -> str:
                                          f"{'met' if v['met'] else 'NOT met' if v['met'] is False else 'n/a'}"
                                          for k, v in r["targets"].items()))
     return "\n".join(lines)
+
+
+def _foreground_lines(m: dict[str, Any]) -> list[str]:
+    """A method's foreground share and texture leakage, under its rows of the table (none without
+    ground truth)."""
+    out = []
+    if m.get("foreground_fraction") is not None:
+        out.append(f"{'':<12} fg: ground-truth albedo luminance > {FOREGROUND_ALBEDO_LUMINANCE}, "
+                   f"{100 * m['foreground_fraction']:.1f} % of the pixels")
+    leak = m.get("leakage")
+    if leak is not None:
+        out.append(f"{'':<12} texture leakage into S (corr., gain): {_fmt(leak.get('shading'), 3)}, "
+                   f"{_fmt(leak.get('shading_gain'), 3)}; ground-truth S (floor): {_fmt(leak.get('gt_shading'), 3)}, "
+                   f"{_fmt(leak.get('gt_shading_gain'), 3)}")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

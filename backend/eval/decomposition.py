@@ -36,8 +36,9 @@ def evaluate_decomposition(run: DecompositionRun) -> dict[str, Any]:
     report = None
     if setup.test_frames:
         picks = spread(setup.test_frames, cfg.report_views)
-        rows = report_rows(layers, picks, cfg.downscale, backend)
-        write_report(run.report_path, rows, title=f"{ws.root.name}: {run.mode} decomposition, held-out views")
+        rows = [(view_caption(ev, name), cells) for name, cells in report_rows(layers, picks, cfg.downscale, backend)]
+        title = f"{ws.root.name}: {run.mode} decomposition, held-out views\n{mean_caption(ev)}"
+        write_report(run.report_path, rows, title=title)
         report = str(run.report_path)
         events.output("report", run.report_path)
     train_s = sum(e.get("train_seconds", 0.0) for e in run.stages.values())
@@ -49,6 +50,8 @@ def evaluate_decomposition(run: DecompositionRun) -> dict[str, Any]:
         "metric_space": ev["metric_space"],
         "held_out_views": len(setup.test_frames),
         "per_view": ev["per_view"],
+        "foreground": ev["foreground"],
+        "leakage": ev["leakage"],
         "stages": run.stages,
         "gaussians": {**run.counts, "total": sum(run.counts.values())},
         "train_seconds": round(train_s, 2),
@@ -68,7 +71,54 @@ def evaluate_decomposition(run: DecompositionRun) -> dict[str, Any]:
     shown = ", ".join(f"{k} {v['psnr']:.2f} dB" for k, v in ev["layers"].items() if isinstance(v.get("psnr"), float))
     events.log(f"{run.mode}: held-out PSNR {shown or 'n/a'}; {summary['gaussians']['total']} Gaussians; "
                f"{summary['decompose_seconds']:.0f} s training + caching")
+    if ev["foreground"] is not None:
+        events.log(f"{run.mode}: {mean_caption(ev)}")
     return summary
+
+
+def _db(x: Any) -> str:
+    return f"{x:.1f}" if isinstance(x, (int, float)) else "n/a"
+
+
+def _psnr_pairs(whole: dict[str, Any], fg: dict[str, Any] | None) -> str:
+    """'A 31.2/32.0 S 13.1/33.0 ...': PSNR whole/foreground of each layer in ``whole`` ({layer: metrics})."""
+    names = {"albedo": "A", "shading": "S", "residual": "R", "diffuse": "A*S", "full": "full"}
+    parts = []
+    for layer, short in names.items():
+        if layer in whole:
+            pair = _db(whole[layer].get("psnr"))
+            if fg is not None:
+                pair += "/" + _db(fg.get(layer, {}).get("psnr"))
+            parts.append(f"{short} {pair}")
+    return " ".join(parts)
+
+
+def _leak(leak: dict[str, Any] | None) -> str:
+    if leak is None or leak.get("shading") is None:
+        return ""
+    gt = leak.get("gt_shading")
+    return f" | leakage S {leak['shading']:.2f}" + (f" (GT S {gt:.2f})" if gt is not None else "")
+
+
+def mean_caption(ev: dict[str, Any]) -> str:
+    """One line of held-out means: PSNR whole/foreground per layer, foreground share, leakage."""
+    fg = ev.get("foreground")
+    if fg is None:
+        return f"mean PSNR dB: {_psnr_pairs(ev['layers'], None)}"
+    return (f"mean PSNR dB whole/fg: {_psnr_pairs(ev['layers'], fg['layers'])} | fg {100 * fg['fraction']:.0f}%"
+            + _leak(ev.get("leakage")))
+
+
+def view_caption(ev: dict[str, Any], name: str) -> str:
+    """A report row's label: the view's name, PSNR whole/foreground per layer, foreground share, leakage."""
+    whole = ev["per_view"].get(name)
+    if whole is None:
+        return name
+    fg = (ev.get("foreground") or {}).get("per_view", {}).get(name)
+    if fg is None:
+        return f"{name}  PSNR dB: {_psnr_pairs(whole, None)}"
+    leak = (ev.get("leakage") or {}).get("per_view", {}).get(name)
+    return f"{name}  PSNR dB whole/fg: {_psnr_pairs(whole, fg)} | fg {100 * fg['fraction']:.0f}%" + _leak(leak)
 
 
 def _resolution(cam: Camera, downscale: float) -> list[int]:

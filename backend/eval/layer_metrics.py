@@ -13,6 +13,11 @@ papers report PSNR), so a shading above 1 counts as 1. With ground-truth albedo 
 compared as they are; with a predicted albedo there is a per-channel scale ambiguity between A and
 S, so A is scaled per channel by the least-squares fit to the ground truth (and S by the inverse,
 keeping A * S) before the comparison, and the scales are reported.
+
+With a ground-truth albedo every metric is also computed on the foreground (:mod:`backend.eval.foreground`:
+the pixels whose ground-truth albedo is not black; elsewhere the true shading is undefined), and the
+learned and the true shading get a texture-leakage score (:mod:`backend.eval.leakage`). Without one
+(real captures) both entries are None. :func:`headline_metrics` flattens the resulting entry.
 """
 
 from __future__ import annotations
@@ -25,6 +30,13 @@ import torch
 
 from backend.core.imageio import read_exr, read_image, srgb_to_linear
 from backend.core.workspace import Frame
+from backend.eval.foreground import (
+    FOREGROUND_ALBEDO_LUMINANCE,
+    foreground_mask,
+    masked_image_metrics,
+    masked_psnr,
+)
+from backend.eval.leakage import LEAKAGE_BLUR_SIGMA, LOG_EPSILON, view_leakage
 from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
@@ -36,6 +48,13 @@ from backend.train.views import resize_image, to_display, view_camera
 ORDER = ("albedo", "shading", "residual")
 METRIC_SPACE = ("sRGB-encoded, clipped to [0, 1] (shading above 1 counts as 1; psnr_inverse compares "
                 "1 / (1 + S) unclipped)")
+FOREGROUND = (f"pixels whose ground-truth albedo has linear luminance > {FOREGROUND_ALBEDO_LUMINANCE}; PSNR = MSE "
+              "over them, SSIM = the whole image's SSIM map averaged over them, LPIPS = each tap's distance "
+              "map averaged over them")
+LEAKAGE = (f"correlation over the foreground of the high frequencies (log-luminance minus its Gaussian blur, "
+           f"sigma {LEAKAGE_BLUR_SIGMA} px, over the foreground only) of a shading and of the ground-truth "
+           "albedo: 0 = no albedo texture in the shading, 1 = only it; gain = regression slope (the "
+           "exponent k of S ~ A^k); gt_shading = the same for the ground-truth shading (the floor)")
 
 
 def render_frame(layers: Mapping[str, GaussianSet], frame: Frame, downscale: float,
@@ -76,7 +95,9 @@ def channel_scale(pred: Sequence[torch.Tensor], target: Sequence[torch.Tensor]) 
 
 def evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
                     albedo_source: str, backend: Backend = "auto") -> dict[str, Any]:
-    """Per-layer metrics on ``frames`` (held-out views): means per layer, per view, and the alignment used.
+    """Per-layer metrics on ``frames`` (held-out views): {"layers": means per layer, "per_view",
+    "alignment", "metric_space", "foreground": the same on the foreground (None without a ground-truth
+    albedo), "leakage": texture leakage of the learned and the true shading (None without one)}.
 
     Torch runs on one thread meanwhile, as in training (:func:`backend.render.threads.torch_threads`)."""
     with torch_threads():
@@ -91,32 +112,67 @@ def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame],
         h, w = next(iter(r.values())).shape[:2]
         renders.append(r)
         gts.append(ground_truth(f, w, h))
-
-    alignment: dict[str, Any] = {"albedo": "none (ground-truth albedo: layers compared directly)"}
-    with_gt_albedo = [i for i, g in enumerate(gts) if "albedo" in g and "albedo" in renders[i]]
-    if albedo_source != "gt" and with_gt_albedo:
-        k = channel_scale([renders[i]["albedo"] for i in with_gt_albedo], [gts[i]["albedo"] for i in with_gt_albedo])
-        for r in renders:
-            if "albedo" in r:
-                r["albedo"] = r["albedo"] * k
-            if "shading" in r:
-                r["shading"] = r["shading"] / k.clamp_min(1e-6)
-        alignment = {"albedo": "per-channel least-squares scale of A to the ground truth (S divided by it, "
-                               "A * S unchanged)", "scale": [round(float(x), 5) for x in k]}
+    alignment = _align(renders, gts, albedo_source)
 
     per_view: dict[str, dict[str, Any]] = {}
+    fg_views: dict[str, dict[str, Any]] = {}
+    leak_views: dict[str, dict[str, Any]] = {}
     for f, r, g in zip(frames, renders, gts):
-        m: dict[str, Any] = {}
-        for layer in ORDER:
-            if layer in r and layer in g:
-                m[layer] = image_metrics(to_display(r[layer], "linear"), to_display(g[layer], "linear"))
-        if "shading" in m:
-            m["shading"]["psnr_inverse"] = psnr(1.0 / (1.0 + r["shading"].clamp_min(0)), 1.0 / (1.0 + g["shading"]))
-        for layer in ("diffuse", "full"):
-            if layer in r:
-                m[layer] = image_metrics(to_display(r[layer], "linear"), to_display(g["image"], "linear"))
-        per_view[f.name] = m
+        per_view[f.name] = _view_metrics(r, g)
+        if "albedo" not in g:
+            continue  # no ground-truth albedo: no foreground, no leakage
+        mask = foreground_mask(g["albedo"])
+        fg_views[f.name] = {"fraction": float(mask.float().mean()),
+                            **(_view_metrics(r, g, mask) if bool(mask.any()) else {})}
+        leak = view_leakage(r["shading"], g["albedo"], mask, g.get("shading")) if "shading" in r else None
+        if leak is not None:
+            leak_views[f.name] = leak
+    return {"layers": _layer_means(per_view), "alignment": alignment, "metric_space": METRIC_SPACE,
+            "per_view": per_view, "foreground": _foreground_summary(fg_views),
+            "leakage": _leakage_summary(leak_views)}
 
+
+def _align(renders: list[dict[str, torch.Tensor]], gts: Sequence[Mapping[str, torch.Tensor]],
+           albedo_source: str) -> dict[str, Any]:
+    """Scale a predicted albedo per channel to the ground truth (and the shading by the inverse), in
+    place in ``renders``; returns the alignment's description."""
+    with_gt_albedo = [i for i, g in enumerate(gts) if "albedo" in g and "albedo" in renders[i]]
+    if albedo_source == "gt" or not with_gt_albedo:
+        return {"albedo": "none (ground-truth albedo: layers compared directly)"}
+    k = channel_scale([renders[i]["albedo"] for i in with_gt_albedo], [gts[i]["albedo"] for i in with_gt_albedo])
+    for r in renders:
+        if "albedo" in r:
+            r["albedo"] = r["albedo"] * k
+        if "shading" in r:
+            r["shading"] = r["shading"] / k.clamp_min(1e-6)
+    return {"albedo": "per-channel least-squares scale of A to the ground truth (S divided by it, "
+                      "A * S unchanged)", "scale": [round(float(x), 5) for x in k]}
+
+
+def _view_metrics(r: Mapping[str, torch.Tensor], g: Mapping[str, torch.Tensor],
+                  mask: torch.Tensor | None = None) -> dict[str, Any]:
+    """{layer: {"psnr", "ssim", "lpips"}} of one view's renders ``r`` against its ground truth ``g``
+    (all (H, W, 3) linear), on the whole image or on the (H, W) bool ``mask``'s pixels; the
+    shading also gets "psnr_inverse" (1 / (1 + S), unclipped)."""
+    def score(pred: torch.Tensor, target: torch.Tensor) -> dict[str, Any]:
+        a, b = to_display(pred, "linear"), to_display(target, "linear")
+        return image_metrics(a, b) if mask is None else masked_image_metrics(a, b, mask)
+
+    m: dict[str, Any] = {}
+    for layer in ORDER:
+        if layer in r and layer in g:
+            m[layer] = score(r[layer], g[layer])
+    if "shading" in m:
+        inv, inv_gt = 1.0 / (1.0 + r["shading"].clamp_min(0)), 1.0 / (1.0 + g["shading"])
+        m["shading"]["psnr_inverse"] = psnr(inv, inv_gt) if mask is None else masked_psnr(inv, inv_gt, mask)
+    for layer in ("diffuse", "full"):
+        if layer in r:
+            m[layer] = score(r[layer], g["image"])
+    return m
+
+
+def _layer_means(per_view: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """{layer: {"psnr", "ssim", "lpips", ["psnr_inverse"], "views"}}: means over the views that have the layer."""
     means: dict[str, Any] = {}
     for layer in (*ORDER, "diffuse", "full"):
         vals = [m[layer] for m in per_view.values() if layer in m]
@@ -125,7 +181,60 @@ def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame],
             if layer == "shading":
                 means[layer]["psnr_inverse"] = float(np.mean([v["psnr_inverse"] for v in vals]))
             means[layer]["views"] = len(vals)
-    return {"layers": means, "alignment": alignment, "metric_space": METRIC_SPACE, "per_view": per_view}
+    return means
+
+
+def _foreground_summary(fg_views: Mapping[str, Mapping[str, Any]]) -> dict[str, Any] | None:
+    """The 'foreground' entry: definition, mean foreground fraction, per-layer means and the per-view
+    metrics; None when no view has a ground-truth albedo."""
+    if not fg_views:
+        return None
+    return {"definition": FOREGROUND, "albedo_luminance_threshold": FOREGROUND_ALBEDO_LUMINANCE,
+            "fraction": float(np.mean([v["fraction"] for v in fg_views.values()])), "views": len(fg_views),
+            "layers": _layer_means(fg_views), "per_view": dict(fg_views)}
+
+
+def _leakage_summary(leak_views: Mapping[str, Mapping[str, float | None]]) -> dict[str, Any] | None:
+    """The 'leakage' entry: definition, the means over the views (each over the views where it is
+    defined; None where none is) and the per-view scores; None when no view could be scored."""
+    if not leak_views:
+        return None
+
+    def mean(key: str) -> float | None:
+        vals = [v[key] for v in leak_views.values() if v.get(key) is not None]
+        return float(np.mean(vals)) if vals else None
+
+    return {"definition": LEAKAGE, "blur_sigma_px": LEAKAGE_BLUR_SIGMA, "log_epsilon": LOG_EPSILON,
+            **{k: mean(k) for k in ("shading", "shading_gain", "gt_shading", "gt_shading_gain")},
+            "views": len(leak_views), "per_view": dict(leak_views)}
+
+
+def headline_metrics(entry: Mapping[str, Any]) -> dict[str, float]:
+    """A decomposition's metrics.json entry (or :func:`evaluate_layers`'s result) -> flat numbers.
+
+    Keys, present only where the entry holds a number (never "n/a" or None):
+    ``{layer}_{psnr,ssim,lpips}`` on the whole image and ``{layer}_{psnr,ssim,lpips}_fg`` on the
+    foreground, for layer in albedo, shading, residual, diffuse (A*S), full (A*S+R);
+    ``shading_psnr_inverse[_fg]``; ``foreground_fraction``; ``leakage`` / ``leakage_gt`` (correlation
+    of the learned / ground-truth shading) and ``leakage_gain`` / ``leakage_gain_gt``.
+    """
+    out: dict[str, float] = {}
+
+    def put(key: str, value: Any) -> None:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            out[key] = float(value)
+
+    fg = entry.get("foreground") or {}
+    for suffix, layers in (("", entry.get("layers") or {}), ("_fg", fg.get("layers") or {})):
+        for layer, m in layers.items():
+            for metric in ("psnr", "ssim", "lpips", "psnr_inverse"):
+                put(f"{layer}_{metric}{suffix}", m.get(metric))
+    put("foreground_fraction", fg.get("fraction"))
+    leak = entry.get("leakage") or {}
+    for key, name in (("shading", "leakage"), ("gt_shading", "leakage_gt"), ("shading_gain", "leakage_gain"),
+                      ("gt_shading_gain", "leakage_gain_gt")):
+        put(name, leak.get(key))
+    return out
 
 
 def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,

@@ -36,8 +36,10 @@ def contact_sheet(rows: Sequence[Row], title: str = "", min_cell_width: int = 19
     """Rows of labelled cells -> one (H, W, 3) float image in [0, 1] (sRGB-encoded).
 
     rows: (row label, [(column label, image (h, w, 3) in [0, 1] or None), ...]); every row has the
-    columns of the first. Cells are enlarged to at least ``min_cell_width`` pixels wide (integer
-    factor) so that small captures stay readable; a missing image is an empty cell marked 'n/a'.
+    columns of the first. ``title`` may hold several lines ("\n"): the first is the heading, the
+    others (e.g. mean metrics) are drawn smaller under it. Cells are enlarged to at least
+    ``min_cell_width`` pixels wide (integer factor) so that small captures stay readable; a missing
+    image is an empty cell marked 'n/a'.
     """
     if not rows:
         raise ValueError("contact_sheet: no rows")
@@ -47,13 +49,14 @@ def contact_sheet(rows: Sequence[Row], title: str = "", min_cell_width: int = 19
     cw, ch = w * factor, h * factor
     cols = [label for label, _ in rows[0][1]]
     pad, head, side = 4, 22, 0
-    top = 26 if title else 0
+    titles = title.split("\n") if title else []
+    top = 26 + 16 * max(0, len(titles) - 1) if titles else 0
     sheet_w = side + len(cols) * (cw + pad) + pad
     sheet_h = top + head + len(rows) * (ch + pad + 16) + pad
     canvas = np.full((sheet_h, sheet_w, 3), _BG, dtype=np.float32)
     scale = 0.45
-    if title:
-        _text(canvas, title, pad, 18, 0.5)
+    for k, line in enumerate(titles):
+        _text(canvas, line, pad, 18 + 16 * k, 0.5 if k == 0 else 0.4)
     for j, label in enumerate(cols):
         _text(canvas, label, side + pad + j * (cw + pad), top + 16, scale)
     for i, (row_label, cells) in enumerate(rows):
