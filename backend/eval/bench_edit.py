@@ -1,7 +1,8 @@
 """Edit benchmark (issue 7 part 4, issue 10 part 4): ``python -m backend.eval.bench_edit <ws>``.
 
 Needs a synthetic workspace with ``gt_edit/<edit>/`` and a trained albedo layer ``<ws>/layers/albedo.ply``.
-For each edit: the proxy's geometry is fitted from ``edit.json``'s rectangle in its edit view
+For each edit (``--edits``; default: every ``gt_edit/*/edit.json``, sorted): the proxy's geometry is
+fitted from ``edit.json``'s rectangle in its edit view
 (``fit_plane_from_rect`` / ``fit_cylinder_from_rect`` on the albedo field's max-contributors); the
 decal's placement on that fitted surface (its centre, in-plane axes and physical size: width x height,
 or arc length x height on a cylinder, so a cylinder fitted with a smaller radius spans a wider angle)
@@ -17,7 +18,13 @@ the held-out views (index % 8 == 0) are compared with the Cycles ground truth of
   "oracle" is ``A_gt_edit * S_gt + R_gt`` (the ceiling set by the renderer's noise and the
   decomposition's convention);
 - ``outside``: the baked albedo render vs the unedited albedo render outside the mask dilated by
-  ``--margin`` pixels (what must not change).
+  ``--margin`` pixels (what must not change);
+- ``<albedo|image>_interior``, ``_border``, ``_bleed``: the same comparison on the mask eroded by
+  ``--ring`` pixels, on the inner ring (the mask minus that erosion: old texture left at the region's
+  edge) and on the outer ring (the mask dilated by ``--ring`` minus the mask, where the edited ground
+  truth equals the original: an edit spilling past its edge), see :func:`edit_region.ring_masks`;
+- ``multi_view_lead_db``: per edit, the multi-view bake's PSNR in the region minus the single-view
+  bake's (image and albedo).
 
 PSNR aggregates the squared error over all pixels of all held-out views (peak 1, sRGB-encoded).
 For ``column_decal`` the row "plane_forced" bakes a plane fitted to the same rectangle with the
@@ -29,9 +36,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -52,11 +61,32 @@ from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
 from backend.eval.bench_cli import error
-from backend.eval.edit_region import RegionPSNR, edit_views, true_lighting
+from backend.eval.edit_region import RING_PARTS, RegionPSNR, edit_views, ring_masks, true_lighting
 from backend.render import Backend
 from backend.train.intrinsic.composite import compose
 
-EDITS = ("wall_decal", "rug_recolor", "column_decal")
+RING = 2
+"""Default ring width, pixels, of the interior / border / bleed split."""
+
+
+def available_edits(ws_root: Path) -> list[str]:
+    """The names of the capture's ground-truth edits (``gt_edit/*/edit.json``), sorted."""
+    return sorted(p.parent.name for p in (ws_root / "gt_edit").glob("*/edit.json"))
+
+
+def resolve_edits(ws_root: Path, requested: Sequence[str] | None) -> list[str]:
+    """``requested`` (None or empty: every edit of the capture) checked against ``gt_edit``; an unknown
+    name, or a capture without edits, is one :class:`IGSError` listing what exists."""
+    there = available_edits(ws_root)
+    if not there:
+        raise IGSError(f"{ws_root / 'gt_edit'}: no */edit.json (a synthetic capture with gt_edit is needed)")
+    if not requested:
+        return there
+    unknown = [e for e in requested if e not in there]
+    if unknown:
+        raise IGSError(f"--edits: no edit {', '.join(repr(e) for e in unknown)} in {ws_root / 'gt_edit'} "
+                       f"(there: {', '.join(there)})")
+    return list(requested)
 
 
 def _unit(v) -> np.ndarray:
@@ -208,84 +238,135 @@ def _srgb(lin: np.ndarray) -> np.ndarray:
 
 
 def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: Backend,
-             margin: int) -> dict[str, float]:
+             margin: int, ring: int = RING) -> dict[str, float]:
+    """PSNR per ``<method>/<measure>`` over the held-out views that see the edit (module docstring);
+    every in-region measure also split by ``ring`` pixels into ``_interior``, ``_border`` and ``_bleed``."""
     folder = ws_root / "gt_edit" / edit_name
     acc = RegionPSNR()
     for f, cover in edit_views(ws_root, edit_name):
         cam = f.camera
         mask = cover > 0.5
+        rings = ring_masks(mask, ring)
+
+        def region(key: str, a: np.ndarray, b: np.ndarray, mask=mask, rings=rings) -> None:
+            """``key`` over the region, and its rings."""
+            acc.add(key, a, b, mask)
+            acc.add_rings(key, a, b, rings)
+
         gt_img = read_image(folder / "images" / f.name)
         gt_alb = read_image(folder / "albedo" / f.name)
         shading, residual = true_lighting(ws_root, f)
         orig_img = srgb_to_linear(read_image(f.image))
         a0 = render_albedo(original, cam, backend).color.clamp(0, 1).numpy()
         outside = ~dilate(mask, margin)
-        acc.add("oracle/image", _srgb(compose(srgb_to_linear(gt_alb), shading, residual)), gt_img, mask)
+        region("oracle/image", _srgb(compose(srgb_to_linear(gt_alb), shading, residual)), gt_img)
         # image-space baselines: the depth-tested proxy colour where it covers the pixel
         comp, pm, _ = edited_albedo(original, proxy, cam, backend, supersample=BakeConfig.supersample)
         colour = np.where(pm[..., None], comp.astype(np.float64), 0.0)  # float64 under numpy 1 and 2 (NEP 50)
         tint = np.where(pm[..., None], orig_img * colour, orig_img)
         over = np.where(pm[..., None], colour, orig_img)
-        acc.add("tint/image", _srgb(tint), gt_img, mask)
-        acc.add("overwrite/image", _srgb(over), gt_img, mask)
+        region("tint/image", _srgb(tint), gt_img)
+        region("overwrite/image", _srgb(over), gt_img)
         for key, g in variants.items():
             a = render_albedo(g, cam, backend).color.clamp(0, 1).numpy()
-            acc.add(f"{key}/albedo", _srgb(a), gt_alb, mask)
-            acc.add(f"{key}/image", _srgb(compose(a, shading, residual)), gt_img, mask)
+            region(f"{key}/albedo", _srgb(a), gt_alb)
+            region(f"{key}/image", _srgb(compose(a, shading, residual)), gt_img)
             acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
-        acc.add("unedited/albedo", _srgb(a0), gt_alb, mask)
+        region("unedited/albedo", _srgb(a0), gt_alb)
     return acc.psnr()
 
 
-def run(ws_root: Path, edits: list[str], cfg: BakeConfig, margin: int, fit_cfg: FitConfig = FitConfig(),
-        grow_on: str = "auto") -> dict[str, Any]:
+def multi_view_lead(psnr: dict[str, float]) -> dict[str, float | None]:
+    """The multi-view bake's PSNR in the region minus the single-view bake's, dB, for image and albedo
+    (None where either is missing or infinite)."""
+    out: dict[str, float | None] = {}
+    for measure in ("image", "albedo"):
+        mv, sv = psnr.get(f"multi_view/{measure}"), psnr.get(f"single_view/{measure}")
+        ok = mv is not None and sv is not None and math.isfinite(mv) and math.isfinite(sv)
+        out[measure] = round(mv - sv, 3) if ok else None
+    return out
+
+
+def run(ws_root: Path, edits: Sequence[str] | None, cfg: BakeConfig, margin: int, fit_cfg: FitConfig = FitConfig(),
+        grow_on: str = "auto", ring: int = RING, keep_going: bool = False) -> dict[str, Any]:
+    """Fit, bake and score each of ``edits`` (None: every ``gt_edit`` edit); returns per edit its PSNRs,
+    ``multi_view_lead_db``, fits, bakes and seconds. ``keep_going``: an edit whose fit or bake fails is
+    recorded as ``{"error": message, "seconds": s}`` and the next one runs (else the error is raised)."""
+    names = resolve_edits(Path(ws_root), edits)
+    ring_masks(np.zeros((1, 1), bool), ring)  # a bad --ring fails here, before any bake
     capture = load_capture(ws_root)
     original, _ = load_albedo(capture.workspace, None)
     results: dict[str, Any] = {}
-    for name in edits:
-        folder = ws_root / "gt_edit" / name
-        if not (folder / "edit.json").exists():
-            raise IGSError(f"{folder / 'edit.json'}: not found (a synthetic capture with gt_edit is needed)")
-        edit = json.loads((folder / "edit.json").read_text())
-        cam = capture.frame(edit["edit_view"]).camera
+    for name in names:
         t0 = time.perf_counter()
-        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg, capture=capture,
-                                          grow_on=grow_on)}
-        if edit["surface"]["type"] == "cylinder":
-            proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture,
-                                                   grow_on)
-            proxies["true_cylinder"] = true_cylinder(edit, folder)
-        variants, bakes = {}, {}
-        for pname, (proxy, _) in proxies.items():
-            runs = [("multi_view", cfg)] + ([("single_view", replace(cfg, views=0, capture_views=0))] if pname == "fitted" else [])
-            for label, c in runs:
-                key = f"{pname}_{label}" if pname != "fitted" else label
-                s = bake_edit(ws_root, proxy, f"bench_{name}_{key}", replace(c, view=edit["edit_view"]))
-                variants[key], _ = load_albedo(capture.workspace, f"bench_{name}_{key}")
-                bakes[key] = {k: s[k] for k in ("edit_pixels", "spawned", "editable", "train_seconds", "wall_seconds")}
-        psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin)
-        results[name] = {"psnr": psnr, "fit": {k: v[1] for k, v in proxies.items()}, "bakes": bakes,
-                         "seconds": round(time.perf_counter() - t0, 1)}
-        print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
+        try:
+            results[name] = _bench_edit(ws_root, capture, original, name, cfg, margin, fit_cfg, grow_on, ring)
+        except IGSError as e:
+            if not keep_going:
+                raise
+            results[name] = {"error": str(e)}
+            print(f"{name}: failed: {e}", file=sys.stderr)
+        results[name]["seconds"] = round(time.perf_counter() - t0, 1)
     return results
 
 
+def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, margin: int, fit_cfg: FitConfig,
+                grow_on: str, ring: int) -> dict[str, Any]:
+    """One edit of :func:`run`: its proxies fitted, the bakes made and scored."""
+    folder = ws_root / "gt_edit" / name
+    edit = json.loads((folder / "edit.json").read_text())
+    cam = capture.frame(edit["edit_view"]).camera
+    proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg, capture=capture,
+                                      grow_on=grow_on)}
+    if edit["surface"]["type"] == "cylinder":
+        proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture,
+                                               grow_on)
+        proxies["true_cylinder"] = true_cylinder(edit, folder)
+    variants, bakes = {}, {}
+    for pname, (proxy, _) in proxies.items():
+        runs = [("multi_view", cfg)] + ([("single_view", replace(cfg, views=0, capture_views=0))] if pname == "fitted" else [])
+        for label, c in runs:
+            key = f"{pname}_{label}" if pname != "fitted" else label
+            s = bake_edit(ws_root, proxy, f"bench_{name}_{key}", replace(c, view=edit["edit_view"]))
+            variants[key], _ = load_albedo(capture.workspace, f"bench_{name}_{key}")
+            bakes[key] = {k: s[k] for k in ("edit_pixels", "spawned", "editable", "train_seconds", "wall_seconds")}
+    psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin, ring)
+    print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
+    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "fit": {k: v[1] for k, v in proxies.items()},
+            "bakes": bakes}
+
+
+def _cell(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
 def table(results: dict[str, Any]) -> str:
-    rows = ["| edit | method | image PSNR in region | albedo PSNR in region | outside vs unedited |",
-            "|---|---|---|---|---|"]
+    """Markdown: per edit and method the PSNRs in the region, its interior, border and bleed rings and
+    outside; then per edit the multi-view bake's lead over the single-view bake."""
+    rings = [f"{m}_{part}" for m in ("image", "albedo") for part in RING_PARTS]
+    rows = ["| edit | method | image PSNR in region | albedo PSNR in region | outside vs unedited | "
+            + " | ".join(r.replace("_", " ") for r in rings) + " |",
+            "|---|---|---|---|---|" + "---|" * len(rings)]
     for name, r in results.items():
+        if "error" in r:
+            rows.append(f"| {name} | failed: {r['error']} |")
+            continue
         p = r["psnr"]
-        methods = sorted({k.split("/")[0] for k in p})
-        for m in methods:
-            cells = ["-" if p.get(f"{m}/{k}") is None else f"{p[f'{m}/{k}']:.2f}" for k in ("image", "albedo", "outside")]
+        for m in sorted({k.split("/")[0] for k in p}):
+            cells = [_cell(p.get(f"{m}/{k}")) for k in ("image", "albedo", "outside", *rings)]
             rows.append(f"| {name} | {m} | " + " | ".join(cells) + " |")
+    rows += ["", "| edit | multi-view lead over single view: image dB | albedo dB |", "|---|---|---|"]
+    for name, r in results.items():
+        lead = r.get("multi_view_lead_db") or {}
+        rows.append(f"| {name} | {_cell(lead.get('image'))} | {_cell(lead.get('albedo'))} |")
     return "\n".join(rows)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_edit", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace")
-    ap.add_argument("--edits", default=",".join(EDITS), help="comma list of gt_edit edits")
+    ap.add_argument("--edits", default=None,
+                    help="comma list of gt_edit edits (default: every <ws>/gt_edit/*/edit.json, sorted)")
     ap.add_argument("--iterations", type=int, default=BakeConfig.iterations)
     ap.add_argument("--views", type=int, default=BakeConfig.views)
     ap.add_argument("--anchor-views", type=int, default=BakeConfig.anchor_views)
@@ -294,6 +375,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--edit-filter", type=float, default=BakeConfig.edit_filter,
                     help="screen-space low-pass of the baked Gaussians, pixels^2 (0.3: 3DGS's)")
     ap.add_argument("--margin", type=int, default=2, help="pixels around the mask left out of 'outside' (default 2)")
+    ap.add_argument("--ring", type=int, default=RING,
+                    help=f"width in pixels of the interior / border / bleed rings at the region's edge (default {RING})")
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--out", default=None, help="JSON output (default <ws>/bench_edit.json)")
     ap.add_argument("--min-selected", type=int, default=FitConfig.min_selected,
@@ -307,8 +390,9 @@ def main(argv: list[str] | None = None) -> int:
                      capture_views=args.capture_views, edit_filter=args.edit_filter,
                      backend=args.backend)
     try:
-        results = run(ws_root, [e for e in args.edits.split(",") if e], cfg, args.margin,
-                      FitConfig(min_selected=args.min_selected), args.grow_on)
+        edits = [e for e in args.edits.split(",") if e] if args.edits is not None else None
+        results = run(ws_root, edits, cfg, args.margin, FitConfig(min_selected=args.min_selected), args.grow_on,
+                      args.ring)
     except IGSError as e:
         return error("bench_edit", e)
     out = Path(args.out) if args.out else ws_root / "bench_edit.json"

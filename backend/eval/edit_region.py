@@ -1,11 +1,15 @@
 """Scoring inside a ground-truth edit's region: the held-out views that see ``gt_edit/<edit>`` and a
-PSNR accumulated over the masked pixels of all of them (the edit benchmarks' common measure)."""
+PSNR accumulated over the masked pixels of all of them (the edit benchmarks' common measure), also
+split into the region's interior, its inner border ring and the outer ring it must not bleed into
+(:func:`ring_masks`)."""
 
 from __future__ import annotations
 
 from collections.abc import Hashable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from backend.capture.load import load_capture
@@ -34,6 +38,38 @@ def true_lighting(ws: Path, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
             read_exr(ws / "gt" / "residual" / f"{stem}.exr")[..., :3])
 
 
+RING_PARTS = ("interior", "border", "bleed")
+
+
+@dataclass(frozen=True)
+class RingMasks:
+    """The pixels around an edit region's edge, (H, W) bool each; the three are disjoint and
+    ``interior | border`` is the region."""
+
+    interior: np.ndarray
+    """The region eroded by the ring width: pixels at least that far inside the region's edge."""
+    border: np.ndarray
+    """The inner ring: the region minus its erosion (where old texture left at the edge shows)."""
+    bleed: np.ndarray
+    """The outer ring: the region's dilation minus the region (where an edit spilling past its edge shows)."""
+
+
+def ring_masks(mask: np.ndarray, ring: int) -> RingMasks:
+    """Interior, inner border ring and outer bleed ring of the (H, W) bool ``mask`` for a ring width of
+    ``ring`` >= 1 pixels (square neighbourhood, (2 ring + 1)^2, as the "outside" margin's dilation).
+
+    The erosion treats pixels beyond the image as inside the region, so a region cut by the image's
+    edge has no border ring there: the image edge is not the edit's edge."""
+    if ring < 1:
+        raise IGSError(f"--ring: must be >= 1 pixel, got {ring}")
+    m = mask.astype(np.uint8)
+    k = np.ones((2 * ring + 1, 2 * ring + 1), np.uint8)
+    interior = cv2.erode(m, k, borderType=cv2.BORDER_CONSTANT, borderValue=1) > 0
+    grown = cv2.dilate(m, k, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    region = m > 0
+    return RingMasks(interior=interior, border=region & ~interior, bleed=grown & ~region)
+
+
 class RegionPSNR:
     """Sum of squared errors and value counts per key over masked pixels -> PSNR (peak 1)."""
 
@@ -46,6 +82,11 @@ class RegionPSNR:
         if mask.any():
             self.se[key] = self.se.get(key, 0.0) + float(np.sum((a[mask] - b[mask]) ** 2))
             self.n[key] = self.n.get(key, 0) + int(mask.sum()) * a.shape[-1]
+
+    def add_rings(self, key: str, a: np.ndarray, b: np.ndarray, rings: RingMasks) -> None:
+        """Add (H, W, C) images ``a`` and ``b`` under ``<key>_interior``, ``<key>_border`` and ``<key>_bleed``."""
+        for part in RING_PARTS:
+            self.add(f"{key}_{part}", a, b, getattr(rings, part))
 
     def psnr(self) -> dict[Hashable, float]:
         """PSNR in dB per key that saw any pixel (inf for no error), in the order the keys came."""
