@@ -134,6 +134,6 @@ def test_table_has_the_ring_columns_the_lead_and_failed_edits():
     header = text.splitlines()[0]
     for col in ("image interior", "image border", "image bleed", "albedo interior", "albedo border", "albedo bleed"):
         assert col in header
-    assert "| decal | multi_view | 26.00 | - | - | - | 20.50 | - | - | - | 40.25 |" in text
+    assert "| decal | multi_view | 26.00 | - | - | - | - | 20.50 | - | - | - | 40.25 |" in text
     assert "| rug | failed: plane fit: too few points |" in text
     assert "| decal | 1.00 | - |" in text and "| rug | - | - |" in text

@@ -17,6 +17,10 @@ the held-out views (index % 8 == 0) are compared with the Cycles ground truth of
   image-space edits of the ground-truth unedited image where the depth-tested proxy covers a pixel;
   "oracle" is ``A_gt_edit * S_gt + R_gt`` (the ceiling set by the renderer's noise and the
   decomposition's convention);
+- ``image_decomposed``: ``A * S_pred + R_pred`` with the workspace's own shading and residual layers
+  (what a user renders) vs ``gt_edit/<edit>/images`` inside the mask; for "oracle" ``A`` is the
+  ground-truth edited albedo, so it measures the decomposed lighting alone: on a recoloured dark
+  surface it shows whether the shading holds the captured light there;
 - ``outside``: the baked albedo render vs the unedited albedo render outside the mask dilated by
   ``--margin`` pixels (what must not change);
 - ``<albedo|image>_interior``, ``_border``, ``_bleed``: the same comparison on the mask eroded by
@@ -62,7 +66,10 @@ from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
 from backend.eval.bench_cli import error
 from backend.eval.edit_region import RING_PARTS, RegionPSNR, edit_views, ring_masks, true_lighting
+from backend.eval.layer_metrics import render_frame
 from backend.render import Backend
+from backend.splats.gaussians import GaussianSet
+from backend.splats.ply import read_ply
 from backend.train.intrinsic.composite import compose
 
 RING = 2
@@ -238,9 +245,10 @@ def _srgb(lin: np.ndarray) -> np.ndarray:
 
 
 def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: Backend,
-             margin: int, ring: int = RING) -> dict[str, float]:
+             margin: int, ring: int = RING, lighting: dict[str, GaussianSet] | None = None) -> dict[str, float]:
     """PSNR per ``<method>/<measure>`` over the held-out views that see the edit (module docstring);
-    every in-region measure also split by ``ring`` pixels into ``_interior``, ``_border`` and ``_bleed``."""
+    every in-region measure also split by ``ring`` pixels into ``_interior``, ``_border`` and ``_bleed``.
+    ``lighting``: the decomposed 'shading' and 'residual' sets, for the ``image_decomposed`` measures."""
     folder = ws_root / "gt_edit" / edit_name
     acc = RegionPSNR()
     for f, cover in edit_views(ws_root, edit_name):
@@ -260,6 +268,9 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         a0 = render_albedo(original, cam, backend).color.clamp(0, 1).numpy()
         outside = ~dilate(mask, margin)
         region("oracle/image", _srgb(compose(srgb_to_linear(gt_alb), shading, residual)), gt_img)
+        decomposed = _decomposed_lighting(lighting, f, backend)
+        if decomposed is not None:
+            region("oracle/image_decomposed", _srgb(compose(srgb_to_linear(gt_alb), *decomposed)), gt_img)
         # image-space baselines: the depth-tested proxy colour where it covers the pixel
         comp, pm, _ = edited_albedo(original, proxy, cam, backend, supersample=BakeConfig.supersample)
         colour = np.where(pm[..., None], comp.astype(np.float64), 0.0)  # float64 under numpy 1 and 2 (NEP 50)
@@ -271,9 +282,28 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
             a = render_albedo(g, cam, backend).color.clamp(0, 1).numpy()
             region(f"{key}/albedo", _srgb(a), gt_alb)
             region(f"{key}/image", _srgb(compose(a, shading, residual)), gt_img)
+            if decomposed is not None:
+                region(f"{key}/image_decomposed", _srgb(compose(a, *decomposed)), gt_img)
             acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
         region("unedited/albedo", _srgb(a0), gt_alb)
     return acc.psnr()
+
+
+def _decomposed_lighting(lighting: dict[str, GaussianSet] | None, frame, backend: Backend
+                         ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The decomposed (shading, residual) renders of ``frame``, (H, W, 3) linear each, or None."""
+    if not lighting:
+        return None
+    got = render_frame(lighting, frame, 1.0, backend)
+    return got["shading"].numpy(), got["residual"].numpy()
+
+
+def load_lighting(ws_root: Path) -> dict[str, GaussianSet] | None:
+    """The workspace's shading and residual layers, or None when either is missing."""
+    files = {k: Path(ws_root) / "layers" / f"{k}.ply" for k in ("shading", "residual")}
+    if not all(p.exists() for p in files.values()):
+        return None
+    return {k: read_ply(p, kind=k)[0] for k, p in files.items()}
 
 
 def multi_view_lead(psnr: dict[str, float]) -> dict[str, float | None]:
@@ -330,7 +360,8 @@ def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, ma
             s = bake_edit(ws_root, proxy, f"bench_{name}_{key}", replace(c, view=edit["edit_view"]))
             variants[key], _ = load_albedo(capture.workspace, f"bench_{name}_{key}")
             bakes[key] = {k: s[k] for k in ("edit_pixels", "spawned", "editable", "train_seconds", "wall_seconds")}
-    psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin, ring)
+    psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin, ring,
+                    load_lighting(ws_root))
     print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
     return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "fit": {k: v[1] for k, v in proxies.items()},
             "bakes": bakes}
@@ -344,16 +375,16 @@ def table(results: dict[str, Any]) -> str:
     """Markdown: per edit and method the PSNRs in the region, its interior, border and bleed rings and
     outside; then per edit the multi-view bake's lead over the single-view bake."""
     rings = [f"{m}_{part}" for m in ("image", "albedo") for part in RING_PARTS]
-    rows = ["| edit | method | image PSNR in region | albedo PSNR in region | outside vs unedited | "
-            + " | ".join(r.replace("_", " ") for r in rings) + " |",
-            "|---|---|---|---|---|" + "---|" * len(rings)]
+    rows = ["| edit | method | image PSNR in region | image, decomposed S and R | albedo PSNR in region | "
+            "outside vs unedited | " + " | ".join(r.replace("_", " ") for r in rings) + " |",
+            "|---|---|---|---|---|---|" + "---|" * len(rings)]
     for name, r in results.items():
         if "error" in r:
             rows.append(f"| {name} | failed: {r['error']} |")
             continue
         p = r["psnr"]
         for m in sorted({k.split("/")[0] for k in p}):
-            cells = [_cell(p.get(f"{m}/{k}")) for k in ("image", "albedo", "outside", *rings)]
+            cells = [_cell(p.get(f"{m}/{k}")) for k in ("image", "image_decomposed", "albedo", "outside", *rings)]
             rows.append(f"| {name} | {m} | " + " | ".join(cells) + " |")
     rows += ["", "| edit | multi-view lead over single view: image dB | albedo dB |", "|---|---|---|"]
     for name, r in results.items():
