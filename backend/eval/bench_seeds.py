@@ -64,6 +64,9 @@ STEPS = ("synth", "bench_decompose", "albedo_layer", "bench_edit")
 # bench_edit's measures of the multi-view bake kept per seed: (headline key, bench_edit PSNR key)
 EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image", "albedo")
                       for part in ("", "_interior", "_border", "_bleed")) + (
+    ("image_decomposed", "multi_view/image_decomposed"),
+    # the ground-truth edited albedo under the decomposed S and R: the decomposed lighting alone
+    ("oracle_image_decomposed", "oracle/image_decomposed"),
     ("outside", "multi_view/outside"),
     ("single_view_image", "single_view/image"),
     ("single_view_albedo", "single_view/albedo"),
