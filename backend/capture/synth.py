@@ -44,7 +44,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from backend.capture import synth_blender, synth_scene
+from backend.capture import synth_blender, synth_family, synth_scene
 from backend.capture.colmap_io import write_model
 from backend.capture.exr_layers import passes, read_multilayer_exr
 from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
@@ -62,6 +62,7 @@ from backend.core.imageio import (
 from backend.core.workspace import Workspace
 
 SETTINGS_FILE = "gt/synth_settings.json"
+SCENE_SEED_MAX = 2**32 - 1  # numpy's seeds are 32-bit
 POINTS_DIR = "gt/synth_points"
 HOLD_EVERY = 8
 SYNTH_KEYS = ("schema", "source", "frames", "size", "priors", "gt", "edits", "render_seconds", "cpu_seconds", "threads")  # views with index % 8 == 0 are held out (as in load_capture's split); edit views avoid them
@@ -123,9 +124,12 @@ class SynthSettings:
     """Horizontal field of view, degrees."""
     loop_views: int = 0
     """Views of a full loop of the camera path (0: ``views``); see :class:`SynthPreset`."""
+    scene_seed: int | None = None
+    """Family scene (:mod:`backend.capture.synth_family`); None: the room of :mod:`synth_scene`."""
 
     @staticmethod
-    def from_preset(preset: str, seed: int = 0, views: int | None = None, samples: int | None = None) -> SynthSettings:
+    def from_preset(preset: str, seed: int = 0, views: int | None = None, samples: int | None = None,
+                    scene_seed: int | None = None) -> SynthSettings:
         if preset not in PRESETS:
             raise IGSError(f"--preset: unknown preset '{preset}' (choose from {', '.join(PRESETS)})")
         if views is not None and views < 2:
@@ -134,27 +138,42 @@ class SynthSettings:
             raise IGSError(f"--samples: need at least 1 sample per pixel, got {samples}")
         if seed < 0:
             raise IGSError(f"--seed: must be >= 0, got {seed}")
+        if scene_seed is not None and not 0 <= scene_seed <= SCENE_SEED_MAX:
+            raise IGSError(f"--scene-seed: must be >= 0 and <= {SCENE_SEED_MAX} (an integer), got {scene_seed}")
         p = PRESETS[preset]
         return SynthSettings(preset, int(seed), views or p.views, p.width, p.height, samples or p.samples,
-                             p.bounces, p.points_per_view, loop_views=p.loop_views)
+                             p.bounces, p.points_per_view, loop_views=p.loop_views,
+                             scene_seed=None if scene_seed is None else int(scene_seed))
 
     def as_dict(self) -> dict[str, Any]:
-        """The settings as saved; ``loop_views`` only when set, so full-loop captures keep their old files."""
+        """The settings as saved; ``loop_views`` and ``scene_seed`` only when set, so full-loop captures of
+        the room keep their old files (and resume)."""
         d = asdict(self)
         if not self.loop_views:
             del d["loop_views"]
+        if self.scene_seed is None:
+            del d["scene_seed"]
         return d
 
     def cameras(self) -> list[Camera]:
         """The capture's cameras: the first ``views`` of a loop of ``loop_views`` (or ``views``) positions."""
         loop = max(self.loop_views, self.views)
-        return synth_scene.camera_path(loop, self.width, self.height, self.seed, self.fov_x_deg)[:self.views]
+        if self.scene_seed is None:
+            path = synth_scene.camera_path(loop, self.width, self.height, self.seed, self.fov_x_deg)
+        else:
+            layout = synth_family.family_layout(self.scene_seed)
+            path = synth_family.camera_path(layout, loop, self.width, self.height, self.seed, self.fov_x_deg)
+        return path[:self.views]
 
 
 def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: int | None = None,
                samples: int | None = None, force: bool = False, threads: int | None = None,
-               renderer: str = "auto", blender: str | None = None) -> dict[str, Any]:
+               renderer: str = "auto", blender: str | None = None, scene_seed: int | None = None) -> dict[str, Any]:
     """Render (or finish rendering) a synthetic capture into ``ws_path``; logs and returns a summary.
+
+    ``scene_seed`` None renders the room of :mod:`backend.capture.synth_scene` (``seed`` varies its
+    details); K >= 0 renders scene K of the procedural family (:mod:`backend.capture.synth_family`).
+    ``seed`` is always the camera path's phase and Cycles' sampling seed.
 
     The summary (also written to ``gt/synth_summary.json``) holds the views, size, samples, seconds
     per step (scene build, views, edits, points and metadata, total), CPU seconds and file counts.
@@ -169,7 +188,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     """
     t_start = time.perf_counter()
     cpu_start = _cpu_seconds()
-    settings = SynthSettings.from_preset(preset, seed, views, samples)
+    settings = SynthSettings.from_preset(preset, seed, views, samples, scene_seed)
     binary = synth_blender.choose_blender(renderer, blender)
     ws = Workspace(Path(ws_path))
     _prepare_workspace(ws, settings, force)
@@ -182,12 +201,12 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
             import bpy
 
             with _blender_output_captured():
-                scene = synth_scene.build_scene(settings.seed)
+                scene = build_scene(settings)
             render: ViewRenderer = Renderer(scene, settings, threads)
             blender_version = bpy.app.version_string
         else:
             worker = stack.enter_context(synth_blender.BlenderWorker(binary))
-            scene = worker.build_scene(settings.seed)
+            scene = worker.build_scene(settings.seed, settings.scene_seed)
             render = worker.renderer(cycles_params(settings, threads))
             blender_version = worker.version
         cameras = settings.cameras()
@@ -213,6 +232,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
 
     summary = {
         "workspace": str(ws.root), "preset": settings.preset, "seed": settings.seed,
+        **({} if settings.scene_seed is None else {"scene_seed": settings.scene_seed}),
         "views": settings.views, "size": [settings.width, settings.height], "samples": settings.samples,
         "threads": threads, "edits": [e.name for e in scene.edits],
         "rendered_views": n_views, "rendered_edit_views": n_edits,
@@ -228,12 +248,20 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     return summary
 
 
+def build_scene(settings: SynthSettings) -> synth_scene.SynthScene:
+    """Build the settings' scene with the bpy module: the room for ``seed``, or family scene ``scene_seed``."""
+    if settings.scene_seed is None:
+        return synth_scene.build_scene(settings.seed)
+    return synth_family.build_family_scene(settings.scene_seed)
+
+
 def format_summary(summary: dict[str, Any]) -> str:
     """A few human lines for the terminal."""
     s = summary["seconds"]
     w, h = summary["size"]
+    scene = "" if summary.get("scene_seed") is None else f", family scene {summary['scene_seed']}"
     lines = [
-        f"synthetic capture '{summary['preset']}' (seed {summary['seed']}) -> {summary['workspace']}",
+        f"synthetic capture '{summary['preset']}' (seed {summary['seed']}{scene}) -> {summary['workspace']}",
         f"  {summary['views']} views {w}x{h}, {summary['samples']} spp, {summary['threads']} threads; "
         f"rendered {summary['rendered_views']} views ({summary['skipped_views']} already there), "
         f"{summary['rendered_edit_views']} edited views; {summary['points3D']} points3D",
@@ -269,7 +297,8 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
         new = settings.as_dict()
         if old != new:
             if not force:
-                diff = ", ".join(f"{k}={old.get(k)!r} (now {new[k]!r})" for k in new if old.get(k) != new[k])
+                keys = [*new, *(k for k in old if k not in new)]  # a key saved only before (scene_seed) counts too
+                diff = ", ".join(f"{k}={old.get(k)!r} (now {new.get(k)!r})" for k in keys if old.get(k) != new.get(k))
                 raise IGSError(f"{settings_path}: this workspace was rendered with other settings: {diff}; "
                                "repeat the same options to resume, or pass --force to delete it and start over")
         elif not force:
@@ -313,6 +342,7 @@ def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Ca
     kept = {k: v for k, v in ws.read_capture_json().items() if k not in SYNTH_KEYS} if ws.capture_json.exists() else {}
     ws.write_capture_json(kept | {
         "source": {"kind": "synthetic", "preset": settings.preset, "seed": settings.seed,
+                   **({} if settings.scene_seed is None else {"scene_seed": settings.scene_seed}),
                    "blender": blender, "renderer": renderer, "settings": settings.as_dict()},
         "frames": [c.name for c in cameras],
         "size": [settings.width, settings.height],
@@ -502,7 +532,9 @@ def _render_edits(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRe
 def _write_edited_view(ws: Workspace, cam: Camera, P: dict[str, np.ndarray], box: tuple[int, int, int, int],
                        img_out: Path, alb_out: Path) -> None:
     x0, y0, x1, y1 = box
-    if not (P["Depth"][y0:y1, x0:x1, 0] > 0).all():  # the closed room gives every rendered pixel a depth
+    # Every rendered pixel, the world background included (film not transparent), has alpha 1; pixels
+    # outside the render border are left 0. (Depth cannot tell: Cycles writes 1e10 for the background.)
+    if not (P["Combined"][y0:y1, x0:x1, 3] > 0).all():
         raise RuntimeError(f"the border render of {cam.name} does not cover the pixels {box}")
     image = read_image(ws.images / cam.name)
     image[y0:y1, x0:x1] = linear_to_srgb(P["Combined"][y0:y1, x0:x1, :3])

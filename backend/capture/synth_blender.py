@@ -156,10 +156,12 @@ class BlenderWorker:
                 raise self._fail(f"failed {during}: {reply['error']}", running=True)
             return reply, arrays
 
-    def build_scene(self, seed: int) -> BlenderScene:
-        reply, arrays = self.call({"cmd": "build", "seed": int(seed)}, "while building the scene")
-        return BlenderScene(int(seed), wire.edits_from_wire(reply["edits"], arrays), reply["description"],
-                            worker=self)
+    def build_scene(self, seed: int, scene_seed: int | None = None) -> BlenderScene:
+        """Build the room for ``seed``, or family scene ``scene_seed`` when given."""
+        msg = {"cmd": "build", "seed": int(seed), "scene_seed": None if scene_seed is None else int(scene_seed)}
+        reply, arrays = self.call(msg, "while building the scene")
+        return BlenderScene(int(seed) if scene_seed is None else int(scene_seed),
+                            wire.edits_from_wire(reply["edits"], arrays), reply["description"], worker=self)
 
     def renderer(self, params: CyclesParams) -> BinaryRenderer:
         self.call({"cmd": "setup", "params": dataclasses.asdict(params)}, "while setting up Cycles")

@@ -8,7 +8,8 @@ descriptor N is one end of a socket pair; the backend holds the other (see
 :mod:`backend.capture.synth_blender`). Requests and replies (:mod:`synth_blender_protocol` framing):
 
 - on start the worker sends ``{"hello": {"blender", "python", "numpy"}}``;
-- ``{"cmd": "build", "seed"}`` -> ``{"ok", "description", "edits"}`` + decal textures: builds the room;
+- ``{"cmd": "build", "seed", "scene_seed"}`` -> ``{"ok", "description", "edits"}`` + decal textures: builds
+  the room for ``seed``, or family scene ``scene_seed`` (:mod:`synth_family`) when that is not null;
 - ``{"cmd": "setup", "params"}`` -> ``{"ok"}``: sets Cycles up (:class:`CyclesParams` fields);
 - ``{"cmd": "set_edit", "name"}`` -> ``{"ok"}``: shows one edit (or none) to camera rays;
 - ``{"cmd": "render", "camera", "border"}`` -> ``{"ok", "layer"}`` + ``exr`` (the file's bytes);
@@ -107,12 +108,15 @@ class Worker:
 
     def handle(self, msg: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
         from backend.capture import synth_blender_protocol as wire
-        from backend.capture import synth_scene
+        from backend.capture import synth_family, synth_scene
         from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
 
         cmd = msg.get("cmd")
         if cmd == "build":
-            self.scene = synth_scene.build_scene(int(msg["seed"]))
+            if msg.get("scene_seed") is None:
+                self.scene = synth_scene.build_scene(int(msg["seed"]))
+            else:
+                self.scene = synth_family.build_family_scene(int(msg["scene_seed"]))
             items, arrays = wire.edits_to_wire(self.scene.edits)
             return {"ok": True, "description": self.scene.description, "edits": items}, arrays
         if cmd == "set_edit":

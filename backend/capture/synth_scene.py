@@ -157,7 +157,7 @@ def build_scene(seed: int) -> SynthScene:
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     rng = np.random.default_rng(seed)
-    b = _Builder(bpy, rng)
+    b = Builder(bpy, rng)
     scene = bpy.context.scene
     world = bpy.data.worlds.new("World")
     world.color = (0.0, 0.0, 0.0)
@@ -171,7 +171,7 @@ def build_scene(seed: int) -> SynthScene:
     table = _table(b, rng)
     _monkey(b, rng)
     column = _column(b, rng, edits, switches)
-    lights = _add_lights(bpy, rng, tuple(table["table_top_center"][:2]))
+    lights = _add_lights(b, rng, tuple(table["table_top_center"][:2]))
     objects = [{"name": o.name, "type": o.type} for o in scene.objects if o.type == "MESH"]
     description = {
         "room": {"x": [-ROOM_HALF_X, ROOM_HALF_X], "y": [-ROOM_HALF_Y, ROOM_HALF_Y], "z": [0.0, ROOM_HEIGHT]},
@@ -182,7 +182,7 @@ def build_scene(seed: int) -> SynthScene:
     return s
 
 
-def _room_shell(b: _Builder, rng: np.random.Generator, edits: list[EditSpec], switches: dict[str, Any]) -> None:
+def _room_shell(b: Builder, rng: np.random.Generator, edits: list[EditSpec], switches: dict[str, Any]) -> None:
     """Six planes (Cycles' diffuse BSDF is two-sided, so winding does not matter); the back wall
     carries the wall-decal edit."""
     hx, hy, hz = ROOM_HALF_X, ROOM_HALF_Y, ROOM_HEIGHT
@@ -209,7 +209,7 @@ def _room_shell(b: _Builder, rng: np.random.Generator, edits: list[EditSpec], sw
            b.flat_material("wall_right", _jitter(rng, (0.55, 0.60, 0.70))))
 
 
-def _painting(b: _Builder, rng: np.random.Generator) -> None:
+def _painting(b: Builder, rng: np.random.Generator) -> None:
     """A painting on the right wall, 1 cm proud of it."""
     p_c = (ROOM_HALF_X - 0.01, float(rng.uniform(-0.6, 0.2)), 1.5)
     paint_mat = b.textured_material("painting", tex.painting(rng), origin=(p_c[0], p_c[1] + 0.5, p_c[2] - 0.35),
@@ -218,7 +218,7 @@ def _painting(b: _Builder, rng: np.random.Generator) -> None:
                         (p_c[0], p_c[1] - 0.5, p_c[2] + 0.35), (p_c[0], p_c[1] + 0.5, p_c[2] + 0.35)], paint_mat)
 
 
-def _rug(b: _Builder, rng: np.random.Generator, edits: list[EditSpec], switches: dict[str, Any]) -> dict[str, Any]:
+def _rug(b: Builder, rng: np.random.Generator, edits: list[EditSpec], switches: dict[str, Any]) -> dict[str, Any]:
     """A rug 4 mm above the floor; its middle is the recolour region. Returns its description."""
     rug_c = (float(rng.uniform(-1.2, -0.9)), float(rng.uniform(-0.7, -0.4)), 0.004)
     rug_size = (1.8, 1.2)
@@ -236,7 +236,7 @@ def _rug(b: _Builder, rng: np.random.Generator, edits: list[EditSpec], switches:
     return {"center": list(rug_c), "size": list(rug_size)}
 
 
-def _table(b: _Builder, rng: np.random.Generator) -> dict[str, Any]:
+def _table(b: Builder, rng: np.random.Generator) -> dict[str, Any]:
     """A table with a glossy sphere and a checker cube. Returns the table top's centre and the sphere."""
     tc = (0.55 + float(rng.uniform(-0.1, 0.1)), 0.35 + float(rng.uniform(-0.1, 0.1)))
     wood = _jitter(rng, (0.36, 0.22, 0.12))
@@ -255,7 +255,7 @@ def _table(b: _Builder, rng: np.random.Generator) -> dict[str, Any]:
     return {"table_top_center": [tc[0], tc[1], 0.75], "sphere": {"center": list(sphere_c), "radius": 0.17}}
 
 
-def _monkey(b: _Builder, rng: np.random.Generator) -> None:
+def _monkey(b: Builder, rng: np.random.Generator) -> None:
     """A glossy monkey on a plinth near the left wall."""
     pl = (-2.2, float(rng.uniform(0.6, 1.0)))
     b.box("plinth", (pl[0], pl[1], 0.3), (0.45, 0.45, 0.6), b.flat_material("plinth", (0.75, 0.74, 0.70)))
@@ -263,7 +263,7 @@ def _monkey(b: _Builder, rng: np.random.Generator) -> None:
              b.glossy_material("monkey", _jitter(rng, (0.60, 0.12, 0.08)), 0.5, 0.2))
 
 
-def _column(b: _Builder, rng: np.random.Generator, edits: list[EditSpec],
+def _column(b: Builder, rng: np.random.Generator, edits: list[EditSpec],
             switches: dict[str, Any]) -> dict[str, Any]:
     """A mosaic column in the back-right corner; its decal faces the middle of the room. Returns its
     description."""
@@ -287,38 +287,20 @@ def _jitter(rng: np.random.Generator, rgb: tuple[float, float, float], amount: f
     return tuple(float(np.clip(c + rng.uniform(-amount, amount), 0.02, 0.95)) for c in rgb)
 
 
-def _add_lights(bpy, rng: np.random.Generator, table: tuple[float, float]) -> list[dict[str, Any]]:
+def _add_lights(b: Builder, rng: np.random.Generator, table: tuple[float, float]) -> list[dict[str, Any]]:
     """Warm hard key (spot, 2 cm radius), cool soft fill (ceiling area light), small teal accent."""
-    from mathutils import Vector
-
-    out = []
-
-    def add(name, kind, loc, color, energy, target=None, **props):
-        data = bpy.data.lights.new(name, kind)
-        data.color = color
-        data.energy = energy
-        for k, v in props.items():
-            setattr(data, k, v)
-        obj = bpy.data.objects.new(name, data)
-        obj.location = loc
-        if target is not None:
-            d = Vector(target) - Vector(loc)
-            obj.rotation_euler = d.to_track_quat("-Z", "Y").to_euler()
-        obj.visible_camera = False  # no blown-out light sources in the frames
-        bpy.context.scene.collection.objects.link(obj)
-        out.append({"name": name, "type": kind, "location": list(loc), "color": list(color), "energy": energy})
-
     key_loc = (-2.3 + float(rng.uniform(-0.2, 0.2)), -1.9, 2.55)
-    add("key", "SPOT", key_loc, _jitter(rng, (1.0, 0.78, 0.55), 0.03), 340.0,
-        target=(table[0], table[1], 0.6), shadow_soft_size=0.02, spot_size=math.radians(85), spot_blend=0.25)
-    add("fill", "AREA", (0.0, 0.0, ROOM_HEIGHT - 0.02), _jitter(rng, (0.75, 0.85, 1.0), 0.03), 140.0,
-        shape="RECTANGLE", size=2.2, size_y=1.4)
-    add("accent", "POINT", (2.45, -1.95, 0.7), _jitter(rng, (0.35, 0.95, 0.85), 0.03), 40.0,
-        shadow_soft_size=0.05)
-    return out
+    key = b.light("key", "SPOT", key_loc, _jitter(rng, (1.0, 0.78, 0.55), 0.03), 340.0,
+                  target=(table[0], table[1], 0.6), shadow_soft_size=0.02, spot_size=math.radians(85),
+                  spot_blend=0.25)
+    fill = b.light("fill", "AREA", (0.0, 0.0, ROOM_HEIGHT - 0.02), _jitter(rng, (0.75, 0.85, 1.0), 0.03), 140.0,
+                   shape="RECTANGLE", size=2.2, size_y=1.4)
+    accent = b.light("accent", "POINT", (2.45, -1.95, 0.7), _jitter(rng, (0.35, 0.95, 0.85), 0.03), 40.0,
+                     shadow_soft_size=0.05)
+    return [key, fill, accent]
 
 
-class _Builder:
+class Builder:
     """Small helpers that create meshes and node materials in the current Blender scene."""
 
     def __init__(self, bpy, rng: np.random.Generator):
@@ -376,6 +358,78 @@ class _Builder:
         mod.levels = mod.render_levels = 1
         return obj
 
+    def torus(self, name: str, center, major: float, minor: float, material, rotation=(0.0, 0.0, 0.0)):
+        """A smooth-shaded torus (ring radius ``major``, tube radius ``minor``, metres)."""
+        return self._from_op(name, material, self.bpy.ops.mesh.primitive_torus_add, major_segments=96,
+                             minor_segments=32, major_radius=major, minor_radius=minor, location=center,
+                             rotation=tuple(float(a) for a in rotation))
+
+    def lathe(self, name: str, base, profile: list[tuple[float, float]], material, segments: int = 96):
+        """A surface of revolution about the vertical through ``base``: ``profile`` is (radius, height)
+        from the bottom up, metres. Closed by flat caps; the side is smooth-shaded."""
+        ang = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+        verts = [(float(base[0] + r * np.cos(a)), float(base[1] + r * np.sin(a)), float(base[2] + z))
+                 for r, z in profile for a in ang]
+        rings = len(profile)
+        faces = [(k * segments + i, k * segments + (i + 1) % segments, (k + 1) * segments + (i + 1) % segments,
+                  (k + 1) * segments + i) for k in range(rings - 1) for i in range(segments)]
+        faces += [tuple(range(segments - 1, -1, -1)), tuple((rings - 1) * segments + i for i in range(segments))]
+        mesh = self.bpy.data.meshes.new(name)
+        mesh.from_pydata(verts, [], faces)
+        for poly in mesh.polygons:  # the caps are the two n-gons: flat; the side smooth
+            poly.use_smooth = len(poly.vertices) == 4
+        return self._link(name, mesh, material)
+
+    # ---- lights and world
+
+    def light(self, name: str, kind: str, loc, color, energy: float, target=None, **props) -> dict[str, Any]:
+        """A light of Blender type ``kind`` (POINT, SPOT, AREA, SUN) at ``loc``, aimed at ``target`` (its -z
+        axis), invisible to camera rays. ``energy``: watts (sun: irradiance, W/m^2). Returns its description."""
+        from mathutils import Vector
+
+        data = self.bpy.data.lights.new(name, kind)
+        data.color = color
+        data.energy = energy
+        for k, v in props.items():
+            setattr(data, k, v)
+        obj = self.bpy.data.objects.new(name, data)
+        obj.location = loc
+        if target is not None:
+            d = Vector(target) - Vector(loc)
+            obj.rotation_euler = d.to_track_quat("-Z", "Y").to_euler()
+        obj.visible_camera = False  # no blown-out light sources in the frames
+        self.scene.collection.objects.link(obj)
+        return {"name": name, "type": kind, "location": list(loc), "color": list(color), "energy": energy}
+
+    def world_gradient(self, ground, horizon, zenith, strength: float) -> None:
+        """The world: a background over the view direction's height, linear RGB: ``ground`` below the
+        horizon, ``horizon`` at it, blending to ``zenith`` straight up. It lights the scene (where it is
+        open) and fills the Environment pass where camera rays leave it."""
+        world = self.bpy.data.worlds.new("World")
+        self.scene.world = world
+        n = Nodes(world.node_tree)
+        for node in list(world.node_tree.nodes):
+            world.node_tree.nodes.remove(node)
+        direction = n.node("ShaderNodeTexCoord").outputs["Generated"]  # for the world: the unit ray direction
+        up = n.node("ShaderNodeSeparateXYZ")
+        n.link(direction, up.inputs[0])
+        t = n.math("MULTIPLY_ADD", up.outputs["Z"], 0.5)  # z in [-1, 1] -> [0, 1]
+        t.node.inputs[2].default_value = 0.5
+        ramp = n.node("ShaderNodeValToRGB")
+        ramp.color_ramp.interpolation = "LINEAR"
+        stops = [(0.0, ground), (0.49, ground), (0.5, horizon), (1.0, zenith)]
+        elems = ramp.color_ramp.elements
+        while len(elems) < len(stops):
+            elems.new(0.5)
+        for el, (pos, rgb) in zip(elems, stops):
+            el.position = pos
+            el.color = (*[float(c) for c in rgb], 1.0)
+        n.link(t, ramp.inputs["Fac"])
+        bg = n.node("ShaderNodeBackground")
+        n.link(ramp.outputs["Color"], bg.inputs["Color"])
+        bg.inputs["Strength"].default_value = float(strength)
+        n.link(bg.outputs[0], n.node("ShaderNodeOutputWorld").inputs["Surface"])
+
     # ---- materials
 
     def _material(self, name: str):
@@ -383,7 +437,7 @@ class _Builder:
         nodes = mat.node_tree.nodes
         for n in list(nodes):
             nodes.remove(n)
-        return mat, _Nodes(mat.node_tree)
+        return mat, Nodes(mat.node_tree)
 
     def _image(self, name: str, rgb_u8: np.ndarray):
         h, w, _ = rgb_u8.shape
@@ -395,16 +449,24 @@ class _Builder:
         img.pack()
         return img
 
-    def flat_material(self, name: str, rgb):
-        mat, n = self._material(name)
-        n.diffuse_out(n.rgb(rgb))
-        return mat
+    def flat_material(self, name: str, rgb, linear: bool = False, edit: EditSpec | None = None):
+        """A Lambertian material of one colour (``rgb`` sRGB-encoded, or linear with ``linear``).
 
-    def glossy_material(self, name: str, rgb, gloss: float, roughness: float):
-        """Diffuse ``rgb`` plus a white GGX lobe of weight ``gloss``: the lobe goes to the residual."""
+        With ``edit`` (a plane edit on this surface) returns ``(material, switch_node)``.
+        """
+        mat, n = self._material(name)
+        color = n.rgb_linear(rgb) if linear else n.rgb(rgb)
+        if edit is None:
+            n.diffuse_out(color)
+            return mat
+        return mat, self._plane_edit(n, edit, color)
+
+    def glossy_material(self, name: str, rgb, gloss: float, roughness: float, linear: bool = False):
+        """Diffuse ``rgb`` (sRGB-encoded, or linear with ``linear``) plus a white GGX lobe of weight
+        ``gloss``: the lobe goes to the residual."""
         mat, n = self._material(name)
         diffuse = n.node("ShaderNodeBsdfDiffuse")
-        n.set(diffuse.inputs["Color"], n.rgb(rgb))
+        n.set(diffuse.inputs["Color"], n.rgb_linear(rgb) if linear else n.rgb(rgb))
         glossy = n.node("ShaderNodeBsdfGlossy")
         glossy.inputs["Color"].default_value = (gloss, gloss, gloss, 1.0)
         glossy.inputs["Roughness"].default_value = roughness
@@ -436,10 +498,23 @@ class _Builder:
         if edit is None:
             n.diffuse_out(color)
             return mat
-        s = edit.surface
-        corner = np.asarray(s.center) - 0.5 * s.size[0] * np.asarray(s.u_axis) - 0.5 * s.size[1] * np.asarray(s.v_axis)
-        eu, ev = n.planar_uv(corner, s.u_axis, s.v_axis, s.size)
-        return mat, self._apply_edit(n, edit, color, eu, ev)
+        return mat, self._plane_edit(n, edit, color)
+
+    def principled_material(self, name: str, lin_rgb, metallic: float, roughness: float):
+        """A Principled BSDF of base colour ``lin_rgb`` (linear). Metallic 1: all of it is in the Glossy
+        passes (Diffuse Color 0), so the surface lives in the residual; metallic 0: a diffuse base under
+        a specular layer (Diffuse Color = the base as the layer lets it through)."""
+        mat, n = self._material(name)
+        bsdf = n.node("ShaderNodeBsdfPrincipled")
+        bsdf.inputs["Base Color"].default_value = (*[float(c) for c in lin_rgb], 1.0)
+        bsdf.inputs["Metallic"].default_value = float(metallic)
+        bsdf.inputs["Roughness"].default_value = float(roughness)
+        n.link(bsdf.outputs[0], n.node("ShaderNodeOutputMaterial").inputs["Surface"])
+        return mat
+
+    def metallic_material(self, name: str, lin_rgb, roughness: float):
+        """A metal (Principled, metallic 1) of linear colour ``lin_rgb``: no diffuse part at all."""
+        return self.principled_material(name, lin_rgb, 1.0, roughness)
 
     def cylinder_material(self, name: str, image: np.ndarray, surface: CylinderSurface, tile_height: float,
                           tiles_around: int, edit: EditSpec):
@@ -455,7 +530,14 @@ class _Builder:
         ev = n.math("DIVIDE", n.math("SUBTRACT", h, h0), h1 - h0)
         return mat, self._apply_edit(n, edit, color, eu, ev)
 
-    def _apply_edit(self, n: _Nodes, edit: EditSpec, color, eu, ev):
+    def _plane_edit(self, n: Nodes, edit: EditSpec, color):
+        """:meth:`_apply_edit` with the UV of a plane edit's rectangle."""
+        s = edit.surface
+        corner = np.asarray(s.center) - 0.5 * s.size[0] * np.asarray(s.u_axis) - 0.5 * s.size[1] * np.asarray(s.v_axis)
+        eu, ev = n.planar_uv(corner, s.u_axis, s.v_axis, s.size)
+        return self._apply_edit(n, edit, color, eu, ev)
+
+    def _apply_edit(self, n: Nodes, edit: EditSpec, color, eu, ev):
         """Mix the edit into ``color`` where 0 < eu, ev < 1, for camera rays only; write the AOV mask."""
         inside = n.math("MULTIPLY",
                         n.math("MULTIPLY", n.math("GREATER_THAN", eu, 0.0), n.math("LESS_THAN", eu, 1.0)),
@@ -485,7 +567,7 @@ def _linear(srgb) -> tuple[float, float, float]:
     return tuple(float(x) for x in np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4))
 
 
-class _Nodes:
+class Nodes:
     """Thin helpers over a shader node tree; ``float`` arguments become socket default values."""
 
     def __init__(self, tree):

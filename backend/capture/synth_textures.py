@@ -126,3 +126,46 @@ def painting(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     frame = np.minimum(np.minimum(x, 1 - x), np.minimum(y, 1 - y)) < 0.05
     img[frame] = (0.15, 0.10, 0.06)
     return _to_u8(img)
+
+
+def tiles(rng: np.random.Generator, size: int = 256, tiles_per_side: int = 4) -> np.ndarray:
+    """Floor tiles: a checker of two mottled stone tones with dark grout, ``tiles_per_side`` per tile side."""
+    pal = _palette(rng, [(0.80, 0.76, 0.68), (0.42, 0.36, 0.32)], jitter=0.08)
+    y, x = np.mgrid[0:size, 0:size] * tiles_per_side // size
+    img = pal[(x + y) % 2] * (0.85 + 0.15 * _smooth_noise(rng, size, 16))[..., None]
+    frac = (np.arange(size) * tiles_per_side / size) % 1
+    grout = (frac < 0.04)[:, None] | (frac < 0.04)[None, :]
+    img[grout] = (0.20, 0.19, 0.18)
+    return _to_u8(img)
+
+
+def mondrian(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """A canvas of hard-edged rectangles (white, red, blue, yellow, black) between black bars, with a black
+    border: every edge is sharp, so a recolour must follow it exactly."""
+    pal = _palette(rng, [(0.93, 0.92, 0.88), (0.80, 0.10, 0.08), (0.10, 0.20, 0.60), (0.95, 0.80, 0.10),
+                         (0.05, 0.05, 0.05)], jitter=0.04)
+    def cuts(k: int) -> np.ndarray:  # jittered but evenly spread: no sliver cells
+        return (np.arange(1, k + 1) + rng.uniform(-0.3, 0.3, k)) / (k + 1)
+
+    xs, ys = cuts(int(rng.integers(2, 4))), cuts(int(rng.integers(2, 4)))
+    y, x = np.mgrid[0:size, 0:size].astype(np.float32) / size
+    col, row = np.searchsorted(xs, x), np.searchsorted(ys, y)
+    cells = rng.choice(len(pal), size=(len(ys) + 1, len(xs) + 1), p=[0.40, 0.20, 0.15, 0.15, 0.10])
+    img = pal[cells[row, col]]
+    bar = 0.018
+    lines = (np.abs(x[..., None] - xs).min(axis=-1) < bar) | (np.abs(y[..., None] - ys).min(axis=-1) < bar)
+    lines |= np.minimum(np.minimum(x, 1 - x), np.minimum(y, 1 - y)) < 0.03
+    img[lines] = (0.04, 0.04, 0.04)
+    return _to_u8(img)
+
+
+def bands(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """A rug of bold saturated stripes inside a solid border band with a thin contrasting line (one rug per tile)."""
+    pal = _palette(rng, [(0.85, 0.12, 0.10), (0.95, 0.85, 0.55), (0.08, 0.30, 0.55), (0.15, 0.12, 0.10)])
+    y, x = np.mgrid[0:size, 0:size].astype(np.float32) / size
+    stripes = int(rng.integers(5, 9))
+    img = pal[np.floor(x * stripes).astype(int) % 3]
+    edge = np.minimum(np.minimum(x, 1 - x), np.minimum(y, 1 - y))
+    img[edge < 0.10] = pal[3]
+    img[(edge >= 0.06) & (edge < 0.075)] = pal[1]
+    return _to_u8(img)

@@ -21,6 +21,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="size and quality: " + "; ".join(
                        f"{k}: {v.views} views {v.width}x{v.height}, {v.samples} spp" for k, v in PRESETS.items()))
     p.add_argument("--seed", type=opt.SEED, default=0, help="scene, camera path and sampling seed (default 0)")
+    p.add_argument("--scene-seed", type=int, default=None, metavar="K",
+                   help="render scene K >= 0 of the procedural scene family (other room sizes, layouts, "
+                        "materials and lights, open to the world) instead of the room; --seed then sets "
+                        "only the camera path and the sampling")
     p.add_argument("--views", type=opt.COUNT, default=None, help="number of views (default: the preset's)")
     p.add_argument("--samples", type=opt.COUNT, default=None, help="Cycles samples per pixel (default: the preset's)")
     p.add_argument("--threads", type=opt.COUNT0, default=None, help="render threads (default: all cores)")
@@ -38,5 +42,5 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     summary = synthesize(args.workspace, preset=args.preset, seed=args.seed, views=args.views,
                          samples=args.samples, force=args.force, threads=args.threads,
-                         renderer=args.renderer, blender=args.blender)
+                         renderer=args.renderer, blender=args.blender, scene_seed=args.scene_seed)
     events.output("workspace", summary["workspace"])
