@@ -1,5 +1,8 @@
 """``igs synth``: render the synthetic room with Cycles (CPU) into a workspace with exact ground truth.
 
+With ``--scene-seed K`` the scene is K of the procedural family (:mod:`backend.capture.synth_family`)
+instead of the room (:mod:`backend.capture.synth_scene`); everything below applies to both.
+
 Blender is either the bpy module in this process or, for a Python without one, a Blender binary
 driven as one worker process (:mod:`backend.capture.synth_blender`); both write the same EXR.
 

@@ -362,7 +362,7 @@ def family_layout(scene_seed: int) -> FamilyLayout:
         skylight = Rect.around(_u(rng, -hx + 1.2, hx - 1.2), _u(rng, -hy + 1.0, hy - 1.0), sx, sy)
     sky = _pick(rng, list(SKIES))
     ground, horizon, zenith = (_vary(rng, c, 0.08) for c in SKIES[sky])
-    world = {"ground": ground, "horizon": horizon, "zenith": zenith, "strength": _u(rng, 0.6, 0.9)}
+    world = {"ground": ground, "horizon": horizon, "zenith": zenith, "strength": _u(rng, 0.5, 0.8)}
 
     closed = [w for w in WALL_NAMES if w != open_wall]
     floor_texture = _pick(rng, ["wood", "tiles"])
@@ -435,7 +435,7 @@ def _sun_and_decal(rng: np.random.Generator, wall: Wall, room_h: float) -> tuple
     d = math.cos(el) * horiz + np.array([0.0, 0.0, -math.sin(el)])
     sun = Sun(tuple(float(c) for c in d / np.linalg.norm(d)), math.degrees(el), math.degrees(az),
               _u(rng, 3.8, 4.6), _vary(rng, (1.0, 0.92, 0.80), 0.04), f)
-    a_lat, a_perp = _u(rng, 0.7, 1.0), _u(rng, 0.7, 1.0)
+    a_lat, a_perp = _u(rng, 0.9, 1.3), _u(rng, 0.9, 1.3)
     lit_mid, lit_half = f * math.tan(az), wall.length / 2 - a_lat / 2 - 0.5
     floor_half = wall.length / 2 - a_lat / 2 - 0.3
     s = _u(rng, max(lit_mid - lit_half, -floor_half), min(lit_mid + lit_half, floor_half))
@@ -445,6 +445,7 @@ def _sun_and_decal(rng: np.random.Generator, wall: Wall, room_h: float) -> tuple
 
 
 def _rug(rng: np.random.Generator, floor: _Floor) -> Rect:
+    """A rug anywhere on the floor clear of the decal; the central piece may stand on it."""
     sx, sy = _u(rng, 1.4, 2.1), _u(rng, 1.0, 1.4)
     if rng.random() < 0.5:
         sx, sy = sy, sx
@@ -608,7 +609,7 @@ def _lights(rng: np.random.Generator, walls: dict[str, Wall], closed: list[str],
         if skylight is None or not Rect.around(*c, *size).overlaps(skylight, 0.1):
             break
     lights.append(LightSpec("ceiling_area", "AREA", (c[0], c[1], h - 0.02), _vary(rng, (0.85, 0.90, 1.0), 0.05),
-                            _u(rng, 50.0, 90.0), props={"shape": "RECTANGLE", "size": size[0], "size_y": size[1]}))
+                            _u(rng, 40.0, 75.0), props={"shape": "RECTANGLE", "size": size[0], "size_y": size[1]}))
     blocked = [p.footprint for p in pieces]
     if rng.random() < 0.5:  # a softbox on a wall, aimed at the middle of the room
         wall = walls[_pick(rng, closed)]

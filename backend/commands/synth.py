@@ -13,9 +13,10 @@ from backend.core import events
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "synth", help="render the synthetic room with Cycles into a workspace with exact ground truth",
-        description="Render the synthetic room (Cycles, CPU) into WORKSPACE: images, ground-truth albedo, "
-                    "shading, residual and depth, COLMAP cameras and points, and three edited versions "
-                    "(gt_edit/). Re-running the same command resumes an interrupted render.")
+        description="Render the synthetic room, or with --scene-seed a scene of the procedural family "
+                    "(Cycles, CPU), into WORKSPACE: images, ground-truth albedo, shading, residual and depth, "
+                    "COLMAP cameras and points, and three edited versions (gt_edit/). Re-running the same "
+                    "command resumes an interrupted render.")
     p.add_argument("workspace", help="folder to write (created if missing)")
     p.add_argument("--preset", choices=sorted(PRESETS), default="demo",
                    help="size and quality: " + "; ".join(
