@@ -73,6 +73,28 @@ def test_residual_spawns_at_high_error_pixels_at_the_prior_depth():
     assert torch.allclose(g.base_rgb(), torch.full((30, 3), 0.4), atol=1e-5)
 
 
+def test_residual_spawns_in_the_environment_where_no_depth_is_known():
+    """An open side: pixels with no depth (the sky) that the diffuse model cannot draw get residual
+    Gaussians on a shell beyond the scene (2x the farthest depth); with the factor at 0 they get none."""
+    pts, cols, cams = wall_scene()
+    cam = cams[0]
+    h, w = cam.height, cam.width
+    img = torch.full((h, w, 3), 0.5)
+    img[:6] = 0.9  # the sky, bright, where A * S is 0
+    depth = torch.full((h, w), 2.5)
+    depth[:, w // 2:] = 3.0
+    depth[:6] = 0.0
+    view = View(0, cam, img, depth)
+    view.extras["AS"] = torch.where(depth[..., None] > 0, 0.5, 0.0).expand(h, w, 3).contiguous()
+    cfg = DecomposeConfig()
+    cfg.spawn.points, cfg.spawn.top_fraction = 30, 0.2
+    uv, z = cam.project(spawn_residual([view], cfg).means.detach().numpy().astype(np.float64))
+    assert np.allclose(z, 6.0, atol=1e-4) and np.all(uv[:, 1] < 6)
+    cfg.spawn.environment_depth = 0.0
+    uv, z = cam.project(spawn_residual([view], cfg).means.detach().numpy().astype(np.float64))
+    assert np.all(z < 3.01)
+
+
 def test_shading_starts_on_an_opacity_weighted_subset_of_the_albedo_field_at_the_luminance_ratio():
     pts, cols, cams = wall_scene(n=200)
     opac = torch.where(torch.arange(200) < 100, 0.9, 1e-4)  # only the first half is really there

@@ -55,6 +55,10 @@ class SpawnConfig:
     """Residual Gaussians spawned in all, spread evenly over the training views."""
     top_fraction: float = 0.1
     """Candidate pixels: this fraction of each view's pixels with the largest |I - A * S|."""
+    environment_depth: float = 2.0
+    """Pixels with no depth (the environment through an open side, the sky) are candidates too,
+    placed at this many times the farthest depth of the view: nothing else can draw the
+    environment, since the albedo and shading stay on surfaces. 0 = leave them out."""
 
 
 @dataclass

@@ -134,12 +134,22 @@ def shading_colours(points: np.ndarray, views: Sequence[View], cfg: DecomposeCon
     return np.repeat(s[:, None], 3, axis=1), "gray at the image/albedo luminance ratio"
 
 
+def _with_environment(depth: np.ndarray, factor: float) -> np.ndarray:
+    """(H, W) depth with the pixels that have none set to ``factor`` x the farthest one (0: unchanged)."""
+    known = np.isfinite(depth) & (depth > 0)
+    if factor <= 0 or not known.any() or known.all():
+        return depth
+    return np.where(known, depth, factor * float(depth[known].max())).astype(depth.dtype)
+
+
 def spawn_residual(views: Sequence[View], cfg: DecomposeConfig) -> GaussianSet:
     """Residual Gaussians at high-error pixels of the diffuse model (paper 3.2.3).
 
-    Per training view: the ``top_fraction`` of pixels with the largest |I - A * S| (cached) and a
-    depth; ``points / views`` of them drawn with probability proportional to the error; placed at the
-    depth prior (the rendered albedo depth where there is none); colour = the positive part of I - A * S.
+    Per training view: the ``top_fraction`` of pixels with the largest |I - A * S| (cached);
+    ``points / views`` of them drawn with probability proportional to the error; placed at the
+    depth prior (the rendered albedo depth where there is none), or where neither has a depth (the
+    environment) at ``environment_depth`` times the view's farthest depth; colour = the positive part
+    of I - A * S.
     """
     sc = cfg.spawn
     if not 0 < sc.top_fraction <= 1:
@@ -151,6 +161,7 @@ def spawn_residual(views: Sequence[View], cfg: DecomposeConfig) -> GaussianSet:
         diff = (v.image - v.extras["AS"]).cpu().numpy()
         err = np.abs(diff).sum(-1).reshape(-1)
         depth = (v.depth if v.depth is not None else v.extras["depth_A"]).cpu().numpy()
+        depth = _with_environment(depth, sc.environment_depth)
         valid = (np.isfinite(depth) & (depth > 0)).reshape(-1)
         err = np.where(valid, err.astype(np.float64), 0.0)  # float64 under numpy 1 and 2 (NEP 50): same draws
         k = max(1, int(sc.top_fraction * valid.sum()))
