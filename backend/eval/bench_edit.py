@@ -47,7 +47,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -72,6 +72,9 @@ from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.composite import compose
 
+ProxySource = Literal["fitted", "true"]
+"""Where the baked proxy comes from: fitted to the edit view's rectangle, or the ground truth."""
+PROXY_SOURCES: tuple[ProxySource, ...] = get_args(ProxySource)
 RING = 2
 """Default ring width, pixels, of the interior / border / bleed split."""
 
@@ -240,6 +243,20 @@ def true_cylinder(edit: dict, folder: Path) -> tuple[ProxyMesh, dict]:
     return proxy, {"fit": "none (ground-truth cylinder)"}
 
 
+def true_plane(edit: dict, folder: Path) -> tuple[ProxyMesh, dict]:
+    """The ground-truth rectangle of a plane edit: a proxy that matches the region exactly."""
+    surf = edit["surface"]
+    tex, col = _look(edit, folder)
+    proxy = plane_proxy(surf["center"], surf["normal"], surf["u_axis"], surf["v_axis"], surf["size"],
+                        name=edit["name"], texture=tex, color=col)
+    return proxy, {"fit": "none (ground-truth plane)"}
+
+
+def true_proxy(edit: dict, folder: Path) -> tuple[ProxyMesh, dict]:
+    """The ground-truth surface of ``edit`` as its proxy (plane or cylinder)."""
+    return true_cylinder(edit, folder) if edit["surface"]["type"] == "cylinder" else true_plane(edit, folder)
+
+
 def _srgb(lin: np.ndarray) -> np.ndarray:
     return linear_to_srgb(np.clip(lin, 0.0, 1.0))
 
@@ -318,9 +335,12 @@ def multi_view_lead(psnr: dict[str, float]) -> dict[str, float | None]:
 
 
 def run(ws_root: Path, edits: Sequence[str] | None, cfg: BakeConfig, margin: int, fit_cfg: FitConfig = FitConfig(),
-        grow_on: str = "auto", ring: int = RING, keep_going: bool = False) -> dict[str, Any]:
+        grow_on: str = "auto", ring: int = RING, keep_going: bool = False,
+        proxy: ProxySource = "fitted") -> dict[str, Any]:
     """Fit, bake and score each of ``edits`` (None: every ``gt_edit`` edit); returns per edit its PSNRs,
-    ``multi_view_lead_db``, fits, bakes and seconds. ``keep_going``: an edit whose fit or bake fails is
+    ``multi_view_lead_db``, fits, bakes and seconds. ``proxy``: "fitted" (from the edit view's
+    rectangle, as an artist fits it) or "true" (the ground-truth surface: the bake alone, with a
+    proxy that matches the region exactly). ``keep_going``: an edit whose fit or bake fails is
     recorded as ``{"error": message, "seconds": s}`` and the next one runs (else the error is raised)."""
     names = resolve_edits(Path(ws_root), edits)
     ring_masks(np.zeros((1, 1), bool), ring)  # a bad --ring fails here, before any bake
@@ -330,7 +350,8 @@ def run(ws_root: Path, edits: Sequence[str] | None, cfg: BakeConfig, margin: int
     for name in names:
         t0 = time.perf_counter()
         try:
-            results[name] = _bench_edit(ws_root, capture, original, name, cfg, margin, fit_cfg, grow_on, ring)
+            results[name] = _bench_edit(ws_root, capture, original, name, cfg, margin, fit_cfg, grow_on, ring,
+                                        proxy)
         except IGSError as e:
             if not keep_going:
                 raise
@@ -341,14 +362,17 @@ def run(ws_root: Path, edits: Sequence[str] | None, cfg: BakeConfig, margin: int
 
 
 def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, margin: int, fit_cfg: FitConfig,
-                grow_on: str, ring: int) -> dict[str, Any]:
-    """One edit of :func:`run`: its proxies fitted, the bakes made and scored."""
+                grow_on: str, ring: int, proxy: ProxySource = "fitted") -> dict[str, Any]:
+    """One edit of :func:`run`: its proxies fitted (or the true one), the bakes made and scored."""
     folder = ws_root / "gt_edit" / name
     edit = json.loads((folder / "edit.json").read_text())
     cam = capture.frame(edit["edit_view"]).camera
-    proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg, capture=capture,
-                                      grow_on=grow_on)}
-    if edit["surface"]["type"] == "cylinder":
+    if proxy == "true":
+        proxies = {"fitted": true_proxy(edit, folder)}  # keyed as the primary proxy: same rows and lead
+    else:
+        proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg,
+                                          capture=capture, grow_on=grow_on)}
+    if edit["surface"]["type"] == "cylinder" and proxy != "true":
         proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture,
                                                grow_on)
         proxies["true_cylinder"] = true_cylinder(edit, folder)
@@ -363,8 +387,8 @@ def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, ma
     psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin, ring,
                     load_lighting(ws_root))
     print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
-    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "fit": {k: v[1] for k, v in proxies.items()},
-            "bakes": bakes}
+    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "proxy": proxy,
+            "fit": {k: v[1] for k, v in proxies.items()}, "bakes": bakes}
 
 
 def _cell(x: float | None) -> str:
@@ -415,6 +439,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grow-on", default="auto", choices=GROW_ON,
                     help="what the fits grow on: the capture's depth priors, the albedo centres, or auto (depth "
                     "priors when every training view has one; default)")
+    ap.add_argument("--proxy", default="fitted", choices=PROXY_SOURCES,
+                    help="the baked proxy: fitted to the edit view's rectangle (default), or the ground-truth "
+                    "surface (the bake alone, with a proxy that matches the region exactly)")
     args = ap.parse_args(argv)
     ws_root = Path(args.workspace)
     cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
@@ -423,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         edits = [e for e in args.edits.split(",") if e] if args.edits is not None else None
         results = run(ws_root, edits, cfg, args.margin, FitConfig(min_selected=args.min_selected), args.grow_on,
-                      args.ring)
+                      args.ring, proxy=args.proxy)
     except IGSError as e:
         return error("bench_edit", e)
     out = Path(args.out) if args.out else ws_root / "bench_edit.json"

@@ -51,6 +51,7 @@ from backend.edit.fit import FitConfig
 from backend.edit.surface_points import GROW_ON
 from backend.eval import bench_decompose, bench_edit
 from backend.eval.bench_cli import error
+from backend.eval.bench_edit import PROXY_SOURCES, ProxySource
 from backend.eval.layer_metrics import headline_metrics
 from backend.eval.seed_stats import aggregate, cell, markdown, spread_cells
 from backend.render import BACKENDS
@@ -114,6 +115,8 @@ class SeedSettings:
     ring: int = bench_edit.RING
     min_selected: int = FitConfig.min_selected
     grow_on: str = "auto"
+    proxy: ProxySource = "fitted"
+    """bench_edit --proxy: the fitted proxy, or the ground-truth surface (the bake alone)."""
 
     def check(self) -> None:
         """One :class:`IGSError` for the first bad value, named by its option."""
@@ -283,7 +286,7 @@ def run_seed(root: Path, scene_seed: int | None, s: SeedSettings, where: str = "
     source = _timed(seconds, "albedo_layer", where, lambda: ensure_albedo(ws, s, before))
     edits = _timed(seconds, "bench_edit", where, lambda: bench_edit.run(
         ws, s.edits, s.bake_config(), s.margin, FitConfig(min_selected=s.min_selected), s.grow_on, s.ring,
-        keep_going=True))
+        keep_going=True, proxy=s.proxy))
     write_json(ws / "bench_edit.json", {"results": edits, "config": s.as_json(), "table": bench_edit.table(edits)})
     seconds["total"] = round(time.perf_counter() - t0, 1)
     return {"scene_seed": scene_seed, "workspace": str(ws), "settings": s.as_json(), "date": _now(),
@@ -423,6 +426,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--ring", type=int, default=d.ring, help="width of the interior / border / bleed rings, pixels")
     p.add_argument("--min-selected", type=int, default=d.min_selected)
     p.add_argument("--grow-on", default=d.grow_on, choices=GROW_ON)
+    p.add_argument("--proxy", default=d.proxy, choices=PROXY_SOURCES,
+                   help="bench_edit --proxy: fitted (default) or true (the ground-truth surface)")
     return p
 
 
@@ -434,7 +439,8 @@ def settings_from(args: argparse.Namespace) -> SeedSettings:
                         device=args.device, edits=edits, bake_iterations=args.bake_iterations,
                         bake_views=args.bake_views, capture_views=args.capture_views, anchor_views=args.anchor_views,
                         edit_filter=args.edit_filter, margin=args.margin, ring=args.ring,
-                        min_selected=args.min_selected, grow_on=args.grow_on)
+                        min_selected=args.min_selected, grow_on=args.grow_on,
+                        proxy=args.proxy)
 
 
 def main(argv: list[str] | None = None) -> int:
