@@ -362,17 +362,17 @@ def run(ws_root: Path, edits: Sequence[str] | None, cfg: BakeConfig, margin: int
 
 
 def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, margin: int, fit_cfg: FitConfig,
-                grow_on: str, ring: int, proxy: ProxySource = "fitted") -> dict[str, Any]:
+                grow_on: str, ring: int, source: ProxySource = "fitted") -> dict[str, Any]:
     """One edit of :func:`run`: its proxies fitted (or the true one), the bakes made and scored."""
     folder = ws_root / "gt_edit" / name
     edit = json.loads((folder / "edit.json").read_text())
     cam = capture.frame(edit["edit_view"]).camera
-    if proxy == "true":
+    if source == "true":
         proxies = {"fitted": true_proxy(edit, folder)}  # keyed as the primary proxy: same rows and lead
     else:
         proxies = {"fitted": fitted_proxy(edit, folder, cam, original, cfg.backend, fit_cfg=fit_cfg,
                                           capture=capture, grow_on=grow_on)}
-    if edit["surface"]["type"] == "cylinder" and proxy != "true":
+    if edit["surface"]["type"] == "cylinder" and source != "true":
         proxies["plane_forced"] = fitted_proxy(edit, folder, cam, original, cfg.backend, True, fit_cfg, capture,
                                                grow_on)
         proxies["true_cylinder"] = true_cylinder(edit, folder)
@@ -387,7 +387,7 @@ def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, ma
     psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin, ring,
                     load_lighting(ws_root))
     print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
-    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "proxy": proxy,
+    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "proxy": source,
             "fit": {k: v[1] for k, v in proxies.items()}, "bakes": bakes}
 
 
