@@ -21,6 +21,8 @@ the held-out views (index % 8 == 0) are compared with the Cycles ground truth of
   (what a user renders) vs ``gt_edit/<edit>/images`` inside the mask; for "oracle" ``A`` is the
   ground-truth edited albedo, so it measures the decomposed lighting alone: on a recoloured dark
   surface it shows whether the shading holds the captured light there;
+- ``unedited/albedo_capture``: the unedited albedo render vs the capture's own ground-truth albedo in
+  the region (and its rings): the decomposition's error there, the floor under a bake's albedo;
 - ``outside``: the baked albedo render vs the unedited albedo render outside the mask dilated by
   ``--margin`` pixels (what must not change);
 - ``<albedo|image>_interior``, ``_border``, ``_bleed``: the same comparison on the mask eroded by
@@ -303,6 +305,8 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
                 region(f"{key}/image_decomposed", _srgb(compose(a, *decomposed)), gt_img)
             acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
         region("unedited/albedo", _srgb(a0), gt_alb)
+        if "albedo" in f.gt:  # the field's own error against the capture's albedo: the floor under a bake
+            region("unedited/albedo_capture", _srgb(a0), read_image(f.gt["albedo"])[..., :3])
     return acc.psnr()
 
 

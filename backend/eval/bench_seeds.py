@@ -73,6 +73,9 @@ EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image",
     ("single_view_albedo", "single_view/albedo"),
     # the unedited field's error in the outer ring: the floor under the bake's albedo_bleed
     ("unedited_albedo_bleed", "unedited/albedo_bleed"),
+    # the unedited field against the capture's albedo in the region's rings: the floor under a bake
+    ("floor_albedo_border", "unedited/albedo_capture_border"),
+    ("floor_albedo_interior", "unedited/albedo_capture_interior"),
 )
 # the per-seed table's decomposition columns, where some seed has them (all metrics: JSON and aggregate)
 DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_psnr", "full_psnr_fg",
