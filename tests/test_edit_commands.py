@@ -369,3 +369,36 @@ def test_bake_stage_skips_frozen_gaussians_outside_each_window_without_changing_
     b.color.sum().backward()
     for k in full.gaussians.params:
         assert torch.allclose(full.gaussians.params[k].grad, culled.gaussians.params[k].grad, atol=1e-5), k
+
+
+def test_recolouring_a_whole_textured_region_replaces_the_texture_to_its_border(ws):
+    """A proxy that matches a textured region exactly (the middle 2 x 2 checker cells of the +x face,
+    edge on cell edges): the new colour reaches the border ring with no checker left at the edges,
+    and nothing bleeds past it onto the cells around."""
+    from backend.capture.load import load_capture
+    from backend.eval.edit_region import ring_masks
+    target = np.array([0.95, 0.9, 0.2])
+    proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0],
+                        color=target, name="whole_face")
+    bake_edit(ws, proxy, "whole_face", BakeConfig(view=EDIT_VIEW, views=4, iterations=150, anchor_views=4))
+    before, _ = read_ply(ws / "layers" / "albedo.ply", kind="albedo")
+    after, _ = read_ply(ws / "edits" / "whole_face" / "albedo.ply", kind="albedo")
+    cam = load_capture(ws).frame("frame_0000.png").camera  # held out, facing the +x face
+    mask = rasterize_proxy(proxy, cam).mask
+    rings = ring_masks(mask, 2)
+    assert rings.border.sum() > 20 and rings.interior.sum() > 20 and rings.bleed.sum() > 20
+    a0 = render_albedo(before, cam, "auto").color.numpy()
+    a1 = render_albedo(after, cam, "auto").color.numpy()
+    for part in ("interior", "border"):
+        m = getattr(rings, part)
+        err0, err1 = np.abs(a0[m] - target).mean(), np.abs(a1[m] - target).mean()
+        print(f"{part}: mean |albedo - new colour| {err0:.3f} before, {err1:.3f} after")
+        assert err1 < 0.3 * err0, (part, err0, err1)
+    # past the edge the albedo keeps what it was: of the colour change (0.4 on average), at most the
+    # splats' own anti-aliasing reaches the 2-pixel outer ring, and next to nothing the ring beyond it
+    change = np.abs(a0[mask] - target).mean()
+    near = np.abs(a1[rings.bleed] - a0[rings.bleed]).mean()
+    far = ring_masks(_grow(mask, 4), 2).bleed
+    beyond = np.abs(a1[far] - a0[far]).mean()
+    print(f"change in the region {change:.3f}; outer ring {near:.3f}; 4-6 px out {beyond:.3f}")
+    assert near < 0.2 * change and beyond < 0.06 * change
