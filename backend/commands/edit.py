@@ -76,9 +76,6 @@ BAKE_OPTIONS = COMMON + (shared.seed(),) + (
            type=opt.number(0, 180, lo_open=True)),
     Option("--spawn-fraction", "spawn_fraction",
            f"new Gaussians at this fraction of the edit pixels (default {_B.spawn_fraction:g})", type=opt.number(0, 1)),
-    Option("--edge-band", "edge_band",
-           "pixels at the edit's edge spawned densely with discs kept inside the edit, so a recolour to a "
-           f"region's border does not spill past it (default {_B.edge_band}: off)", type=opt.COUNT0),
     Option("--iterations", "iterations", f"re-optimisation steps (default {_B.iterations})", type=opt.COUNT0),
     shared.device(),
     Option("--capture-views", "capture_views",

@@ -180,8 +180,8 @@ def _windows(painted: list[Painted], margin: int) -> list[View]:
 def _spawned(edit: _EditView, cfg: BakeConfig) -> dict[str, np.ndarray]:
     """3a. The new flat Gaussians on the proxy (activated arrays of :func:`flattened_gaussians`)."""
     pts = spawn_points_on_proxy(edit.camera, edit.proxy_render, cfg.spawn_fraction, cfg.seed,
-                                edit.mask & edit.proxy_render.mask, cfg.edge_band)
-    return flattened_gaussians(pts, edit.camera)
+                                edit.mask & edit.proxy_render.mask)
+    return flattened_gaussians(pts, edit.camera, cfg.spawn_fraction)
 
 
 def _clear_surface(original: GaussianSet, edit: _EditView, cfg: BakeConfig) -> tuple[GaussianSet, int, int]:

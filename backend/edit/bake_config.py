@@ -24,10 +24,6 @@ class BakeConfig:
     """Half-angle of the cap of virtual views, degrees."""
     spawn_fraction: float = 0.2
     """New albedo Gaussians at this fraction of the edit view's edit pixels."""
-    edge_band: int = 0
-    """Pixels at the edit's edge (in the edit view) sampled densely, and every new disc kept inside
-    the edit, so a recolour to a region's border does not spill past it (0 = off; see
-    :func:`backend.edit.spawn.spawn_points_on_proxy`)."""
     iterations: int = 2000
     """Re-optimisation steps of G_A (one view per step)."""
     capture_views: int = 16
@@ -79,7 +75,7 @@ def check_bake_config(cfg: BakeConfig) -> None:
         raise IGSError(f"--surface must be 'replace' or 'paint', got {cfg.surface!r}")
     for option, value, least in (("--supersample", cfg.supersample, 1), ("--views", cfg.views, 0),
                                  ("--iterations", cfg.iterations, 1), ("--capture-views", cfg.capture_views, 0),
-                                 ("--anchor-views", cfg.anchor_views, 0), ("--edge-band", cfg.edge_band, 0)):
+                                 ("--anchor-views", cfg.anchor_views, 0)):
         if value < least:
             raise IGSError(f"{option} must be >= {least}, got {value}")
     if not 0.0 < cfg.edit_filter <= 10.0:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import torch
 
@@ -35,39 +34,20 @@ class SpawnPoints:
     """(M,) float64 camera z."""
     cos: np.ndarray
     """(M,) float64 |cos| between the view ray and the normal."""
-    spacing: np.ndarray
-    """(M,) float64 in-plane scale of each sample's disc, in pixels of the edit view: the samples'
-    spacing (``1 / sqrt(fraction)``), or less at the edit's edge (see :func:`spawn_points_on_proxy`)."""
 
 
 def spawn_points_on_proxy(edit_camera: Camera, render: ProxyRender, fraction: float = 0.2, seed: int = 0,
-                          mask: np.ndarray | None = None, edge_band: int = 0) -> SpawnPoints:
+                          mask: np.ndarray | None = None) -> SpawnPoints:
     """Sample ``round(fraction * P)`` of the P edit pixels (``mask``, default the proxy's coverage) without
-    replacement and unproject them with the proxy depth (paper: 20 % of the edit pixels).
-
-    ``edge_band`` > 0: every edit pixel within that many pixels of the edit's edge is sampled too, and
-    every sample's disc is kept inside the edit: its scale is at most half its distance to the edge
-    (0.35 px at least), so a recolour spawned to its border does not spill past it.
-    """
+    replacement and unproject them with the proxy depth (paper: 20 % of the edit pixels)."""
     if not (np.isfinite(fraction) and 0.0 < fraction <= 1.0):
         raise IGSError(f"--spawn-fraction must be in (0, 1], got {fraction}")
-    covered = render.mask if mask is None else (np.asarray(mask, bool) & render.mask)
     rows, cols = covered_pixels(render, mask)
     if len(rows) == 0:
         raise IGSError(f"view '{edit_camera.name}': the edit covers no pixel of the proxy; nothing to spawn")
-    spacing = np.full(len(rows), 1.0 / np.sqrt(fraction))
-    band = np.zeros(len(rows), bool)
-    if edge_band > 0:
-        # distance of each edit pixel's centre to the nearest pixel outside the edit (1: on the edge)
-        dist = cv2.distanceTransform(np.pad(covered, 1).astype(np.uint8), cv2.DIST_L2, 3)[1:-1, 1:-1]
-        d = dist[rows, cols].astype(np.float64)
-        band = d <= edge_band
-        spacing = np.minimum(spacing, np.maximum((d - 0.5) / 2.0, 0.35))
-    rest = np.flatnonzero(~band)
-    count = max(1, int(round(fraction * len(rest)))) if len(rest) else 0
-    drawn = np.random.default_rng(seed).choice(rest, count, replace=False)
-    pick = np.sort(np.concatenate([np.flatnonzero(band), drawn]))
-    rows, cols, spacing = rows[pick], cols[pick], spacing[pick]
+    count = max(1, int(round(fraction * len(rows))))
+    pick = np.sort(np.random.default_rng(seed).choice(len(rows), count, replace=False))
+    rows, cols = rows[pick], cols[pick]
     depth = render.depth[rows, cols].astype(np.float64)
     return SpawnPoints(
         positions=unproject(edit_camera, rows, cols, depth),
@@ -76,7 +56,6 @@ def spawn_points_on_proxy(edit_camera: Camera, render: ProxyRender, fraction: fl
         pixels=np.stack([rows, cols], axis=1).astype(np.int64),
         depth=depth,
         cos=render.cos[rows, cols].astype(np.float64),
-        spacing=spacing,
     )
 
 
@@ -91,14 +70,13 @@ def quats_z_to(normals: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def flattened_gaussians(points: SpawnPoints, camera: Camera, spacing_scale: float = 1.0,
+def flattened_gaussians(points: SpawnPoints, camera: Camera, fraction: float = 0.2, spacing_scale: float = 1.0,
                         thickness_ratio: float = 0.02, opacity: float = 0.9) -> dict[str, np.ndarray]:
     """Flat Gaussians at ``points``: disc-shaped, local z along the surface normal.
 
-    In-plane scale (std-dev) = ``spacing_scale`` x the spacing of the samples on the surface,
-    ``z * spacing / (f * sqrt(cos))``: pixel footprint ``z/f``, stretched by ``1/cos`` along the
-    slope (the geometric mean ``1/sqrt(cos)`` is used), samples ``spacing`` pixels apart
-    (``1/sqrt(fraction)``, less at the edit's edge with an edge band).
+    In-plane scale (std-dev) = ``spacing_scale`` x the mean spacing of the samples on the surface,
+    ``z / (f * sqrt(fraction * cos))``: pixel footprint ``z/f``, stretched by ``1/cos`` along the
+    slope (the geometric mean ``1/sqrt(cos)`` is used), samples ``1/sqrt(fraction)`` pixels apart.
     With the default 1.0 the spawned set renders hole-free (alpha >= 0.9 inside the edit with the
     default opacity; 0.5 leaves holes at 20 % sampling) — the re-optimisation then sharpens it.
     Normal-axis scale = ``thickness_ratio`` x the in-plane one. Returns float32 arrays: ``means``
@@ -108,7 +86,7 @@ def flattened_gaussians(points: SpawnPoints, camera: Camera, spacing_scale: floa
     """
     f = np.sqrt(camera.fx * camera.fy)
     cos = np.clip(points.cos, GRAZING_COS, 1.0)
-    sigma = spacing_scale * points.depth * points.spacing / (f * np.sqrt(cos))
+    sigma = spacing_scale * points.depth / (f * np.sqrt(fraction * cos))
     scales = np.stack([sigma, sigma, thickness_ratio * sigma], axis=1)
     return {
         "means": points.positions.astype(np.float32),

@@ -443,8 +443,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grow-on", default="auto", choices=GROW_ON,
                     help="what the fits grow on: the capture's depth priors, the albedo centres, or auto (depth "
                     "priors when every training view has one; default)")
-    ap.add_argument("--edge-band", type=int, default=BakeConfig.edge_band,
-                    help="igs edit bake --edge-band: dense, clipped discs at the edit's edge (default 0: off)")
     ap.add_argument("--proxy", default="fitted", choices=PROXY_SOURCES,
                     help="the baked proxy: fitted to the edit view's rectangle (default), or the ground-truth "
                     "surface (the bake alone, with a proxy that matches the region exactly)")
@@ -452,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
     ws_root = Path(args.workspace)
     cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
                      capture_views=args.capture_views, edit_filter=args.edit_filter,
-                     backend=args.backend, edge_band=args.edge_band)
+                     backend=args.backend)
     try:
         edits = [e for e in args.edits.split(",") if e] if args.edits is not None else None
         results = run(ws_root, edits, cfg, args.margin, FitConfig(min_selected=args.min_selected), args.grow_on,
