@@ -33,6 +33,18 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
+LUMA_709 = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 / sRGB luminance weights of linear RGB."""
+
+
+def luminance(x):
+    """(..., 3+) linear RGB -> (...) linear luminance of a numpy array (float32 weights) or a torch
+    tensor (weights in its dtype, on its device); only the first three channels count."""
+    if hasattr(x, "new_tensor"):  # torch, without importing it here
+        return x[..., :3] @ x.new_tensor(LUMA_709)
+    return x[..., :3] @ np.asarray(LUMA_709, dtype=np.float32)
+
+
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     """Linear RGB -> sRGB-encoded values; clipped to [0,1] first."""
     x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)

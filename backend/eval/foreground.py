@@ -22,6 +22,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from backend.core.imageio import luminance
 from backend.train.losses import ssim_map
 from backend.train.lpips import load_lpips
 
@@ -30,13 +31,6 @@ from backend.train.lpips import load_lpips
 # down only loosely (an image error dI is a shading error dI / A, 50x at A = 0.02). It sits below
 # the albedo of ordinary dark materials (~0.03-0.05) so that they stay in the foreground.
 FOREGROUND_ALBEDO_LUMINANCE = 0.02
-_LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 / sRGB primaries, on linear RGB
-
-
-def luminance(img: torch.Tensor) -> torch.Tensor:
-    """(H, W, 3) linear RGB -> (H, W) linear luminance."""
-    return img[..., :3] @ torch.tensor(_LUMA, dtype=img.dtype, device=img.device)
-
 
 def foreground_mask(albedo: torch.Tensor, threshold: float = FOREGROUND_ALBEDO_LUMINANCE) -> torch.Tensor:
     """(H, W) bool: the pixels whose ground-truth (H, W, 3) linear albedo has luminance above ``threshold``."""

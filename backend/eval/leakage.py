@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import torch
 
-from backend.eval.foreground import luminance
+from backend.core.imageio import luminance
 
 # Blur of the high-pass in pixels of the evaluated images: it keeps detail finer than ~15 px
 # (texture, print, grain) and drops the smooth fall-off of light across a wall.

@@ -12,6 +12,7 @@ import torch
 
 from backend.core import events
 from backend.core.errors import IGSError
+from backend.core.imageio import luminance
 from backend.core.workspace import Capture
 from backend.splats.gaussians import GaussianSet
 from backend.splats.init import backproject, from_points, points_from_depth
@@ -71,10 +72,6 @@ def _depth_points(views: Sequence[View], colour: Callable[[View], torch.Tensor],
                              [colour(v).cpu().numpy() for v in views], n, seed)
 
 
-def _luminance(x: np.ndarray) -> np.ndarray:
-    return x @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
-
-
 def initial_shading(capture: Capture, views: Sequence[View], cfg: DecomposeConfig,
                     albedo_of: Callable[[View], torch.Tensor] = lambda v: v.extras["A"]) -> tuple[GaussianSet, str]:
     """Shading Gaussians at the SfM points (paper: initialised as the albedo Gaussians), coloured by
@@ -128,7 +125,7 @@ def shading_colours(points: np.ndarray, views: Sequence[View], cfg: DecomposeCon
         return np.ones((len(points), 3), dtype=np.float32), "gray 1.0"
     both = lambda v: torch.cat([v.image, albedo_of(v)], dim=-1)  # noqa: E731
     samples, hits = sample_at_points(points, views, both)
-    img, alb = _luminance(samples[:, :3]), _luminance(samples[:, 3:])
+    img, alb = luminance(samples[:, :3]), luminance(samples[:, 3:])
     s = np.where(hits > 0, img / np.maximum(alb, 0.02), 1.0)
     s = np.clip(np.nan_to_num(s, nan=1.0), 0.02, 8.0).astype(np.float32)
     return np.repeat(s[:, None], 3, axis=1), "gray at the image/albedo luminance ratio"

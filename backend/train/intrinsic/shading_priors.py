@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-LUMA = (0.2126, 0.7152, 0.0722)
+from backend.core.imageio import luminance
 
 
 @dataclass(frozen=True)
@@ -37,11 +37,6 @@ class ShadingTerms:
     """Albedo luminance (linear) below which S counts as free."""
     texture: float = 0.0
     """S's log gradient penalised where the albedo has an edge."""
-
-
-def luminance(x: torch.Tensor) -> torch.Tensor:
-    """Rec. 709 luminance of (H, W, 3) linear RGB -> (H, W)."""
-    return x @ x.new_tensor(LUMA)
 
 
 def push_pull_fill(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
