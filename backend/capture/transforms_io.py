@@ -9,6 +9,7 @@ Intrinsics are read from the top level and may be overridden per frame (nerfstud
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from backend.capture.undistort import Intrinsics
-from backend.core.atomic_io import write_json
+from backend.core.atomic_io import write_bytes, write_json
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import inside
@@ -242,3 +243,17 @@ def read_ply_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if not keep.all():
         raise IGSError(f"{path}: {int((~keep).sum())} of {len(xyz)} points have NaN or infinite coordinates")
     return xyz, rgb
+
+
+def write_ply_points(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
+    """A point-cloud PLY (binary): ``xyz`` (N, 3) as float32 x, y, z and ``rgb`` (N, 3) uint8 colours."""
+    from plyfile import PlyData, PlyElement
+
+    v = np.empty(len(xyz), [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for i, c in enumerate("xyz"):
+        v[c] = xyz[:, i]
+    for i, c in enumerate(("red", "green", "blue")):
+        v[c] = rgb[:, i]
+    buf = io.BytesIO()
+    PlyData([PlyElement.describe(v, "vertex")]).write(buf)
+    write_bytes(path, buf.getvalue())

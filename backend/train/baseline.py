@@ -90,33 +90,46 @@ def initial_gaussians(capture: Capture, frames, cfg: BaselineConfig, kind: str =
     return from_points(pts, cols, kind, sh_degree, cfg.init, seed), "random points in the camera bounding box"
 
 
-def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume: bool = True,
-               stop_after: int | None = None) -> dict[str, Any]:
-    """Train vanilla 3DGS on a workspace; returns its metrics.json entry (held-out metrics, times, settings),
-    or ``{"step", "finished": False}`` when ``stop_after`` ended it early."""
-    cfg = cfg or BaselineConfig()
+def baseline_stage(workspace: str | Path, cfg: BaselineConfig,
+                   initial: GaussianSet | None = None) -> tuple[Stage, Capture, str]:
+    """The vanilla-3DGS stage of a workspace: its views split by ``cfg.hold_every``, at ``cfg.downscale``,
+    and ``initial`` Gaussians (default: :func:`initial_gaussians`). Returns (stage, capture, where the
+    initial Gaussians came from)."""
     check_space(cfg.color_space)
     if cfg.train.iterations < 1:
         raise IGSError(f"--iterations must be >= 1, got {cfg.train.iterations}")
-    t_start = time.perf_counter()
-    device = resolve_device(cfg.device)
     capture = load_capture(workspace)
-    ws = capture.workspace
     train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
     if not train_frames:
-        raise IGSError(f"{ws.root}: no training views")
+        raise IGSError(f"{capture.workspace.root}: no training views")
     idx = {f.name: i for i, f in enumerate(capture.frames)}
     with_depth = cfg.train.lambda_depth > 0
     train_views = load_views(train_frames, [idx[f.name] for f in train_frames], cfg.color_space, cfg.downscale,
                              with_depth=with_depth)
     test_views = load_views(test_frames, [idx[f.name] for f in test_frames], cfg.color_space, cfg.downscale)
     extent = scene_extent([v.camera for v in train_views])
-    gaussians, source = initial_gaussians(capture, train_frames, cfg, "radiance", cfg.sh_degree)
+    if initial is None:
+        gaussians, source = initial_gaussians(capture, train_frames, cfg, "radiance", cfg.sh_degree)
+    else:
+        gaussians, source = initial, "the given points"
+    cam = train_views[0].camera
     events.log(f"{STAGE}: {len(train_views)} training / {len(test_views)} held-out views at "
-               f"{train_views[0].camera.width}x{train_views[0].camera.height}, {len(gaussians)} initial Gaussians "
-               f"from {source}, scene extent {extent:.3g}")
+               f"{cam.width}x{cam.height}, {len(gaussians)} initial Gaussians from {source}, scene extent {extent:.3g}")
     strategy = DensifyStrategy(cfg.train.resolved_densify(), extent)
     stage = Stage(STAGE, gaussians, train_views, test_views, cfg.train, extent, strategy, cfg.color_space)
+    return stage, capture, source
+
+
+def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume: bool = True,
+               stop_after: int | None = None) -> dict[str, Any]:
+    """Train vanilla 3DGS on a workspace; returns its metrics.json entry (held-out metrics, times, settings),
+    or ``{"step", "finished": False}`` when ``stop_after`` ended it early."""
+    cfg = cfg or BaselineConfig()
+    t_start = time.perf_counter()
+    device = resolve_device(cfg.device)
+    stage, capture, source = baseline_stage(workspace, cfg)
+    ws = capture.workspace
+    train_views = stage.train_views
     result = train(stage, ws.checkpoints / STAGE, resume=resume, stop_after=stop_after, device=device)
     if result.step < cfg.train.iterations:
         return {"step": result.step, "finished": False}

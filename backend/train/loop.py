@@ -18,7 +18,7 @@ import math
 import random
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -384,7 +384,7 @@ def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
 
 
 def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None,
-          device: torch.device | str | None = None) -> TrainResult:
+          device: torch.device | str | None = None, on_step: Callable[[int], None] | None = None) -> TrainResult:
     """Optimise ``stage.gaussians``; checkpoints go to ``ckpt_dir`` (created).
 
     ``device``: where to train (None: where the stage is, see :meth:`Stage.to`). Checkpoints hold
@@ -394,12 +394,14 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     deleted and the run starts over). ``stop_after``: return once this many iterations are done
     (after writing a checkpoint), as if the process had been stopped there — used by tests.
     Cancel (SIGINT/SIGTERM via :mod:`backend.core.events`) writes a checkpoint and raises :class:`Cancelled`.
+    ``on_step(step)`` is called after each iteration and its densification, outside the timed part
+    (the training benchmark timestamps iterations with it).
     Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
     """
     with torch_threads():
         if device is not None:
             stage.to(device)
-        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after)
+        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after, on_step=on_step)
 
 
 def _prepare_folder(ckpt_dir: Path, resume: bool) -> None:
@@ -437,7 +439,8 @@ def _write_config(ckpt_dir: Path, stage: Stage) -> None:
                                         "sh_up_every_resolved": cfg.resolved_sh_up_every()})
 
 
-def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None) -> TrainResult:
+def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None,
+           on_step: Callable[[int], None] | None) -> TrainResult:
     cfg = stage.config
     stage.to(stage.device)  # a set assigned after the last move (initial or restored) follows the stage
     # Adam's second moments of rows whose gradient stopped (pruned neighbours, inactive SH bands)
@@ -479,6 +482,8 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
                 if stage.strategy is not None:
                     stage.strategy.step(step, stage.gaussians, optimizer, cameras, stage.render_features)
                 train_seconds += time.perf_counter() - t0
+                if on_step is not None:
+                    on_step(step)
                 if step % cfg.checkpoint_every == 0 or step == cfg.iterations:
                     checkpoint(step)
                 bar.update(1, loss=loss_terms["loss"], gaussians=len(stage.gaussians))
