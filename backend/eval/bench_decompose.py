@@ -129,7 +129,7 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
                 "time_vs_3dgs": round(s["decompose_seconds"] / max(v_time, 1e-9), 3),
                 "stages": {k: {f: e.get(f) for f in ("iterations", "gaussians", "initial_gaussians", "train_seconds",
                                                      "cache_seconds", "seconds_per_iteration", "held_out",
-                                                     "held_out_initial")}
+                                                     "held_out_initial", "peak_rss_mib", "peak_gpu_mib")}
                            for k, e in s["stages"].items()}}
 
     result = {
@@ -151,7 +151,8 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
         },
         "vanilla_3dgs": {"full": {m: vanilla.get(m) for m in ("psnr", "ssim", "lpips")},
                          "gaussians": vanilla["gaussians"], "train_seconds": v_time,
-                         "seconds_per_iteration": vanilla["seconds_per_iteration"]},
+                         "seconds_per_iteration": vanilla["seconds_per_iteration"],
+                         "peak_rss_mib": vanilla.get("peak_rss_mib"), "peak_gpu_mib": vanilla.get("peak_gpu_mib")},
         "three_set": method(three),
         "single_set": method(singles["joint"]) if "joint" in singles else None,
         "single_set_sequential": method(singles["sequential"]) if "sequential" in singles else None,
@@ -237,13 +238,22 @@ def table(r: dict[str, Any]) -> str:
                          f"{f(fg.get('lpips', ''), 3):>8} {count!s:>10} {secs:>8} {ratio:>6}")
             first = False
         lines.extend(_foreground_lines(m))
+    lines.append(f"  3DGS            peak memory {_memory(v)}")
     for k, e in r["three_set"]["stages"].items():
         lines.append(f"  stage {k:<9} {e['iterations']} it, {e['gaussians']} Gaussians, {f(e['train_seconds'], 0)} s "
-                     f"(+{f(e['cache_seconds'], 1)} s cache), {f(e['seconds_per_iteration'], 3)} s/it")
+                     f"(+{f(e['cache_seconds'], 1)} s cache), {f(e['seconds_per_iteration'], 3)} s/it, "
+                     f"peak memory {_memory(e)}")
     lines.append("targets: " + "; ".join(f"{k} {v['value']} ({v['goal']}): "
                                          f"{'met' if v['met'] else 'NOT met' if v['met'] is False else 'n/a'}"
                                          for k, v in r["targets"].items()))
     return "\n".join(lines)
+
+
+def _memory(e: dict[str, Any]) -> str:
+    """A stage's peak resident set (and GPU memory), as recorded by the training loop."""
+    rss = e.get("peak_rss_mib")
+    text = "n/a" if rss is None else f"{rss / 1024:.2f} GiB RSS"
+    return text + (f", {e['peak_gpu_mib'] / 1024:.2f} GiB GPU" if e.get("peak_gpu_mib") is not None else "")
 
 
 def _foreground_lines(m: dict[str, Any]) -> list[str]:

@@ -256,14 +256,15 @@ def profile_cpu(cfg: BenchConfig, threads: int) -> dict:
         wall = (time.perf_counter() - t0) * 1e3 / reps
         cpu_ms = (time.process_time() - c0) * 1e3 / reps
     counts = ("forward evaluations", "intersections")
-    stages = {k: v * 1e3 / reps for k, v in t.items() if k not in counts and not k.endswith(" cpu")}
+    stages = {k: v * 1e3 / reps for k, v in t.items() if k not in counts and not k.endswith((" cpu", " faults"))}
     stages_cpu = {k[:-4]: v * 1e3 / reps for k, v in t.items() if k.endswith(" cpu")}
+    stages_faults = {k[:-7]: v / reps for k, v in t.items() if k.endswith(" faults")}
     evals = t.get("forward evaluations", 0.0) / reps
     kernel_cpu_s = stages_cpu.get("raster forward", 0.0) / 1e3
     return {
         "width": w, "height": h, "gaussians": n, "threads": threads,
         "fwdbwd_wall_ms": wall, "fwdbwd_cpu_ms": cpu_ms,
-        "stages_ms": stages, "stages_cpu_ms": stages_cpu,
+        "stages_ms": stages, "stages_cpu_ms": stages_cpu, "stages_minor_faults": stages_faults,
         "other_ms": wall - sum(stages.values()),
         "other_cpu_ms": cpu_ms - sum(stages_cpu.values()),
         "intersections": t.get("intersections", 0.0) / reps,
@@ -311,9 +312,10 @@ def format_report(result: dict) -> str:
     lines += ["", f"cpu forward+backward at {p['width']}x{p['height']}, {p['gaussians']} Gaussians, "
                   f"{p['threads']} kernel threads, {m['torch_threads']} torch threads, load average "
                   f"{m['load_average'][0]:.1f}: {p['fwdbwd_wall_ms']:.1f} ms wall, {p['fwdbwd_cpu_ms']:.1f} ms CPU"]
-    lines.append(f"  {'stage':<20} {'wall ms':>8} {'CPU ms':>8}")
+    lines.append(f"  {'stage':<20} {'wall ms':>8} {'CPU ms':>8} {'faults':>8}")
     for k, v in p["stages_ms"].items():
-        lines.append(f"  {k:<20} {v:8.2f} {p['stages_cpu_ms'].get(k, 0.0):8.2f}")
+        lines.append(f"  {k:<20} {v:8.2f} {p['stages_cpu_ms'].get(k, 0.0):8.2f} "
+                     f"{p['stages_minor_faults'].get(k, 0.0):8.0f}")
     lines.append(f"  {'torch glue + SH':<20} {p['other_ms']:8.2f} {p['other_cpu_ms']:8.2f}")
     lines.append(f"  {p['intersections']:.0f} tile intersections, {p['forward_evaluations']:.0f} forward "
                  f"(pixel, Gaussian) evaluations: {p['forward_evaluations_per_s_per_core'] / 1e6:.0f} M per CPU "

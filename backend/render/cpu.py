@@ -9,6 +9,7 @@ the inputs' dtype. :func:`record_timings` collects where the time goes (for the 
 
 from __future__ import annotations
 
+import resource
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -19,6 +20,7 @@ from torch import Tensor
 
 from backend.render import cpu_kernel as K
 from backend.render import cpu_projection as P
+from backend.render.cpu_buffers import BufferPool
 from backend.render.projection import BOX_MARGIN, EPS2D, CameraTensors, Projected, tile_grid
 from backend.render.threads import get_threads, run_chunks
 
@@ -32,7 +34,8 @@ EVALUATIONS_PER_CHUNK = 40_000
 @contextmanager
 def record_timings() -> Iterator[dict[str, float]]:
     """Accumulate seconds per kernel stage into the yielded dict while the block runs: ``name`` wall
-    seconds, ``name cpu`` process CPU seconds (all threads), plus evaluation and intersection counts."""
+    seconds, ``name cpu`` process CPU seconds (all threads), ``name faults`` minor page faults (the
+    process's, all threads), plus evaluation and intersection counts."""
     global _timings
     _timings = {}
     try:
@@ -54,15 +57,15 @@ def _tile_chunks(cost: np.ndarray) -> list[np.ndarray]:
     return [tiles[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
 
 
-def _now() -> tuple[float, float]:
-    return time.perf_counter(), time.process_time()
+def _now() -> tuple[float, float, int]:
+    return time.perf_counter(), time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 
 
-def _tick(name: str, t0: tuple[float, float]) -> tuple[float, float]:
+def _tick(name: str, t0: tuple[float, float, int]) -> tuple[float, float, int]:
     t1 = _now()
     if _timings is not None:
-        _timings[name] = _timings.get(name, 0.0) + t1[0] - t0[0]
-        _timings[name + " cpu"] = _timings.get(name + " cpu", 0.0) + t1[1] - t0[1]
+        for suffix, i in (("", 0), (" cpu", 1), (" faults", 2)):
+            _timings[name + suffix] = _timings.get(name + suffix, 0.0) + t1[i] - t0[i]
     return t1
 
 
@@ -139,9 +142,37 @@ def depth_argsort(depths: np.ndarray) -> np.ndarray:
     return order
 
 
+# Scratch arrays of the rasterizer, reused across calls (cpu_buffers.py): the packed Gaussians, the
+# intersection lists and the per-intersection gradient rows. Outputs handed to the caller are not.
+POOL = BufferPool()
+_PACKED = ("gdat", "gfeat", "glay", "gbox")
+_BINNED = ("tile_offsets", "rank_offsets", "tile_cost", "isect", "isect_of_rank")
+_STATE = ("out_T", "last")
+
+
+def _bin(gbox: np.ndarray, tiles_x: int, tiles_y: int) -> dict[str, np.ndarray]:
+    """The intersection lists of the packed Gaussians (:func:`cpu_kernel.count_tiles`, ``fill_tiles``)
+    in pooled arrays."""
+    n_tiles, m = tiles_x * tiles_y, gbox.shape[0]
+    b = {"tile_offsets": POOL.take("tile_offsets", n_tiles + 1, np.int64),
+         "rank_offsets": POOL.take("rank_offsets", m + 1, np.int64),
+         "tile_cost": POOL.take("tile_cost", n_tiles, np.float64)}
+    n_isect = int(K.count_tiles(gbox, tiles_x, b["tile_offsets"], b["rank_offsets"], b["tile_cost"]))
+    b["isect"] = POOL.take("isect", n_isect, np.int32)
+    b["isect_of_rank"] = POOL.take("isect_of_rank", n_isect, np.int64)
+    K.fill_tiles(gbox, tiles_x, b["tile_offsets"], b["rank_offsets"], b["isect"], b["isect_of_rank"],
+                 np.empty(n_tiles, np.int64))
+    return b
+
+
+def _give_back(arrays: dict[str, np.ndarray]) -> None:
+    for name, a in arrays.items():
+        POOL.give_back(name, a)
+
+
 class _Rasterize(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height):
+    def forward(ctx, means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height, keep):
         t0 = _now()
         tiles_x, tiles_y = tile_grid(width, height)
         layer_np = np.ascontiguousarray(layer.cpu().numpy().astype(np.int32))
@@ -149,51 +180,69 @@ class _Rasterize(torch.autograd.Function):
         visible = np.flatnonzero(bbox_np[:, 0] <= bbox_np[:, 1])
         order = visible[depth_argsort(_np32(depths)[visible])]
         t0 = _tick("sort", t0)
-        packed = K.pack_buffers(len(order), feats.shape[1])
+        m, n_feat = len(order), feats.shape[1]
+        scratch = {"gdat": POOL.take("gdat", (m, 8), np.float32), "gfeat": POOL.take("gfeat", (m, n_feat), np.float32),
+                   "glay": POOL.take("glay", m, np.int32), "gbox": POOL.take("gbox", (m, 4), np.int32)}
+        packed = tuple(scratch[k] for k in _PACKED)
         src = (order, _np32(means2d), _np32(conics), _np32(opacities), _np32(feats), layer_np, bbox_np)
-        run_chunks(K.pack_range, [(a, b, *src, *packed) for a, b in _range_chunks(len(order), GAUSSIANS_PER_CHUNK)])
+        run_chunks(K.pack_range, [(a, b, *src, *packed) for a, b in _range_chunks(m, GAUSSIANS_PER_CHUNK)])
         gdat, gfeat, glay, gbox = packed
-        tile_offsets, isect, rank_offsets, isect_of_rank, cost = K.bin_tiles(gbox, tiles_x, tiles_y)
+        scratch.update(_bin(gbox, tiles_x, tiles_y))
+        tile_offsets, isect, cost = scratch["tile_offsets"], scratch["isect"], scratch["tile_cost"]
         t0 = _tick("pack and bin", t0)
-        bufs = K.forward_buffers(n_layers, height, width, gfeat.shape[1], tiles_x * tiles_y)
-        fixed = (tile_offsets, isect, gdat, gfeat, glay, gbox, order, tiles_x, *bufs)
+        shape = (n_layers, height, width)
+        scratch["out_T"], scratch["last"] = POOL.take("out_T", shape, np.float32), POOL.take("last", shape, np.int64)
+        scratch["out_T"].fill(1.0)
+        scratch["last"].fill(-1)
+        out_feat = np.zeros((*shape, n_feat), np.float32)
+        ids = np.full(shape, -1, np.int64)
+        evals = np.zeros(tiles_x * tiles_y, np.float64)
+        out_T, last = scratch["out_T"], scratch["last"]
+        fixed = (tile_offsets, isect, gdat, gfeat, glay, gbox, order, tiles_x, out_feat, out_T, last, ids, evals)
         run_chunks(K.rasterize_forward_tiles, [(tiles, *fixed) for tiles in _tile_chunks(cost)])
-        out_feat, out_T, last, ids, evals = bufs
         t0 = _tick("raster forward", t0)
         if _timings is not None:
             _timings["forward evaluations"] = _timings.get("forward evaluations", 0.0) + float(evals.sum())
             _timings["intersections"] = _timings.get("intersections", 0.0) + float(isect.shape[0])
-        ctx.kernel_state = (tile_offsets, isect, rank_offsets, isect_of_rank, order, evals, gdat, gfeat, glay, gbox,
-                            tiles_x, out_T, last, means2d.shape[0])
-        ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, feats.dtype)
-        ctx.device = means2d.device
         dev, dt = feats.device, feats.dtype
         alpha = torch.from_numpy(1.0 - out_T).to(device=dev, dtype=dt)
         ids_t = torch.from_numpy(ids).to(dev)
         ctx.mark_non_differentiable(ids_t)
+        if keep:  # the backward reads the scratch arrays and hands them back
+            ctx.kernel_state = (scratch, order, evals, tiles_x, means2d.shape[0])
+            ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, feats.dtype)
+            ctx.device = means2d.device
+        else:
+            _give_back(scratch)
         return torch.from_numpy(out_feat).to(device=dev, dtype=dt), alpha, ids_t
 
     @staticmethod
     def backward(ctx, grad_feat, grad_alpha, _grad_ids):
         t0 = _now()
-        (tile_offsets, isect, rank_offsets, isect_of_rank, order, evals, gdat, gfeat, glay, gbox, tiles_x, out_T,
-         last, n) = ctx.kernel_state
+        if getattr(ctx, "kernel_state", None) is None:
+            raise RuntimeError("the cpu rasterizer's backward ran twice, or for a render made without gradients")
+        scratch, order, evals, tiles_x, n = ctx.kernel_state
+        ctx.kernel_state = None  # its arrays go back to the pool below
+        tile_offsets, isect, out_T, last = scratch["tile_offsets"], scratch["isect"], scratch["out_T"], scratch["last"]
+        gdat, gfeat, glay, gbox = (scratch[k] for k in _PACKED)
         gf = np.zeros((*out_T.shape, gfeat.shape[1]), np.float32) if grad_feat is None else _np32(grad_feat)
         ga = np.zeros(out_T.shape, np.float32) if grad_alpha is None else _np32(grad_alpha)
         # The backward visits what the forward evaluated (early stops included): balance on that.
         cost = evals + 4.0 * np.diff(tile_offsets)
-        rows = np.zeros((isect.shape[0], K.N_GRAD_COLS + gfeat.shape[1]), np.float32)
+        rows = POOL.take("rows", (isect.shape[0], K.N_GRAD_COLS + gfeat.shape[1]), np.float32)
         fixed = (tile_offsets, isect, gdat, gfeat, glay, gbox, tiles_x, out_T, last, gf, ga, rows)
         run_chunks(K.rasterize_backward_tiles, [(tiles, *fixed) for tiles in _tile_chunks(cost)])
         t0 = _tick("raster backward", t0)
-        summed = np.zeros((n, rows.shape[1]), np.float32)
-        run_chunks(K.reduce_rows_range, [(a, b, rows, order, rank_offsets, isect_of_rank, summed)
+        summed = np.zeros((n, rows.shape[1]), np.float32)  # becomes the returned gradients: not pooled
+        run_chunks(K.reduce_rows_range, [(a, b, rows, order, scratch["rank_offsets"], scratch["isect_of_rank"], summed)
                                          for a, b in _range_chunks(len(order), GAUSSIANS_PER_CHUNK)])
+        POOL.give_back("rows", rows)
+        _give_back(scratch)
         g = torch.from_numpy(summed).to(ctx.device)
         _tick("reduce", t0)
         d_m, d_c, d_o, d_f = ctx.dtypes
         return (g[:, 0:2].to(d_m), g[:, 2:5].to(d_c), g[:, 5].to(d_o), g[:, 6:].to(d_f),
-                None, None, None, None, None, None)
+                None, None, None, None, None, None, None)
 
 
 def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, depths: Tensor,
@@ -202,4 +251,6 @@ def rasterize(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor,
     """See :func:`backend.render.reference.rasterize` (same arguments and results)."""
     if layer is None:
         layer = torch.zeros(means2d.shape[0], dtype=torch.int32)
-    return _Rasterize.apply(means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height)
+    # Without a backward to come, the scratch arrays go back to the pool as soon as the forward ends.
+    keep = torch.is_grad_enabled() and any(t.requires_grad for t in (means2d, conics, opacities, feats))
+    return _Rasterize.apply(means2d, conics, opacities, feats, depths, bbox, layer, n_layers, width, height, keep)

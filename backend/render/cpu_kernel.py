@@ -53,12 +53,6 @@ CUT_MARGIN = 1e-3
 SPAN_MARGIN = 0.02  # pixels
 
 
-def pack_buffers(m: int, n_feat: int):
-    """Outputs of :func:`pack_range` for ``m`` visible Gaussians: gdat, gfeat, glay, gbox."""
-    return (np.empty((m, 8), np.float32), np.empty((m, n_feat), np.float32), np.empty(m, np.int32),
-            np.empty((m, 4), np.int32))
-
-
 @njit(nogil=True, cache=True)
 def pack_range(start, stop, order, xy, conic, opac, feat, layer, bbox, gdat, gfeat, glay, gbox):
     """Gather ranks [start, stop) of the visible Gaussians front to back (layout: module docstring)."""
@@ -101,19 +95,19 @@ def order_ties(order, sorted_keys):
 
 
 @njit(cache=True)
-def bin_tiles(gbox, tiles_x, tiles_y):
-    """Tile-major, front-to-back intersection list of the packed Gaussians.
+def count_tiles(gbox, tiles_x, tile_offsets, rank_offsets, tile_cost):
+    """First pass of the binning: how many tiles each packed Gaussian touches.
 
-    gbox: (M, 4) int32 in depth order. Returns tile_offsets (T + 1,), isect (I,) int32 ranks,
-    rank_offsets (M + 1,) and isect_of_rank (I,) int64 (the intersections of rank r are
-    ``isect_of_rank[rank_offsets[r]:rank_offsets[r + 1]]``; used to sum gradients per Gaussian), and
-    tile_cost (T,) float64: the pixel evaluations the tile's boxes allow (to balance the threads).
+    gbox: (M, 4) int32 in depth order. Fills tile_offsets (T + 1,) int64 (tile t's intersections will be
+    ``tile_offsets[t]:tile_offsets[t + 1]``), rank_offsets (M + 1,) int64 (rank r's, in
+    ``isect_of_rank``: see :func:`fill_tiles`) and tile_cost (T,) float64, the pixel evaluations the
+    tile's boxes allow (to balance the threads). Returns the intersection count I.
     """
-    n_tiles = tiles_x * tiles_y
+    n_tiles = tile_cost.shape[0]
     m = gbox.shape[0]
-    tile_offsets = np.zeros(n_tiles + 1, np.int64)
-    rank_offsets = np.zeros(m + 1, np.int64)
-    tile_cost = np.zeros(n_tiles, np.float64)
+    tile_offsets[:] = 0
+    tile_cost[:] = 0.0
+    rank_offsets[0] = 0
     for r in range(m):
         x0, x1, y0, y1 = gbox[r, 0], gbox[r, 1], gbox[r, 2], gbox[r, 3]
         tx0, tx1, ty0, ty1 = x0 // TILE, x1 // TILE, y0 // TILE, y1 // TILE
@@ -127,11 +121,19 @@ def bin_tiles(gbox, tiles_x, tiles_y):
         rank_offsets[r + 1] = rank_offsets[r] + (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
     for t in range(n_tiles):
         tile_offsets[t + 1] += tile_offsets[t]
-    n_isect = tile_offsets[n_tiles]
-    isect = np.empty(n_isect, np.int32)
-    isect_of_rank = np.empty(n_isect, np.int64)
-    cursor = tile_offsets[:n_tiles].copy()
-    for r in range(m):
+    return tile_offsets[n_tiles]
+
+
+@njit(cache=True)
+def fill_tiles(gbox, tiles_x, tile_offsets, rank_offsets, isect, isect_of_rank, cursor):
+    """Second pass: the tile-major, front-to-back intersection list of the packed Gaussians.
+
+    Writes isect (I,) int32 ranks, sorted by tile then depth, and isect_of_rank (I,) int64 (the
+    intersections of rank r are ``isect_of_rank[rank_offsets[r]:rank_offsets[r + 1]]``; used to sum
+    gradients per Gaussian). cursor: (T,) int64 scratch.
+    """
+    cursor[:] = tile_offsets[:-1]
+    for r in range(gbox.shape[0]):
         j = rank_offsets[r]
         for ty in range(gbox[r, 2] // TILE, gbox[r, 3] // TILE + 1):
             for tx in range(gbox[r, 0] // TILE, gbox[r, 1] // TILE + 1):
@@ -141,7 +143,6 @@ def bin_tiles(gbox, tiles_x, tiles_y):
                 isect[p] = r
                 isect_of_rank[j] = p
                 j += 1
-    return tile_offsets, isect, rank_offsets, isect_of_rank, tile_cost
 
 
 @njit(cache=True)
@@ -233,14 +234,6 @@ def _alpha(mx, my, ca, cb, cc, o, pcut, x, y):
     return a, g, dx, dy, free
 
 
-def forward_buffers(n_layers, height, width, n_feat, n_tiles):
-    """Outputs of :func:`rasterize_forward_tiles`, initialised: out_feat (L, H, W, F) 0, out_T (L, H, W) 1,
-    last (L, H, W) -1, ids (L, H, W) -1, tile_evals (T,) 0."""
-    return (np.zeros((n_layers, height, width, n_feat), np.float32), np.ones((n_layers, height, width), np.float32),
-            np.full((n_layers, height, width), -1, np.int64), np.full((n_layers, height, width), -1, np.int64),
-            np.zeros(n_tiles, np.float64))
-
-
 @njit(nogil=True, cache=True)
 def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox, order, tiles_x,
                             out_feat, out_T, last, ids, tile_evals):
@@ -251,6 +244,7 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
     last (L, H, W) intersection index of the last contributor (-1: none),
     ids (L, H, W) Gaussian (caller's index) with the largest blending weight (-1: none),
     tile_evals[t] the (pixel, Gaussian) evaluations tile t did.
+    Expects out_feat 0, out_T 1, last and ids -1 on entry.
     """
     n_layers, height, width, n_feat = out_feat.shape
     done = np.zeros((n_layers, TILE, TILE), np.bool_)
@@ -305,8 +299,9 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
                              grad_feat, grad_alpha, rows):
     """Gradients of sum(grad_feat * out_feat) + sum(grad_alpha * (1 - out_T)) on ``tiles``.
 
-    Writes one row per intersection of these tiles into ``rows`` (I, 6 + F) float32 (zeros beforehand):
-    d(mean2d x, y), d(conic a, b, c), d opacity, d features. Walks each tile back to front,
+    Writes every row of these tiles' intersections into ``rows`` (I, 6 + F) float32 (any contents
+    beforehand): d(mean2d x, y), d(conic a, b, c), d opacity, d features; zero for an intersection behind
+    its layer's last contributor. Walks each tile back to front,
     rebuilding the transmittance before each Gaussian from the final one
     (T_before = T_after / (1 - alpha); alpha <= 0.99 keeps this well conditioned).
     """
@@ -326,10 +321,13 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
                     T_cur[lay, y - py0, x - px0] = out_T[lay, y, x]
                     layer_stop[lay] = max(layer_stop[lay], last[lay, y, x])
         behind[:] = ZERO
-        for k in range(layer_stop.max(), tile_offsets[t] - 1, -1):
+        k_stop = layer_stop.max()
+        rows[max(k_stop + 1, tile_offsets[t]):tile_offsets[t + 1]] = ZERO
+        for k in range(k_stop, tile_offsets[t] - 1, -1):
             r = isect[k]
             lay = glay[r]
             if k > layer_stop[lay]:
+                rows[k] = ZERO
                 continue
             x0, x1, y0, y1 = _clip_box(gbox, r, px0, px1, py0, py1)
             mx, my, ca, cb, cc, o, pcut = _gaussian(gdat, r)

@@ -146,7 +146,7 @@ def train_3dgs(workspace: str | Path, cfg: BaselineConfig | None = None, resume:
         "iterations": result.step,
         "gaussians": len(result.gaussians),
         "train_seconds": round(result.train_seconds, 2),
-        "seconds_per_iteration": round(result.train_seconds / max(result.step, 1), 4),
+        "seconds_per_iteration": round(result.train_seconds / max(result.step, 1), 4), **result.peak_memory,
         "wall_seconds_this_run": round(time.perf_counter() - t_start, 2),
         "resumed_from": result.resumed_from,
         "device": describe(device),

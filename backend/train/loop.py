@@ -35,6 +35,7 @@ from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
+from backend.train.memory import PeakMemory
 from backend.train.views import ColorSpace, View, to_display
 
 CHECKPOINT_VERSION = 1
@@ -217,6 +218,9 @@ class TrainResult:
     """Iteration the run resumed from (0 for a fresh run)."""
     history: list[dict[str, Any]]
     """Densification events."""
+    peak_memory: dict[str, Any] = field(default_factory=dict)
+    """Peak memory of this run (:class:`backend.train.memory.PeakMemory`): ``peak_rss_mib``, and
+    ``peak_gpu_mib`` on CUDA."""
 
 
 def make_optimizer(gaussians: GaussianSet, config: TrainConfig, scene_extent: float) -> torch.optim.Adam:
@@ -449,6 +453,7 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
     torch.set_flush_denormal(True)
     ckpt_dir = Path(ckpt_dir)
     _prepare_folder(ckpt_dir, resume)
+    memory = PeakMemory.start(stage.device)
 
     rng = seed_everything(cfg.seed)
     sampler = ViewSampler(len(stage.train_views), rng)
@@ -499,7 +504,7 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
         metrics = evaluate(stage, stage.test_views)
         metrics["initial"] = extra.get("initial_metrics")
     history = stage.strategy.history if stage.strategy else []
-    return TrainResult(stage.gaussians.to("cpu"), step, train_seconds, metrics, resumed_from, history)
+    return TrainResult(stage.gaussians.to("cpu"), step, train_seconds, metrics, resumed_from, history, memory.read())
 
 
 def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler, step: int,

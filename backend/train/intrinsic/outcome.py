@@ -48,7 +48,7 @@ def stage_entry(result: TrainResult, cfg: TrainConfig, seconds: float, cache_sec
         "resumed_from": result.resumed_from, "init": init,
         "held_out": {k: m.get(k, "n/a") for k in ("psnr", "ssim", "lpips")} if m else {},
         "held_out_initial": m.get("initial") if m else None,
-        "densify_events": len(result.history),
+        "densify_events": len(result.history), **result.peak_memory,
         "config": asdict(cfg), **(extra or {}),
     }
 

@@ -1,0 +1,65 @@
+"""Peak memory of one piece of work (a training stage): the process's resident set and the GPU's.
+
+Linux keeps the process's peak resident set (VmHWM) from its start; writing 5 to
+/proc/self/clear_refs resets it to the current size, so a stage's peak is its own and not the
+loading's or an earlier stage's. Where that file cannot be written (another OS, a locked-down
+container), the peak is the whole process's so far, and :class:`PeakMemory` says so.
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+
+def _status_kib(key: str) -> int | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+@dataclass
+class PeakMemory:
+    """Started by :meth:`start`; :meth:`read` gives the peaks since then."""
+
+    rss_reset: bool = False
+    """Whether the resident-set peak was reset at the start (otherwise it covers the process's life)."""
+    cuda_device: torch.device | None = None
+
+    @classmethod
+    def start(cls, device: torch.device | str | None = None) -> PeakMemory:
+        rss_reset = False
+        if sys.platform.startswith("linux"):
+            try:
+                Path("/proc/self/clear_refs").write_text("5")
+                rss_reset = True
+            except OSError:
+                pass
+        dev = torch.device(device) if device is not None else None
+        if dev is not None and dev.type == "cuda":
+            torch.cuda.reset_peak_memory_stats(dev)
+        else:
+            dev = None
+        return cls(rss_reset, dev)
+
+    def read(self) -> dict[str, float | bool]:
+        """``peak_rss_mib`` (and ``peak_rss_since_start`` False when it is the process's whole life),
+        ``peak_gpu_mib`` on CUDA (torch's allocated peak)."""
+        kib = _status_kib("VmHWM")
+        if kib is None:  # not Linux: ru_maxrss is KiB on Linux, bytes on macOS
+            maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            kib = maxrss // 1024 if sys.platform == "darwin" else maxrss
+        out: dict[str, float | bool] = {"peak_rss_mib": round(kib / 1024, 1)}
+        if not self.rss_reset:
+            out["peak_rss_since_start"] = False
+        if self.cuda_device is not None:
+            out["peak_gpu_mib"] = round(torch.cuda.max_memory_allocated(self.cuda_device) / 2**20, 1)
+        return out
