@@ -96,7 +96,8 @@ def test_binary_and_module_render_the_same_capture(captures):
     """Every file is the same. Cycles' float passes are not bit-exact across processes (two module runs
     in two processes differ too: ~1e-5 relative on a few dozen pixels near the glossy objects), which
     the files' quantisation absorbs except for rare rounding flips: a PNG may then differ by one step
-    and a half-float EXR by one rounding step. Measured: 0 to 2 of 253 files, one pixel each."""
+    and a half-float EXR by one rounding step. Measured: 0 to 8 of 253 files (more on a loaded
+    machine), one pixel each; the bound is on the pixels that flip, summed over all files."""
     ws_b, sum_b, ws_m, sum_m = captures
     files = sorted(p.relative_to(ws_b) for p in ws_b.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(ws_m) for p in ws_m.rglob("*") if p.is_file())
@@ -104,7 +105,7 @@ def test_binary_and_module_render_the_same_capture(captures):
     assert sum_b["rendered_views"] == sum_m["rendered_views"] == 16
     assert sum_b["rendered_edit_views"] == sum_m["rendered_edit_views"] > 0
     assert sum_b["points3D"] == sum_m["points3D"] > 0
-    differing = []
+    differing, flipped = [], 0
     for rel in files:
         fb, fm = ws_b / rel, ws_m / rel
         if rel.name == "synth_summary.json":  # timings, paths
@@ -119,14 +120,16 @@ def test_binary_and_module_render_the_same_capture(captures):
         elif fb.read_bytes() != fm.read_bytes():
             differing.append(str(rel))
             if rel.suffix == ".png":
-                assert np.abs(_read_raw(fb) - _read_raw(fm)).max() <= 1, rel
+                a, b = _read_raw(fb), _read_raw(fm)
+                assert np.abs(a - b).max() <= 1, rel
+                flipped += int((a != b).reshape(a.shape[0], a.shape[1], -1).any(axis=2).sum())
             elif rel.suffix == ".exr":
                 a, b = read_exr(fb), read_exr(fm)
-                assert (a != b).any(axis=2).sum() <= 4, rel
+                flipped += int((a != b).any(axis=2).sum())
                 np.testing.assert_allclose(a, b, rtol=2e-3, atol=1e-6, err_msg=str(rel))
             else:  # scene.json, edit.json, textures, depth, points, sparse/0, transforms.json
                 raise AssertionError(f"{rel} differs between the module and the binary render")
-    assert len(differing) <= 4, differing
+    assert flipped <= 32, (flipped, differing)  # of ~800k pixels in all
     # What the worker sent back about the scene (description, edit specs, decal textures) came through.
     assert (ws_b / "gt" / "scene.json").read_bytes() == (ws_m / "gt" / "scene.json").read_bytes()
     for edit in ("wall_decal", "column_decal"):

@@ -1,9 +1,10 @@
 """Reused scratch arrays for the CPU rasterizer, so an iteration does not allocate its large arrays afresh.
 
-A fresh numpy array above glibc's mmap threshold (at most 32 MiB, 128 KiB at first) is a new mapping:
-every page of it faults on first touch and is unmapped again when freed. The per-intersection arrays
-of a render are tens to hundreds of MiB, so at 100k Gaussians that churn cost ~90k page faults and a
-fifth of the CPU time per training iteration, in the kernel. Here each kind of array (a name) keeps
+A fresh numpy array above glibc's mmap threshold (at most 32 MiB) is a new mapping: every page of it
+faults on first touch and is unmapped again when freed. The per-intersection arrays of a render grow
+with the intersections (6.5 MiB of gradient rows for 160k intersections, hundreds of MiB at a few
+million), so past that threshold every iteration would map and fault them afresh (smaller blocks are
+kept by the allocator: :func:`backend.train.memory.keep_freed_memory`). Here each kind of array (a name) keeps
 the buffers handed back to it; :meth:`BufferPool.take` returns a view of a free one that is large
 enough, or allocates one with some headroom and drops the name's free buffers that were too small.
 So the arrays are sized once, and again only when the count of intersections grows past them

@@ -35,7 +35,7 @@ from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
-from backend.train.memory import PeakMemory
+from backend.train.memory import PeakMemory, keep_freed_memory
 from backend.train.views import ColorSpace, View, to_display
 
 CHECKPOINT_VERSION = 1
@@ -453,6 +453,7 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
     torch.set_flush_denormal(True)
     ckpt_dir = Path(ckpt_dir)
     _prepare_folder(ckpt_dir, resume)
+    keep_freed_memory()
     memory = PeakMemory.start(stage.device)
 
     rng = seed_everything(cfg.seed)
