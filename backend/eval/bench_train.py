@@ -47,6 +47,7 @@ from backend.core.errors import IGSError
 from backend.core.imageio import read_image, write_image
 from backend.eval.bench_cli import error, number_list, write_result
 from backend.splats.init import knn_mean_sq_dist
+from backend.train.memory import proc_status_kib
 from backend.train.views import resize_image, view_camera
 
 STEP_LINE = re.compile(rb"^[Ss]tep (\d+)\b")
@@ -94,16 +95,6 @@ def _proc_counters(pid: int) -> tuple[int, float, float]:
     return int(fields[7]), int(fields[11]) / CLOCK_TICKS, int(fields[12]) / CLOCK_TICKS
 
 
-def _rss_kb(pid: int) -> tuple[int, int]:
-    """(peak, current) resident set size of process ``pid`` in KiB (VmHWM, VmRSS of /proc/PID/status)."""
-    values = {}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        key, _, rest = line.partition(":")
-        if key in ("VmHWM", "VmRSS"):
-            values[key] = int(rest.split()[0])
-    return values.get("VmHWM", 0), values.get("VmRSS", 0)
-
-
 def timed_run(cmd: list[str], warmup: int, total: int, log: Path, env: dict[str, str] | None = None) -> RunSample:
     """Run ``cmd``, which prints ``step N`` (or ``Step N: ...``) after iteration N, to the end; time
     iterations ``warmup + 1 .. total``. Its other output goes to ``log``; a failure names it."""
@@ -125,7 +116,8 @@ def timed_run(cmd: list[str], warmup: int, total: int, log: Path, env: dict[str,
                 start = (now, *_proc_counters(proc.pid))
             elif step == total:
                 end = (now, *_proc_counters(proc.pid))
-                rss = _rss_kb(proc.pid)
+                sizes = proc_status_kib(proc.pid)
+                rss = (sizes.get("VmHWM", 0), sizes.get("VmRSS", 0))
         code = proc.wait()
     if code != 0 or start is None or end is None:
         tail = log.read_text(errors="replace").strip().splitlines()[-3:]

@@ -146,8 +146,6 @@ def depth_argsort(depths: np.ndarray) -> np.ndarray:
 # intersection lists and the per-intersection gradient rows. Outputs handed to the caller are not.
 POOL = BufferPool()
 _PACKED = ("gdat", "gfeat", "glay", "gbox")
-_BINNED = ("tile_offsets", "rank_offsets", "tile_cost", "isect", "isect_of_rank")
-_STATE = ("out_T", "last")
 
 
 def _bin(gbox: np.ndarray, tiles_x: int, tiles_y: int) -> dict[str, np.ndarray]:

@@ -8,6 +8,7 @@ container), the peak is the whole process's so far, and :class:`PeakMemory` says
 
 from __future__ import annotations
 
+import functools
 import resource
 import sys
 from dataclasses import dataclass
@@ -16,14 +17,17 @@ from pathlib import Path
 import torch
 
 
-def _status_kib(key: str) -> int | None:
+def proc_status_kib(pid: int | str = "self") -> dict[str, int]:
+    """The sizes in KiB of /proc/PID/status (VmHWM, VmRSS, ...) by key; empty where it cannot be read."""
+    sizes = {}
     try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith(key + ":"):
-                return int(line.split()[1])
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            key, _, rest = line.partition(":")
+            if rest.strip().endswith(" kB"):
+                sizes[key] = int(rest.split()[0])
+    except (OSError, ValueError):
+        return {}
+    return sizes
 
 
 @dataclass
@@ -53,7 +57,7 @@ class PeakMemory:
     def read(self) -> dict[str, float | bool]:
         """``peak_rss_mib`` (and ``peak_rss_since_start`` False when it is the process's whole life),
         ``peak_gpu_mib`` on CUDA (torch's allocated peak)."""
-        kib = _status_kib("VmHWM")
+        kib = proc_status_kib().get("VmHWM")
         if kib is None:  # not Linux: ru_maxrss is KiB on Linux, bytes on macOS
             maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
             kib = maxrss // 1024 if sys.platform == "darwin" else maxrss
@@ -75,6 +79,7 @@ TRIM_THRESHOLD = 256 << 20
 MMAP_THRESHOLD = 32 << 20  # glibc's largest
 
 
+@functools.cache
 def keep_freed_memory() -> bool:
     """Tell glibc's allocator to keep up to 256 MiB of freed memory for reuse, and to serve blocks up to
     32 MiB from its heaps rather than fresh mappings (process-wide; the larger per-intersection arrays
