@@ -26,6 +26,14 @@ def to_linear(srgb: np.ndarray) -> np.ndarray:
     return srgb_to_linear(np.clip(srgb, 0.0, 1.0)).astype(np.float64)
 
 
+def identity_tolerance(k: np.ndarray, a16: np.ndarray, S: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Per-pixel bound on |image - (albedo * S + R)| from the files' rounding: the 8-bit image ``k``, the
+    16-bit albedo ``a16`` and the half-float passes S and R."""
+    image, albedo = to_linear(k / 255.0), to_linear(a16 / 65535.0)
+    return ((to_linear((k + 0.5) / 255.0) - image) + (to_linear((a16 + 0.5) / 65535.0) - albedo) * S
+            + albedo * (S * 2.0 ** -11 + 3e-8) + R * 2.0 ** -11 + 3e-8 + 1e-5 * (1.0 + albedo * S + R))
+
+
 @dataclass
 class EditedViews:
     """What the views of one edit show: how many see its interior, the recolour's albedo error
@@ -35,7 +43,8 @@ class EditedViews:
     albedo_err: list[np.ndarray] = field(default_factory=list)
     """Per view, the largest channel error of the edited albedo against the recolour (recolours only)."""
     sums: list[tuple[float, float]] = field(default_factory=list)
-    """Per view, (sum of the edited image, sum of edited albedo * S + R) over its unclipped interior pixels."""
+    """Per view, (sum of the edited image, sum of edited albedo * S + R with the capture's S and R) over its
+    unclipped interior pixels: the edit leaves the light as it was, up to the renderer's noise."""
     changed: list[float] = field(default_factory=list)
     """Per view, the fraction of interior pixels whose albedo changed by more than 1e-3."""
 
@@ -50,7 +59,9 @@ class EditedViews:
 
 def edited_views(ws: Path, edit_name: str, colour) -> EditedViews:
     """Read every view of ``gt_edit/<edit_name>``; asserts that the pixels outside its mask are the
-    unedited capture's, bit for bit. ``colour``: the recolour's linear RGB, or None for a decal."""
+    unedited capture's, bit for bit, and that the edited image is the edited albedo times the edit's own
+    shading plus its own residual in every unclipped pixel, to the files' precision.
+    ``colour``: the recolour's linear RGB, or None for a decal."""
     folder = ws / "gt_edit" / edit_name
     out = EditedViews()
     for name in frame_names(ws):
@@ -58,6 +69,14 @@ def edited_views(ws: Path, edit_name: str, colour) -> EditedViews:
         orig, edited = read_raw(ws / "images" / name), read_raw(folder / "images" / name)
         orig_a, edited_a = read_raw(ws / "gt" / "albedo" / name), read_raw(folder / "albedo" / name)
         assert (orig[~mask] == edited[~mask]).all() and (orig_a[~mask] == edited_a[~mask]).all()
+        stem = Path(name).stem
+        S_e = read_exr(folder / "shading" / f"{stem}.exr").astype(np.float64)
+        R_e = read_exr(folder / "residual" / f"{stem}.exr").astype(np.float64)
+        for own, capture in ((S_e, ws / "gt" / "shading"), (R_e, ws / "gt" / "residual")):
+            assert (own[~mask] == read_exr(capture / f"{stem}.exr")[~mask]).all()
+        err = np.abs(to_linear(edited / 255.0) - (to_linear(edited_a / 65535.0) * S_e + R_e))
+        ok = edited < 255
+        assert (err[ok] <= identity_tolerance(edited, edited_a, S_e, R_e)[ok]).all(), f"{edit_name} {name}"
         inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
         if not inner.any():
             continue

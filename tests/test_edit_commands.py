@@ -100,7 +100,9 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
     before, _ = read_ply(ws / "layers" / "albedo.ply", kind="albedo")
     after, _ = read_ply(out / "albedo.ply", kind="albedo")
     assert summary["spawned"] > 0 and summary["removed"] > 0  # the face's own Gaussians gave way to new ones
-    assert len(after) == len(before) - summary["removed"] + summary["spawned"] + summary["densified"]
+    # each Gaussian cut at the border became two
+    assert len(after) == (len(before) + summary["border_split"] - summary["removed"] + summary["spawned"]
+                          + summary["densified"])
     # the spawned Gaussians (and their densified children) carry the edit's sharper low-pass, the rest 3DGS's
     assert before.eps2d is None and after.eps2d is not None
     sharp = int((after.eps2d == cfg.edit_filter).sum())

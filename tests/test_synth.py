@@ -25,7 +25,7 @@ from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import Cancelled, IGSError
 from backend.core.imageio import read_exr, read_image
-from tests._synth_edits import edited_views, frame_names, read_raw, to_linear
+from tests._synth_edits import edited_views, frame_names, identity_tolerance, read_raw, to_linear
 
 pytest.importorskip("bpy")
 
@@ -90,12 +90,8 @@ def test_images_equal_albedo_times_shading_plus_residual(capture):
         a16 = read_raw(ws / "gt" / "albedo" / name)
         S = read_exr(ws / "gt" / "shading" / f"{stem}.exr").astype(np.float64)
         R = read_exr(ws / "gt" / "residual" / f"{stem}.exr").astype(np.float64)
-        image, albedo = to_linear(k / 255.0), to_linear(a16 / 65535.0)
-        tol = ((to_linear((k + 0.5) / 255.0) - image)
-               + (to_linear((a16 + 0.5) / 65535.0) - albedo) * S
-               + albedo * (S * 2.0 ** -11 + 3e-8) + R * 2.0 ** -11 + 3e-8
-               + 1e-5 * (1.0 + albedo * S + R))
-        err = np.abs(image - (albedo * S + R))
+        tol = identity_tolerance(k, a16, S, R)
+        err = np.abs(to_linear(k / 255.0) - (to_linear(a16 / 65535.0) * S + R))
         ok = k < 255
         assert (err[ok] <= tol[ok]).all(), f"{name}: worst error/tolerance {(err[ok] / tol[ok]).max():.3f}"
         checked += ok.sum()
@@ -166,7 +162,8 @@ def test_edits_change_only_their_region(capture):
     """Outside each edit's mask the edited render is bit-identical to the original (so the lighting did
     not change anywhere); inside, a recolour's albedo is exactly its colour, and the image is still
     albedo_edit * shading + residual with the original shading (in the mean: with 16 spp a pixel's
-    shading is a colour-weighted mean of noisy samples, so single pixels differ by ~10 %)."""
+    shading is a colour-weighted mean of noisy samples, so single pixels differ by ~10 %), and exactly,
+    per pixel, with the edited render's own shading and residual (gt_edit/<edit>/shading, residual)."""
     ws, _ = capture
     for edit_name in EDITS:
         folder = ws / "gt_edit" / edit_name
@@ -227,7 +224,9 @@ def test_decals_follow_the_geometry_in_edit_json(tmp_path):
 def test_same_seed_gives_the_same_capture(capture, tmp_path):
     """Two processes (the CLI and this one), same seed: the same files. Within one process Cycles is
     bit-exact; across processes its float passes agree to ~1e-5 relative (measured), which the file
-    quantisation absorbs except for rare rounding flips, so values may differ by one step only."""
+    quantisation absorbs except for rare rounding flips, so values may differ by one step only. A flip in
+    a view's shading or residual shows again in each edit's copy of that file (gt_edit/<edit>/shading
+    is the view's own outside the edit), so the bound is on the pixels that flip, summed over files."""
     a, b = tmp_path / "a", tmp_path / "b"
     env = dict(os.environ, PYTHONPATH=str(REPO))
     run = subprocess.run([sys.executable, "-m", "backend", "synth", str(a), "--preset", "test", "--views", "2"],
@@ -237,7 +236,7 @@ def test_same_seed_gives_the_same_capture(capture, tmp_path):
     synthesize(b, preset="test", views=2)
     files_a = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
     assert files_a == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
-    differing = 0
+    differing, flipped = [], 0
     for rel in files_a:
         fa, fb = a / rel, b / rel
         if rel.name == "synth_summary.json":  # timings and the workspace path
@@ -248,15 +247,18 @@ def test_same_seed_gives_the_same_capture(capture, tmp_path):
                 ja.pop(k), jb.pop(k)
             assert ja == jb
         elif fa.read_bytes() != fb.read_bytes():
+            differing.append(str(rel))
             if rel.suffix == ".png":
                 va, vb = read_raw(fa), read_raw(fb)
                 assert np.abs(va - vb).max() <= 1, rel
             elif rel.suffix == ".exr":
-                np.testing.assert_allclose(read_exr(fa), read_exr(fb), rtol=2e-3, atol=1e-6, err_msg=str(rel))
+                va, vb = read_exr(fa), read_exr(fb)
+                np.testing.assert_allclose(va, vb, rtol=2e-3, atol=1e-6, err_msg=str(rel))
             else:
                 raise AssertionError(f"{rel} differs between two renders with the same seed")
-            differing += 1
-    assert differing <= 2, f"{differing} files differ"
+            flipped += int((va != vb).reshape(va.shape[0], va.shape[1], -1).any(axis=2).sum())
+    print(f"{flipped} pixels flipped in {len(differing)} files")
+    assert flipped <= 12, (flipped, differing)  # of ~100k pixels in all
 
 
 def test_other_seeds_change_the_scene_and_camera_path():

@@ -97,7 +97,8 @@ def test_binary_and_module_render_the_same_capture(captures):
     in two processes differ too: ~1e-5 relative on a few dozen pixels near the glossy objects), which
     the files' quantisation absorbs except for rare rounding flips: a PNG may then differ by one step
     and a half-float EXR by one rounding step. Measured: 0 to 8 of 253 files (more on a loaded
-    machine), one pixel each; the bound is on the pixels that flip, summed over all files."""
+    machine), one pixel each; the bound is on the pixels that flip, summed over all files. A flip in a
+    view's shading or residual shows again in each edit's copy of that file, so one can count up to 3."""
     ws_b, sum_b, ws_m, sum_m = captures
     files = sorted(p.relative_to(ws_b) for p in ws_b.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(ws_m) for p in ws_m.rglob("*") if p.is_file())
@@ -129,7 +130,7 @@ def test_binary_and_module_render_the_same_capture(captures):
                 np.testing.assert_allclose(a, b, rtol=2e-3, atol=1e-6, err_msg=str(rel))
             else:  # scene.json, edit.json, textures, depth, points, sparse/0, transforms.json
                 raise AssertionError(f"{rel} differs between the module and the binary render")
-    assert flipped <= 32, (flipped, differing)  # of ~800k pixels in all
+    assert flipped <= 48, (flipped, differing)  # of ~1M pixels in all
     # What the worker sent back about the scene (description, edit specs, decal textures) came through.
     assert (ws_b / "gt" / "scene.json").read_bytes() == (ws_m / "gt" / "scene.json").read_bytes()
     for edit in ("wall_decal", "column_decal"):

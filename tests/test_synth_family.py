@@ -20,7 +20,7 @@ from backend.capture.synth import HOLD_EVERY, SynthSettings, synthesize
 from backend.capture.synth_family import EDITS, EYE_RADIUS, Rect, family_layout
 from backend.core.errors import IGSError
 from backend.core.imageio import read_exr, read_image
-from tests._synth_edits import edited_views, frame_names, read_raw, to_linear
+from tests._synth_edits import edited_views, frame_names, identity_tolerance, read_raw, to_linear
 
 pytest.importorskip("bpy")
 
@@ -136,13 +136,6 @@ def test_scene_descriptions_differ(captures):
     assert meta["edits"] == list(EDITS)
 
 
-def _identity_tolerance(k: np.ndarray, a16: np.ndarray, S: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Per-pixel bound on |image - (albedo * S + R)| from the files' rounding (as tests/test_synth.py)."""
-    image, albedo = to_linear(k / 255.0), to_linear(a16 / 65535.0)
-    return ((to_linear((k + 0.5) / 255.0) - image) + (to_linear((a16 + 0.5) / 65535.0) - albedo) * S
-            + albedo * (S * 2.0 ** -11 + 3e-8) + R * 2.0 ** -11 + 3e-8 + 1e-5 * (1.0 + albedo * S + R))
-
-
 @pytest.mark.parametrize("k", SEEDS)
 def test_images_equal_albedo_times_shading_plus_residual(captures, k):
     """image = albedo * shading + residual per unclipped pixel, to the files' precision, with the world
@@ -155,7 +148,7 @@ def test_images_equal_albedo_times_shading_plus_residual(captures, k):
         S = read_exr(ws / "gt" / "shading" / f"{stem}.exr").astype(np.float64)
         R = read_exr(ws / "gt" / "residual" / f"{stem}.exr").astype(np.float64)
         err = np.abs(to_linear(img / 255.0) - (to_linear(a16 / 65535.0) * S + R))
-        tol = _identity_tolerance(img, a16, S, R)
+        tol = identity_tolerance(img, a16, S, R)
         ok = img < 255
         assert (err[ok] <= tol[ok]).all(), f"{name}: worst error/tolerance {(err[ok] / tol[ok]).max():.3f}"
         assert (S >= 0).all() and (R >= 0).all()
@@ -199,7 +192,8 @@ def test_edits_change_only_their_region(captures, k):
     """Each edit is seen in several views; outside its mask the edited files are bit-identical to the
     originals; inside, a recolour's albedo is its flat colour (to the region's border: the rectangle is
     the canvas or panel itself) and the edited image is albedo_edit * shading + residual with the
-    original shading (in the mean over the region: with 16 spp single pixels are noisy)."""
+    original shading (in the mean over the region: with 16 spp single pixels are noisy), and exactly,
+    per pixel, with the edited render's own shading and residual."""
     ws = captures[k]
     for edit_name in EDITS:
         folder = ws / "gt_edit" / edit_name

@@ -25,7 +25,8 @@ each light pass already divided by its colour pass per pixel, so ``albedo * shad
 equals Combined per pixel up to float rounding whatever the pixel filter or sample count.
 Denoising, adaptive sampling, light clamping and the view transform are all off/neutral.
 
-Edits (``gt_edit/<edit>/images`` and ``albedo``) only differ where camera rays hit the edit region
+Edits (``gt_edit/<edit>/images``, ``albedo``, ``shading`` and ``residual``) only differ where camera rays
+hit the edit region
 (see :mod:`backend.capture.synth_scene`), so each edited view renders just the bounding box of its
 mask with a render border and takes every other pixel from the original view: Cycles' sampling
 depends on the pixel, not on the border, so this is bit-identical to a full render.
@@ -57,6 +58,7 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import (
     linear_to_srgb,
+    read_exr,
     read_image,
     write_depth,
     write_exr,
@@ -323,7 +325,10 @@ def _view_files(ws: Workspace, scene: synth_scene.SynthScene, name: str) -> list
 
 
 def _edit_files(ws: Workspace, edit: str, name: str) -> list[Path]:
-    return [ws.gt_edit / edit / "images" / name, ws.gt_edit / edit / "albedo" / name]
+    """The edited view's image and albedo (PNG) and its own shading and residual passes (EXR)."""
+    stem = Path(name).stem
+    return [ws.gt_edit / edit / "images" / name, ws.gt_edit / edit / "albedo" / name,
+            ws.gt_edit / edit / "shading" / f"{stem}.exr", ws.gt_edit / edit / "residual" / f"{stem}.exr"]
 
 
 def _count_files(ws: Workspace, scene: synth_scene.SynthScene) -> dict[str, int]:
@@ -334,7 +339,7 @@ def _count_files(ws: Workspace, scene: synth_scene.SynthScene) -> dict[str, int]
     for p in ("albedo", "shading", "residual", "depth"):
         out[f"gt/{p}"] = count(ws.gt_pass(p))
     for e in scene.edits:
-        for sub in ("images", "albedo", "mask"):
+        for sub in ("images", "albedo", "shading", "residual", "mask"):
             out[f"gt_edit/{e.name}/{sub}"] = count(ws.gt_edit / e.name / sub)
     return out
 
@@ -514,10 +519,10 @@ def _render_edits(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRe
         for edit, i in jobs:
             cam = cameras[i]
             mask = read_image(ws.gt_edit / edit / "mask" / cam.name)[..., 0] > 0.5
-            img_out, alb_out = _edit_files(ws, edit, cam.name)
+            outs = _edit_files(ws, edit, cam.name)
             if not mask.any():  # camera rays never meet the region: the render would be identical
-                _copy(ws.images / cam.name, img_out)
-                _copy(ws.gt_pass("albedo") / cam.name, alb_out)
+                for src, dst in zip(_edit_sources(ws, cam.name), outs):
+                    _copy(src, dst)
             else:
                 ys, xs = np.nonzero(mask)
                 box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
@@ -526,24 +531,43 @@ def _render_edits(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRe
                     P = renderer.render(cam, tmp / f"edit_{edit}_{i:04d}.exr", border=box)
                 finally:
                     scene.set_edit(None)
-                _write_edited_view(ws, cam, P, box, img_out, alb_out)
+                _write_edited_view(ws, cam, P, box, outs)
                 rendered += 1
             bar.update(1, edit=edit)
     return rendered
 
 
+def _edit_sources(ws: Workspace, name: str) -> list[Path]:
+    """The unedited view's files that :func:`_edit_files` are edited copies of, in the same order."""
+    stem = Path(name).stem
+    return [ws.images / name, ws.gt_pass("albedo") / name, ws.gt_pass("shading") / f"{stem}.exr",
+            ws.gt_pass("residual") / f"{stem}.exr"]
+
+
 def _write_edited_view(ws: Workspace, cam: Camera, P: dict[str, np.ndarray], box: tuple[int, int, int, int],
-                       img_out: Path, alb_out: Path) -> None:
+                       outs: list[Path]) -> None:
+    """The unedited view's files with the border render ``P`` pasted into ``box``: the edited image,
+    albedo, and the edited render's own shading and residual (where a pixel mixes the region with its
+    surroundings, or the region's old albedo was near black, the capture's shading does not give the
+    edited image; these do, exactly)."""
     x0, y0, x1, y1 = box
     # Every rendered pixel, the world background included (film not transparent), has alpha 1; pixels
     # outside the render border are left 0. (Depth cannot tell: Cycles writes 1e10 for the background.)
     if not (P["Combined"][y0:y1, x0:x1, 3] > 0).all():
         raise RuntimeError(f"the border render of {cam.name} does not cover the pixels {box}")
-    image = read_image(ws.images / cam.name)
+    img_src, alb_src, sh_src, res_src = _edit_sources(ws, cam.name)
+    img_out, alb_out, sh_out, res_out = outs
+    image = read_image(img_src)
     image[y0:y1, x0:x1] = linear_to_srgb(P["Combined"][y0:y1, x0:x1, :3])
-    albedo = read_image(ws.gt_pass("albedo") / cam.name)
+    albedo = read_image(alb_src)
     albedo[y0:y1, x0:x1] = linear_to_srgb(P["Diffuse Color"][y0:y1, x0:x1])
+    shading = read_exr(sh_src)[..., :3]
+    shading[y0:y1, x0:x1] = (P["Diffuse Direct"] + P["Diffuse Indirect"])[y0:y1, x0:x1]
+    residual = read_exr(res_src)[..., :3]
+    residual[y0:y1, x0:x1] = _residual(P)[y0:y1, x0:x1]
     write_image(alb_out, albedo, bits=16)
+    write_exr(sh_out, shading)
+    write_exr(res_out, residual)
     write_image(img_out, image)
 
 
@@ -612,8 +636,9 @@ def _write_edit_json(ws: Workspace, edit: synth_scene.EditSpec, edit_view: str, 
         "rect": rect,
         "rect_convention": "[x0, y0, x1, y1] pixels of edit_view, x1 and y1 exclusive, all inside the region",
         "masks": "mask/NAME.png: white where any camera sample of the pixel hits the edited region",
-        "lighting": "identical to the original capture: the edit is seen by camera rays only, so shading "
-                    "and residual are those of gt/",
+        "lighting": "the edit is seen by camera rays only, so the light is the original capture's; shading/ "
+                    "and residual/ are the edited render's own passes (albedo * shading + residual = images "
+                    "exactly, also in pixels that mix the region with its surroundings)",
     })
 
 

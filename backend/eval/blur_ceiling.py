@@ -32,7 +32,7 @@ def ceilings(ws: Path, edit: str, sigmas: list[float]) -> dict[str, float]:
     for f, mask in edit_views(ws, edit):
         gt = read_image(folder / "images" / f.name)
         albedo = srgb_to_linear(read_image(folder / "albedo" / f.name)).astype(np.float32)
-        shading, residual = true_lighting(ws, f)
+        shading, residual = true_lighting(ws, f, edit)
         for s in sigmas:
             a = albedo if s == 0 else cv2.GaussianBlur(albedo, (0, 0), s)
             img = linear_to_srgb(np.clip(compose(a, shading, residual), 0.0, 1.0))

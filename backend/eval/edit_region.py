@@ -30,12 +30,20 @@ def edit_views(ws: Path, edit: str) -> Iterator[tuple[Frame, np.ndarray]]:
     return ((f, mask) for f, mask in masks if (mask > 0.5).any())
 
 
-def true_lighting(ws: Path, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
-    """The capture's ground-truth shading and residual of ``frame``, (H, W, 3) linear each: an albedo
-    edit leaves both as they are, so the edited image is the edited albedo composited with them."""
+def true_lighting(ws: Path, frame: Frame, edit: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The ground-truth shading and residual of ``frame``, (H, W, 3) linear each.
+
+    With ``edit``, the edited render's own passes (``gt_edit/<edit>/shading``, ``residual``), with which
+    the edited albedo gives the edited image exactly; a capture rendered before they were written falls
+    back to the capture's (``gt/``), which differ from them by the renderer's noise where the region's old
+    albedo was near black (each light pass is stored divided by its colour) and in pixels that mix the
+    region with its surroundings."""
     stem = Path(frame.name).stem
-    return (read_exr(ws / "gt" / "shading" / f"{stem}.exr")[..., :3],
-            read_exr(ws / "gt" / "residual" / f"{stem}.exr")[..., :3])
+    folder = ws / "gt"
+    if edit is not None and (ws / "gt_edit" / edit / "shading" / f"{stem}.exr").exists():
+        folder = ws / "gt_edit" / edit
+    return (read_exr(folder / "shading" / f"{stem}.exr")[..., :3],
+            read_exr(folder / "residual" / f"{stem}.exr")[..., :3])
 
 
 RING_PARTS = ("interior", "border", "bleed")
