@@ -4,7 +4,9 @@ to end on the fixed room of the `test` preset (needs a synthetic renderer)."""
 
 import json
 import math
+import os
 import statistics
+from dataclasses import replace
 
 import pytest
 from _synth_capture import needs_synth_renderer
@@ -63,7 +65,7 @@ def fake_runs(monkeypatch):
     monkeypatch.setattr(bench_seeds, "check_scene_seeds", lambda seeds: None)
     calls: list = []
 
-    def runner(root, k, s, where):
+    def runner(root, k, s, where, previous):
         calls.append(k)
         if k == 13:
             raise IGSError(f"{where}: bench_edit: unlucky")
@@ -181,3 +183,19 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path):
 
     again = bench_seeds.run(tmp_path, [None], s)
     assert again["seeds"]["room"]["date"] == entry["date"]  # not rerun
+    assert not entry["decomposition_reused"]
+
+    # only a bake setting changed: the decomposition and its layers are reused, the edits rerun
+    dec_file = bench_seeds.file_version(ws / "bench_decompose.json")
+    edits_only = replace(s, bake_iterations=10)
+    e2 = bench_seeds.run(tmp_path, [None], edits_only)["seeds"]["room"]
+    assert e2["decomposition_reused"] and e2["decomposition"] == entry["decomposition"]
+    assert e2["albedo_layer"] == entry["albedo_layer"] and e2["layers"] == entry["layers"]
+    assert bench_seeds.file_version(ws / "bench_decompose.json") == dec_file
+    assert json.loads((ws / "bench_edit.json").read_text())["config"]["bake_iterations"] == 10
+    # not when a decomposition setting differs, nor once a layer file is no longer the one it trained
+    assert bench_seeds.decomposition_to_reuse(ws, e2, edits_only) is e2
+    assert bench_seeds.decomposition_to_reuse(ws, e2, replace(edits_only, iterations=31)) is None
+    st = (ws / "layers" / "shading.ply").stat()
+    os.utime(ws / "layers" / "shading.ply", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert bench_seeds.decomposition_to_reuse(ws, e2, edits_only) is None

@@ -22,7 +22,9 @@ multi-view bake's PSNR in each edit's region and rings, and its lead over the si
 their aggregate over the seeds (mean, sample standard deviation, min and max:
 :mod:`backend.eval.seed_stats`), the settings, date, machine and the seconds of each step go to
 ``--out`` (default ``<root>/bench_seeds.json``), rewritten after every seed. Run again, a seed whose
-entry there has the same settings is not rerun (``--force`` reruns it).
+entry there has the same settings is not rerun (``--force`` reruns it); one whose capture and
+decomposition settings are the same, and whose layers are still the files it trained, reruns only
+the synth (which resumes) and bench_edit.
 """
 
 from __future__ import annotations
@@ -82,6 +84,9 @@ DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_ps
                        "albedo_psnr_fg", "shading_psnr_fg", "leakage")
 # decomposition metrics the printed aggregate leaves to the JSON (SSIM, LPIPS)
 JSON_ONLY = ("_ssim", "_lpips")
+DECOMPOSITION_SETTINGS = ("preset", "views", "seed", "iterations", "downscale", "max_gaussians", "residual_points",
+                          "single_set", "backend", "device")
+"""The settings of the capture and its decomposition (steps 1-3): the rest only change the edits."""
 EDIT_TABLE = ("image", "image_interior", "image_border", "image_bleed", "albedo", "albedo_interior",
               "albedo_border", "albedo_bleed", "lead_image_db")
 
@@ -139,6 +144,11 @@ class SeedSettings:
     def as_json(self) -> dict[str, Any]:
         """The settings as stored in the output (tuples as lists), the form compared on resume."""
         return json.loads(json.dumps(asdict(self)))
+
+    def decomposition_json(self) -> dict[str, Any]:
+        """The settings steps 1-3 (the capture and its decomposition) depend on, in :meth:`as_json`'s form."""
+        full = self.as_json()
+        return {k: full[k] for k in DECOMPOSITION_SETTINGS}
 
     def bake_config(self) -> BakeConfig:
         return BakeConfig(views=self.bake_views, iterations=self.bake_iterations, anchor_views=self.anchor_views,
@@ -275,27 +285,61 @@ def _timed(seconds: dict[str, float], step: str, where: str, fn: Callable[[], T]
         seconds[step] = round(time.perf_counter() - t, 1)
 
 
-def run_seed(root: Path, scene_seed: int | None, s: SeedSettings, where: str = "") -> dict[str, Any]:
-    """The four steps (module docstring) on ``<root>/seed_<label>``; returns the seed's entry."""
+def layer_versions(ws: Path) -> dict[str, list[int] | None]:
+    """:func:`file_version` of each of ``<ws>/layers/{albedo,shading,residual}.ply``, as stored in an entry."""
+    return {k: (lambda v: None if v is None else list(v))(file_version(ws / "layers" / f"{k}.ply"))
+            for k in ("albedo", "shading", "residual")}
+
+
+def decomposition_to_reuse(ws: Path, previous: dict[str, Any] | None, s: SeedSettings) -> dict[str, Any] | None:
+    """``previous`` (this seed's stored entry) when its capture and decomposition can stand for these
+    settings: the same :meth:`SeedSettings.decomposition_json`, its bench_decompose.json still there, and
+    the layers the very files it trained (``layers`` versions unchanged). Then only the edit settings
+    differ, and steps 2 and 3 are not run again."""
+    if not previous or "decomposition" not in previous or not (ws / "bench_decompose.json").exists():
+        return None
+    old = previous.get("settings") or {}
+    if {k: old.get(k) for k in DECOMPOSITION_SETTINGS} != s.decomposition_json():
+        return None
+    versions = layer_versions(ws)
+    if previous.get("layers") != versions or None in versions.values():
+        return None
+    return previous
+
+
+def run_seed(root: Path, scene_seed: int | None, s: SeedSettings, where: str = "",
+             previous: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The four steps (module docstring) on ``<root>/seed_<label>``; returns the seed's entry. With
+    ``previous``, the seed's stored entry, steps 2 and 3 are reused when :func:`decomposition_to_reuse`
+    allows (the synth still runs: it resumes, rendering only what is missing)."""
     ws = root / f"seed_{label(scene_seed)}"
     where = where or f"seed {label(scene_seed)}"
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
     _timed(seconds, "synth", where, lambda: synthesize_scene(ws, scene_seed, s))
-    before = file_version(ws / "layers" / "albedo.ply")
-    dec = _timed(seconds, "bench_decompose", where, lambda: bench_decompose.run(
-        str(ws), s.iterations, s.downscale, s.max_gaussians, s.backend, s.residual_points,
-        single_set=s.single_set, device=s.device))
-    write_json(ws / "bench_decompose.json", dec)
-    entry = three_set_entry(ws)
-    source = _timed(seconds, "albedo_layer", where, lambda: ensure_albedo(ws, s, before))
+    reuse = decomposition_to_reuse(ws, previous, s)
+    if reuse is not None:
+        events.log(f"bench_seeds: {where}: bench_decompose and albedo_layer reused from {reuse['date']} "
+                   "(same capture and decomposition settings, layers unchanged)")
+        seconds.update({k: reuse["seconds"].get(k) for k in ("bench_decompose", "albedo_layer")})
+        decomposition, source = reuse["decomposition"], reuse["albedo_layer"]
+    else:
+        before = file_version(ws / "layers" / "albedo.ply")
+        dec = _timed(seconds, "bench_decompose", where, lambda: bench_decompose.run(
+            str(ws), s.iterations, s.downscale, s.max_gaussians, s.backend, s.residual_points,
+            single_set=s.single_set, device=s.device))
+        write_json(ws / "bench_decompose.json", dec)
+        decomposition = decomposition_headline(dec, three_set_entry(ws))
+        source = _timed(seconds, "albedo_layer", where, lambda: ensure_albedo(ws, s, before))
+    layers = layer_versions(ws)
     edits = _timed(seconds, "bench_edit", where, lambda: bench_edit.run(
         ws, s.edits, s.bake_config(), s.margin, FitConfig(min_selected=s.min_selected), s.grow_on, s.ring,
         keep_going=True, proxy=s.proxy))
     write_json(ws / "bench_edit.json", {"results": edits, "config": s.as_json(), "table": bench_edit.table(edits)})
     seconds["total"] = round(time.perf_counter() - t0, 1)
     return {"scene_seed": scene_seed, "workspace": str(ws), "settings": s.as_json(), "date": _now(),
-            "machine": machine(), "decomposition": decomposition_headline(dec, entry), "albedo_layer": source,
+            "machine": machine(), "decomposition": decomposition, "albedo_layer": source, "layers": layers,
+            "decomposition_reused": reuse is not None,
             "edits": {name: edit_headline(r) for name, r in edits.items()}, "seconds": seconds,
             "files": {"bench_decompose": str(ws / "bench_decompose.json"), "bench_edit": str(ws / "bench_edit.json")}}
 
@@ -334,7 +378,8 @@ def document(s: SeedSettings, requested: Sequence[str], seeds: dict[str, Any]) -
 
 
 def run(root: Path, scene_seeds: Sequence[int | None], s: SeedSettings, out: Path | None = None,
-        force: bool = False, seed_runner: Callable[[Path, int | None, SeedSettings, str], dict[str, Any]] = run_seed
+        force: bool = False,
+        seed_runner: Callable[[Path, int | None, SeedSettings, str, dict[str, Any] | None], dict[str, Any]] = run_seed
         ) -> dict[str, Any]:
     """Run (or reuse) every seed, writing ``out`` (default ``<root>/bench_seeds.json``) after each;
     returns the final document. ``seed_runner``: what runs one seed (:func:`run_seed`)."""
@@ -349,7 +394,7 @@ def run(root: Path, scene_seeds: Sequence[int | None], s: SeedSettings, out: Pat
         if not force and reusable(seeds.get(label(k)), settings):
             events.log(f"bench_seeds: {where}: results in {out} with these settings, not rerun (--force reruns)")
             continue
-        seeds[label(k)] = seed_runner(root, k, s, where)
+        seeds[label(k)] = seed_runner(root, k, s, where, None if force else seeds.get(label(k)))
         write_json(out, document(s, requested, seeds))
         events.output("bench_seeds", out)
     result = document(s, requested, seeds)
