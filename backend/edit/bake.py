@@ -202,6 +202,7 @@ def _clear_surface(original: GaussianSet, edit: _EditView, cfg: BakeConfig) -> t
         return g, outside, n_cut, paint_surface_gaussians(g, edit.camera, edit.edited, edit.mask,
                                                           edit.proxy_render, cfg.surface_tolerance), 0
     drop = surface_gaussians(g, edit.camera, edit.mask, edit.proxy_render, cfg.surface_tolerance)
+    drop = drop[~outside.numpy()[drop]]  # an outside half belongs outside, even if its centre's pixel is an edit pixel
     keep = torch.ones(len(g), dtype=torch.bool)
     keep[torch.from_numpy(drop)] = False
     return g.index(keep), outside[keep], n_cut, 0, len(drop)
