@@ -3,7 +3,6 @@ is the known box of Gaussians: the fit finds the face, the bake changes the edit
 the rest, bad inputs fail with one clear error."""
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -101,9 +100,7 @@ def test_bake_changes_the_edit_and_keeps_the_rest(ws):
     before, _ = read_ply(ws / "layers" / "albedo.ply", kind="albedo")
     after, _ = read_ply(out / "albedo.ply", kind="albedo")
     assert summary["spawned"] > 0 and summary["removed"] > 0  # the face's own Gaussians gave way to new ones
-    # each Gaussian cut at the border became two
-    assert len(after) == (len(before) + summary["border_split"] - summary["removed"] + summary["spawned"]
-                          + summary["densified"])
+    assert len(after) == len(before) - summary["removed"] + summary["spawned"] + summary["densified"]
     # the spawned Gaussians (and their densified children) carry the edit's sharper low-pass, the rest 3DGS's
     assert before.eps2d is None and after.eps2d is not None
     sharp = int((after.eps2d == cfg.edit_filter).sum())
@@ -372,37 +369,6 @@ def test_bake_stage_skips_frozen_gaussians_outside_each_window_without_changing_
     b.color.sum().backward()
     for k in full.gaussians.params:
         assert torch.allclose(full.gaussians.params[k].grad, culled.gaussians.params[k].grad, atol=1e-5), k
-
-
-def test_the_outside_halves_of_the_gaussians_cut_at_the_border_keep_the_old_colour(ws):
-    """The bake cuts the Gaussians across the edit's edge in its edit view; the halves outside the edit
-    are frozen, so they come out of the bake exactly as the cut made them, with the old colours, while
-    without the cut the same bake trains whole Gaussians across the edge."""
-    from backend.edit import bake as bake_module
-    from backend.edit.border_split import split_at_border
-    proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
-                        color=[0.9, 0.05, 0.9], name="halves")
-    cfg = BakeConfig(view=EDIT_VIEW, views=4, iterations=60, anchor_views=2)
-    summary = bake_edit(ws, proxy, "halves", cfg)
-    inp = bake_module._load_inputs(ws, proxy, "halves", cfg)
-    edit = bake_module._edit_view(inp, "halves", cfg)
-    cut = split_at_border(inp.original.with_filter(0.3), edit.camera, edit.mask)
-    assert cut.split == summary["border_split"] > 0
-    outside = cut.gaussians.index(cut.outside)
-    after, _ = read_ply(ws / "edits" / "halves" / "albedo.ply", kind="albedo")
-    # every outside half is in the baked layer, bit for bit (PLY float32 round trip)
-    m_after = after.means.detach()
-    hits = 0
-    for i in range(len(outside)):
-        same = (m_after == outside.means.detach()[i]).all(dim=1)
-        if same.any():
-            j = int(torch.nonzero(same)[0])
-            assert torch.equal(after.params["colors"][j].detach(), outside.params["colors"][i].detach())
-            assert torch.equal(after.params["opacity_logits"][j].detach(), outside.params["opacity_logits"][i].detach())
-            hits += 1
-    assert hits == len(outside)
-    whole = bake_edit(ws, proxy, "halves_whole", replace(cfg, border_split=False))
-    assert whole["border_split"] == 0 and whole["gaussians_after"] < summary["gaussians_after"]
 
 
 def test_recolouring_a_whole_textured_region_replaces_the_texture_to_its_border(ws):

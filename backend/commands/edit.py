@@ -91,9 +91,6 @@ BAKE_OPTIONS = COMMON + (shared.seed(),) + (
     Option("--edit-filter", "edit_filter",
            f"screen-space low-pass of the new Gaussians, pixels^2 (default {_B.edit_filter}; 3DGS's 0.3 blurs "
            "textures with 1-2 px detail)", type=opt.NON_NEGATIVE, metavar="PX2"),
-    Option("--no-border-split", "border_split",
-           "leave the old Gaussians across the edit's border whole (default: cut them in two at the border, "
-           "the outside half frozen with the old colour)"),
     Option("--no-restrict", "restrict",
            "let every albedo Gaussian change (default: only those under the edit and the new ones)"),
     Option("--downscale", "downscale", "divide image sizes by this factor (default 1)", type=opt.DOWNSCALE),

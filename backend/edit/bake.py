@@ -46,7 +46,6 @@ from backend.core.workspace import Capture, split_frames
 from backend.edit.albedo_render import edited_albedo, render_albedo
 from backend.edit.bake_config import BakeConfig, check_bake_config
 from backend.edit.bake_stage import BakeStage, bake_densify
-from backend.edit.border_split import split_at_border
 from backend.edit.change_metrics import measure_change
 from backend.edit.crop_windows import crop_box, cropped_view, projected_box
 from backend.edit.mesh_raster import ProxyRender
@@ -185,27 +184,19 @@ def _spawned(edit: _EditView, cfg: BakeConfig) -> dict[str, np.ndarray]:
     return flattened_gaussians(pts, edit.camera, cfg.spawn_fraction)
 
 
-def _clear_surface(original: GaussianSet, edit: _EditView, cfg: BakeConfig) -> tuple[GaussianSet, torch.Tensor, int, int, int]:
-    """3b. (the old Gaussians to keep, which of them are frozen outside halves, how many were cut at the
-    border, painted, removed). With ``cfg.border_split`` the ones straddling the edit's border are first
-    cut in two (:func:`split_at_border`); then the ones on the proxy under the edit are removed or
-    repainted (``cfg.surface``). The copy carries per-Gaussian filters when the original does or the new
-    ones get another than the renderer's default."""
+def _clear_surface(original: GaussianSet, edit: _EditView, cfg: BakeConfig) -> tuple[GaussianSet, int, int]:
+    """3b. (the old Gaussians to keep, how many were painted, how many removed): the ones on the proxy
+    under the edit are removed or repainted (``cfg.surface``). The copy carries per-Gaussian filters
+    when the original does or the new ones get another than the renderer's default."""
     sharp = FILTER in original.params or cfg.edit_filter != EPS2D
-    g = original.with_filter(EPS2D) if sharp else original
-    if cfg.border_split:
-        cut = split_at_border(g, edit.camera, edit.mask)
-        g, outside, n_cut = cut.gaussians, cut.outside, cut.split
-    else:
-        g, outside, n_cut = g.clone(), torch.zeros(len(g), dtype=torch.bool), 0
+    g = original.with_filter(EPS2D) if sharp else original.clone()
     if cfg.surface == "paint":
-        return g, outside, n_cut, paint_surface_gaussians(g, edit.camera, edit.edited, edit.mask,
-                                                          edit.proxy_render, cfg.surface_tolerance), 0
+        return g, paint_surface_gaussians(g, edit.camera, edit.edited, edit.mask, edit.proxy_render,
+                                          cfg.surface_tolerance), 0
     drop = surface_gaussians(g, edit.camera, edit.mask, edit.proxy_render, cfg.surface_tolerance)
-    drop = drop[~outside.numpy()[drop]]  # an outside half belongs outside, even if its centre's pixel is an edit pixel
     keep = torch.ones(len(g), dtype=torch.bool)
     keep[torch.from_numpy(drop)] = False
-    return g.index(keep), outside[keep], n_cut, 0, len(drop)
+    return g.index(keep), 0, len(drop)
 
 
 def _anchor_views(inp: _Inputs, moving: np.ndarray, cfg: BakeConfig) -> list[View]:
@@ -296,15 +287,15 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     painted = _painted_views(inp, edit, cfg)
     views = _windows(painted, cfg.crop_margin)
     flat = _spawned(edit, cfg)
-    kept, outside, n_cut, n_painted, removed = _clear_surface(inp.original, edit, cfg)
+    kept, n_painted, removed = _clear_surface(inp.original, edit, cfg)
     editable = (contributors(kept, [(v.camera, v.extras["mask"]) for v in views], cfg.backend) if cfg.restrict
-                else torch.ones(len(kept), dtype=torch.bool)) & ~outside
+                else torch.ones(len(kept), dtype=torch.bool))
     anchors = _anchor_views(inp, np.concatenate([kept.means.detach()[editable].numpy(), flat["means"]]), cfg)
     split = _split(kept, editable, flat, views + anchors, cfg)
     n_trained = len(split.trained)  # densification grows the set in place
     events.log(f"bake {name}: {len(views)} edit views, {len(anchors)} anchor views; {int(split.active.sum())} of "
                f"{len(inp.original)} Gaussians in their windows, {int(editable.sum())} editable, "
-               f"{len(flat['means'])} spawned, {n_cut} cut at the border")
+               f"{len(flat['means'])} spawned")
     result = _reoptimise(inp, name, split, views + anchors, int(edit.mask.sum()), cfg)
     baked = GaussianSet.concat([kept.index(~editable), result.gaussians])
 
@@ -313,8 +304,7 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     summary = {
         "name": name, "edit_view": edit.camera.name, "proxy": str(saved_proxy), "source_albedo": str(inp.source),
         "albedo": str(ply), "edit_pixels": int(edit.mask.sum()), "virtual_views": len(painted) - 1,
-        "anchor_views": len(anchors), "spawned": len(flat["means"]), "border_split": n_cut, "painted": n_painted,
-        "removed": removed,
+        "anchor_views": len(anchors), "spawned": len(flat["means"]), "painted": n_painted, "removed": removed,
         "densified": len(result.gaussians) - n_trained, "gaussians_before": len(inp.original),
         "gaussians_after": len(baked), "active": int(split.active.sum()), "editable": int(editable.sum()),
         "iterations": result.step, "train_seconds": round(result.train_seconds, 2), "device": describe(inp.device),

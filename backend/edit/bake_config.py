@@ -57,10 +57,6 @@ class BakeConfig:
     on the proxy carry the edit; "paint" keeps them with the edited colour at their pixel."""
     surface_tolerance: float = 0.08
     """Relative depth tolerance of "on the proxy" (the composite's largest adaptive tolerance)."""
-    border_split: bool = True
-    """Cut the old Gaussians that straddle the edit's border in the edit view in two; the outside halves keep
-    the old colour and stay frozen, so the edit neither spills past its edge nor leaves old colour at it
-    (:mod:`backend.edit.border_split`)."""
     densify: bool = True
     """Clone/split the trained Gaussians where the edit's detail needs them (as the albedo stage does)."""
     densify_per_pixel: float = 2.0

@@ -433,8 +433,6 @@ def main(argv: list[str] | None = None) -> int:
                     help="training views that see the edit, added to the multi-view bake")
     ap.add_argument("--edit-filter", type=float, default=BakeConfig.edit_filter,
                     help="screen-space low-pass of the baked Gaussians, pixels^2 (0.3: 3DGS's)")
-    ap.add_argument("--no-border-split", dest="border_split", action="store_false",
-                    help="bake without cutting the old Gaussians across the edit's border (igs edit bake --no-border-split)")
     ap.add_argument("--margin", type=int, default=2, help="pixels around the mask left out of 'outside' (default 2)")
     ap.add_argument("--ring", type=int, default=RING,
                     help=f"width in pixels of the interior / border / bleed rings at the region's edge (default {RING})")
@@ -452,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
     ws_root = Path(args.workspace)
     cfg = BakeConfig(views=args.views, iterations=args.iterations, anchor_views=args.anchor_views,
                      capture_views=args.capture_views, edit_filter=args.edit_filter,
-                     backend=args.backend, border_split=args.border_split)
+                     backend=args.backend)
     try:
         edits = [e for e in args.edits.split(",") if e] if args.edits is not None else None
         results = run(ws_root, edits, cfg, args.margin, FitConfig(min_selected=args.min_selected), args.grow_on,

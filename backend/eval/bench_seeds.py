@@ -119,8 +119,6 @@ class SeedSettings:
     capture_views: int = BakeConfig.capture_views
     anchor_views: int = BakeConfig.anchor_views
     edit_filter: float = BakeConfig.edit_filter
-    border_split: bool = BakeConfig.border_split
-    """Cut the old Gaussians across each edit's border (``--no-border-split``: leave them whole)."""
     margin: int = 2
     ring: int = bench_edit.RING
     min_selected: int = FitConfig.min_selected
@@ -153,7 +151,7 @@ class SeedSettings:
     def bake_config(self) -> BakeConfig:
         return BakeConfig(views=self.bake_views, iterations=self.bake_iterations, anchor_views=self.anchor_views,
                           capture_views=self.capture_views, edit_filter=self.edit_filter, backend=self.backend,
-                          device=self.device, border_split=self.border_split)
+                          device=self.device)
 
 
 def parse_scene_seeds(text: str) -> list[int | None]:
@@ -472,8 +470,6 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--capture-views", type=int, default=d.capture_views)
     p.add_argument("--anchor-views", type=int, default=d.anchor_views)
     p.add_argument("--edit-filter", type=float, default=d.edit_filter)
-    p.add_argument("--no-border-split", dest="border_split", action="store_false",
-                   help="bake without cutting the old Gaussians across each edit's border")
     p.add_argument("--margin", type=int, default=d.margin, help="pixels around the mask left out of 'outside'")
     p.add_argument("--ring", type=int, default=d.ring, help="width of the interior / border / bleed rings, pixels")
     p.add_argument("--min-selected", type=int, default=d.min_selected)
@@ -490,7 +486,7 @@ def settings_from(args: argparse.Namespace) -> SeedSettings:
                         residual_points=args.residual_points, single_set=args.single_set, backend=args.backend,
                         device=args.device, edits=edits, bake_iterations=args.bake_iterations,
                         bake_views=args.bake_views, capture_views=args.capture_views, anchor_views=args.anchor_views,
-                        edit_filter=args.edit_filter, border_split=args.border_split, margin=args.margin, ring=args.ring,
+                        edit_filter=args.edit_filter, margin=args.margin, ring=args.ring,
                         min_selected=args.min_selected, grow_on=args.grow_on,
                         proxy=args.proxy)
 
