@@ -67,7 +67,14 @@ from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
 from backend.eval.bench_cli import error
-from backend.eval.edit_region import RING_PARTS, RegionPSNR, edit_views, ring_masks, true_lighting
+from backend.eval.edit_region import (  # noqa: F401 (resolve_edits: part of this module's API)
+    RING_PARTS,
+    RegionPSNR,
+    edit_views,
+    resolve_edits,
+    ring_masks,
+    true_lighting,
+)
 from backend.eval.layer_metrics import render_frame
 from backend.render import Backend
 from backend.splats.gaussians import GaussianSet
@@ -79,26 +86,6 @@ ProxySource = Literal["fitted", "true"]
 PROXY_SOURCES: tuple[ProxySource, ...] = get_args(ProxySource)
 RING = 2
 """Default ring width, pixels, of the interior / border / bleed split."""
-
-
-def available_edits(ws_root: Path) -> list[str]:
-    """The names of the capture's ground-truth edits (``gt_edit/*/edit.json``), sorted."""
-    return sorted(p.parent.name for p in (ws_root / "gt_edit").glob("*/edit.json"))
-
-
-def resolve_edits(ws_root: Path, requested: Sequence[str] | None) -> list[str]:
-    """``requested`` (None or empty: every edit of the capture) checked against ``gt_edit``; an unknown
-    name, or a capture without edits, is one :class:`IGSError` listing what exists."""
-    there = available_edits(ws_root)
-    if not there:
-        raise IGSError(f"{ws_root / 'gt_edit'}: no */edit.json (a synthetic capture with gt_edit is needed)")
-    if not requested:
-        return there
-    unknown = [e for e in requested if e not in there]
-    if unknown:
-        raise IGSError(f"--edits: no edit {', '.join(repr(e) for e in unknown)} in {ws_root / 'gt_edit'} "
-                       f"(there: {', '.join(there)})")
-    return list(requested)
 
 
 def _unit(v) -> np.ndarray:

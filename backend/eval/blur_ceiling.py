@@ -21,7 +21,7 @@ from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
 from backend.eval.bench_cli import error, number_list
-from backend.eval.edit_region import RegionPSNR, edit_views, true_lighting
+from backend.eval.edit_region import RegionPSNR, edit_views, resolve_edits, true_lighting
 from backend.train.intrinsic.composite import compose
 
 
@@ -45,13 +45,15 @@ def ceilings(ws: Path, edit: str, sigmas: list[float]) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m backend.eval.blur_ceiling", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace")
-    ap.add_argument("--edits", default="wall_decal,rug_recolor,column_decal", help="comma list of gt_edit edits")
+    ap.add_argument("--edits", default=None,
+                    help="comma list of gt_edit edits (default: every <ws>/gt_edit/*/edit.json, sorted)")
     ap.add_argument("--sigmas", default="0,0.32,0.45,0.55", help="blur standard deviations in pixels")
     ap.add_argument("--out", default="blur_ceiling.json", help="JSON output (default blur_ceiling.json)")
     args = ap.parse_args(argv)
     try:
         sigmas = number_list(args.sigmas, float, 0.0, "--sigmas must be >= 0")
-        results = {e: ceilings(Path(args.workspace), e, sigmas) for e in args.edits.split(",") if e}
+        requested = [e for e in args.edits.split(",") if e] if args.edits is not None else None
+        results = {e: ceilings(Path(args.workspace), e, sigmas) for e in resolve_edits(Path(args.workspace), requested)}
     except (IGSError, ValueError) as e:
         return error("blur_ceiling", e)
     for e, r in results.items():

@@ -5,7 +5,7 @@ split into the region's interior, its inner border ring and the outer ring it mu
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Iterator
+from collections.abc import Hashable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +16,26 @@ from backend.capture.load import load_capture
 from backend.core.errors import IGSError
 from backend.core.imageio import read_exr, read_image
 from backend.core.workspace import Frame, split_frames
+
+
+def available_edits(ws_root: Path) -> list[str]:
+    """The names of the capture's ground-truth edits (``gt_edit/*/edit.json``), sorted."""
+    return sorted(p.parent.name for p in (ws_root / "gt_edit").glob("*/edit.json"))
+
+
+def resolve_edits(ws_root: Path, requested: Sequence[str] | None) -> list[str]:
+    """``requested`` (None or empty: every edit of the capture) checked against ``gt_edit``; an unknown
+    name, or a capture without edits, is one :class:`IGSError` listing what exists."""
+    there = available_edits(ws_root)
+    if not there:
+        raise IGSError(f"{ws_root / 'gt_edit'}: no */edit.json (a synthetic capture with gt_edit is needed)")
+    if not requested:
+        return there
+    unknown = [e for e in requested if e not in there]
+    if unknown:
+        raise IGSError(f"--edits: no edit {', '.join(repr(e) for e in unknown)} in {ws_root / 'gt_edit'} "
+                       f"(there: {', '.join(there)})")
+    return list(requested)
 
 
 def edit_views(ws: Path, edit: str) -> Iterator[tuple[Frame, np.ndarray]]:
