@@ -94,8 +94,11 @@ def test_an_edit_spilling_one_pixel_past_the_region_shows_in_the_bleed_only():
 def test_multi_view_lead_is_the_difference_in_region_psnr():
     psnr = {"multi_view/image": 26.5, "single_view/image": 24.0, "multi_view/albedo": 30.0,
             "single_view/albedo": math.inf}
-    assert bench_edit.multi_view_lead(psnr) == {"image": 2.5, "albedo": None}
-    assert bench_edit.multi_view_lead({}) == {"image": None, "albedo": None}
+    none = {m: None for m in bench_edit.LEAD_MEASURES}
+    assert bench_edit.multi_view_lead(psnr) == {**none, "image": 2.5}
+    assert bench_edit.multi_view_lead({}) == none
+    interior = {"multi_view/image_interior": 50.0, "single_view/image_interior": 41.0}
+    assert bench_edit.multi_view_lead(interior) == {**none, "image_interior": 9.0}
 
 
 def _edits(tmp_path, names):

@@ -11,12 +11,14 @@ decal in Blender. Then the edit is baked (``igs edit bake``: 8 virtual views, an
 the held-out views (index % 8 == 0) are compared with the Cycles ground truth of the edited scene:
 
 - ``albedo``: the baked albedo render vs ``gt_edit/<edit>/albedo`` (sRGB-encoded), inside ``mask``;
-- ``image``: ``A_baked * S_gt + R_gt`` (the ground-truth shading and residual: lighting is unchanged by
-  the edit) vs ``gt_edit/<edit>/images`` inside the mask; the baselines "tint" (the unedited image
-  times the proxy colour) and "overwrite" (the proxy colour as the final pixel, no shading) are
-  image-space edits of the ground-truth unedited image where the depth-tested proxy covers a pixel;
-  "oracle" is ``A_gt_edit * S_gt + R_gt`` (the ceiling set by the renderer's noise and the
-  decomposition's convention);
+- ``image``: ``A_baked * S_gt + R_gt`` vs ``gt_edit/<edit>/images`` inside the mask, with the edited
+  render's own shading and residual (``gt_edit/<edit>/shading``, ``residual``; the light is the
+  capture's, and with these the edited albedo gives the edited image exactly, also where the region's
+  old albedo was near black or a pixel mixes it with its surroundings; a capture rendered before they
+  were written falls back to ``gt/``); the baselines "tint" (the unedited image times the proxy colour)
+  and "overwrite" (the proxy colour as the final pixel, no shading) are image-space edits of the
+  ground-truth unedited image where the depth-tested proxy covers a pixel; "oracle" is
+  ``A_gt_edit * S_gt + R_gt`` (the files' rounding alone, about 59 dB, with the edit's own passes);
 - ``image_decomposed``: ``A * S_pred + R_pred`` with the workspace's own shading and residual layers
   (what a user renders) vs ``gt_edit/<edit>/images`` inside the mask; for "oracle" ``A`` is the
   ground-truth edited albedo, so it measures the decomposed lighting alone: on a recoloured dark
@@ -314,11 +316,16 @@ def load_lighting(ws_root: Path) -> dict[str, GaussianSet] | None:
     return {k: read_ply(p, kind=k)[0] for k, p in files.items()}
 
 
+LEAD_MEASURES = ("image", "albedo", "image_interior", "albedo_interior")
+"""The measures the multi-view lead is given for: the region, and its interior (without the border ring,
+where both bakes meet the albedo field's own edge)."""
+
+
 def multi_view_lead(psnr: dict[str, float]) -> dict[str, float | None]:
-    """The multi-view bake's PSNR in the region minus the single-view bake's, dB, for image and albedo
+    """The multi-view bake's PSNR minus the single-view bake's, dB, for each of :data:`LEAD_MEASURES`
     (None where either is missing or infinite)."""
     out: dict[str, float | None] = {}
-    for measure in ("image", "albedo"):
+    for measure in LEAD_MEASURES:
         mv, sv = psnr.get(f"multi_view/{measure}"), psnr.get(f"single_view/{measure}")
         ok = mv is not None and sv is not None and math.isfinite(mv) and math.isfinite(sv)
         out[measure] = round(mv - sv, 3) if ok else None
@@ -401,10 +408,11 @@ def table(results: dict[str, Any]) -> str:
         for m in sorted({k.split("/")[0] for k in p}):
             cells = [_cell(p.get(f"{m}/{k}")) for k in ("image", "image_decomposed", "albedo", "outside", *rings)]
             rows.append(f"| {name} | {m} | " + " | ".join(cells) + " |")
-    rows += ["", "| edit | multi-view lead over single view: image dB | albedo dB |", "|---|---|---|"]
+    rows += ["", "| edit | multi-view lead over single view: image dB | albedo dB | image, interior | "
+             "albedo, interior |", "|---|---|---|---|---|"]
     for name, r in results.items():
         lead = r.get("multi_view_lead_db") or {}
-        rows.append(f"| {name} | {_cell(lead.get('image'))} | {_cell(lead.get('albedo'))} |")
+        rows.append(f"| {name} | " + " | ".join(_cell(lead.get(m)) for m in LEAD_MEASURES) + " |")
     return "\n".join(rows)
 
 

@@ -88,7 +88,7 @@ DECOMPOSITION_SETTINGS = ("preset", "views", "seed", "iterations", "downscale", 
                           "single_set", "backend", "device")
 """The settings of the capture and its decomposition (steps 1-3): the rest only change the edits."""
 EDIT_TABLE = ("image", "image_interior", "image_border", "image_bleed", "albedo", "albedo_interior",
-              "albedo_border", "albedo_bleed", "lead_image_db")
+              "albedo_border", "albedo_bleed", "lead_image_db", "lead_image_interior_db")
 
 T = TypeVar("T")
 
@@ -262,12 +262,13 @@ def decomposition_headline(bench: dict[str, Any], entry: dict[str, Any]) -> dict
 def edit_headline(result: dict[str, Any]) -> dict[str, Any]:
     """{"metrics", "error", "seconds"} of one bench_edit edit: the multi-view bake's PSNR in the region,
     its interior, border and bleed rings (image and albedo), outside, the single-view bake's region
-    PSNR, the unedited field's albedo bleed, and the multi-view lead (``lead_<image|albedo>_db``)."""
+    PSNR, the unedited field's albedo bleed, and the multi-view lead (``lead_<measure>_db`` for each of
+    :data:`bench_edit.LEAD_MEASURES`)."""
     if "error" in result:
         return {"metrics": {}, "error": result["error"], "seconds": result.get("seconds")}
     psnr, lead = result["psnr"], result.get("multi_view_lead_db") or {}
     metrics = {key: psnr.get(src) for key, src in EDIT_MEASURES}
-    metrics.update({f"lead_{m}_db": lead.get(m) for m in ("image", "albedo")})
+    metrics.update({f"lead_{m}_db": lead.get(m) for m in bench_edit.LEAD_MEASURES})
     return {"metrics": metrics, "error": None, "seconds": result.get("seconds")}
 
 
