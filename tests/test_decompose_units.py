@@ -274,3 +274,24 @@ def test_sequential_single_set_freezes_the_albedo_colours_after_the_albedo_phase
     assert not torch.equal(g_seq.params["means"].detach(), means)  # the shared geometry still moves
     logits_j, _ = snaps[False]
     assert not torch.equal(g_joint.params["albedo_logits"].detach(), logits_j)
+
+
+def test_the_command_result_shows_the_foreground_metrics_and_the_leakage(capsys):
+    """`igs decompose` prints the held-out metrics on the whole image and, where the capture has a
+    ground-truth albedo, on its foreground, with the shading's texture leakage beside the truth's."""
+    import json
+
+    from backend.commands.decompose import show
+    layers = {"albedo": {"psnr": 30.0, "ssim": 0.9, "lpips": 0.1, "psnr_inverse": None},
+              "shading": {"psnr": 18.0, "ssim": 0.7, "lpips": 0.3}}
+    summary = {"mode": "three-set", "layers": layers, "gaussians": {"total": 3}, "decompose_seconds": 1.0,
+               "report": None, "foreground": {"fraction": 0.8, "layers": {"albedo": {"psnr": 31.0}, "shading": {"psnr": 22.0}}},
+               "leakage": {"shading": -0.05, "gt_shading": 0.02, "shading_gain": 0.1}}
+    show(summary)
+    out = json.loads(capsys.readouterr().out)
+    assert out["layers"]["albedo"] == {"psnr": 30.0, "ssim": 0.9, "lpips": 0.1}
+    assert out["layers_foreground"]["shading"] == {"psnr": 22.0, "ssim": None, "lpips": None}
+    assert out["foreground_fraction"] == 0.8 and out["leakage"] == {"shading": -0.05, "gt_shading": 0.02}
+    show({**summary, "foreground": None, "leakage": None})  # no ground-truth albedo: whole image only
+    out = json.loads(capsys.readouterr().out)
+    assert "layers_foreground" not in out and "leakage" not in out

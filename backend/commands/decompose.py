@@ -93,12 +93,22 @@ def config_with_iterations(total: int | None) -> DecomposeConfig:
     return with_fields(DecomposeConfig(), {f"{s}.iterations": n for s, n in split_iterations(total).items()})
 
 
+def _short(layers: dict[str, Any]) -> dict[str, Any]:
+    return {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips")} for k, v in layers.items()}
+
+
 def show(summary: dict[str, Any]) -> None:
-    """The command's result: held-out metrics per layer, Gaussians, time, the report's path."""
-    short = {k: {m: v.get(m) for m in ("psnr", "ssim", "lpips")} for k, v in summary["layers"].items()}
-    events.result("decompose", {"mode": summary["mode"], "layers": short, "gaussians": summary["gaussians"],
-                                "decompose_seconds": summary["decompose_seconds"], "report": summary["report"]},
-                  indent=None)
+    """The command's result: held-out metrics per layer on the whole image and, with a ground-truth albedo,
+    on the foreground (its pixels with a non-black albedo) with the shading's texture leakage, Gaussians,
+    time, the report's path."""
+    fg = summary.get("foreground")
+    leak = summary.get("leakage")
+    events.result("decompose", {"mode": summary["mode"], "layers": _short(summary["layers"]),
+                                **({"layers_foreground": _short(fg["layers"]), "foreground_fraction": fg["fraction"]}
+                                   if fg else {}),
+                                **({"leakage": {k: leak.get(k) for k in ("shading", "gt_shading")}} if leak else {}),
+                                "gaussians": summary["gaussians"], "decompose_seconds": summary["decompose_seconds"],
+                                "report": summary["report"]}, indent=None)
 
 
 def run(args: argparse.Namespace) -> dict:
