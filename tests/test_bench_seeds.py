@@ -117,14 +117,15 @@ def test_an_unreadable_output_is_an_error_not_overwritten(tmp_path, fake_runs):
 
 
 def test_decomposition_headline_takes_3dgs_from_the_bench_and_the_rest_from_the_entry():
-    bench = {"vanilla_3dgs": {"full": {"psnr": 27.0}}, "three_set": {"time_vs_3dgs": 1.7},
-             "single_set": {"layers": {"albedo": {"psnr": 29.5}}}}
+    bench = {"vanilla_3dgs": {"full": {"psnr": 27.0}, "full_foreground": {"psnr": 28.0}},
+             "three_set": {"time_vs_3dgs": 1.7}, "single_set": {"layers": {"albedo": {"psnr": 29.5}}}}
     entry = {"layers": {"full": {"psnr": 27.25, "ssim": 0.7}, "albedo": {"psnr": 31.0}},
-             "foreground": {"fraction": 0.9, "layers": {"albedo": {"psnr": 32.0}}},
+             "foreground": {"fraction": 0.9, "layers": {"albedo": {"psnr": 32.0}, "full": {"psnr": 28.5}}},
              "leakage": {"shading": 0.2, "gt_shading": 0.05, "shading_gain": None, "gt_shading_gain": None}}
     assert bench_seeds.decomposition_headline(bench, entry) == {
-        "3dgs_full_psnr": 27.0, "full_vs_3dgs_db": 0.25, "time_vs_3dgs": 1.7, "single_set_albedo_psnr": 29.5,
-        "full_psnr": 27.25, "full_ssim": 0.7, "albedo_psnr": 31.0, "albedo_psnr_fg": 32.0,
+        "3dgs_full_psnr": 27.0, "full_vs_3dgs_db": 0.25, "3dgs_full_psnr_fg": 28.0, "full_vs_3dgs_fg_db": 0.5,
+        "time_vs_3dgs": 1.7, "single_set_albedo_psnr": 29.5,
+        "full_psnr": 27.25, "full_ssim": 0.7, "albedo_psnr": 31.0, "albedo_psnr_fg": 32.0, "full_psnr_fg": 28.5,
         "foreground_fraction": 0.9, "leakage": 0.2, "leakage_gt": 0.05}
 
 
@@ -170,6 +171,9 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path):
     for key in ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_psnr", "albedo_psnr_fg", "full_psnr_fg"):
         assert 5.0 < dec[key] < 60.0
     assert dec["full_vs_3dgs_db"] == pytest.approx(dec["full_psnr"] - dec["3dgs_full_psnr"], abs=1e-3)
+    # 3DGS scored on the same foreground as the decomposition's full image
+    assert 5.0 < dec["3dgs_full_psnr_fg"] < 60.0
+    assert dec["full_vs_3dgs_fg_db"] == pytest.approx(dec["full_psnr_fg"] - dec["3dgs_full_psnr_fg"], abs=1e-3)
     assert set(entry["seconds"]) == {*bench_seeds.STEPS, "total"}
     assert set(entry["edits"]) == {"column_decal", "rug_recolor", "wall_decal"}
     for r in entry["edits"].values():  # a fit on this tiny field may fail: then it says why

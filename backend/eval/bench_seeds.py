@@ -80,8 +80,8 @@ EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image",
     ("floor_albedo_interior", "unedited/albedo_capture_interior"),
 )
 # the per-seed table's decomposition columns, where some seed has them (all metrics: JSON and aggregate)
-DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_psnr", "full_psnr_fg",
-                       "albedo_psnr_fg", "shading_psnr_fg", "leakage")
+DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_psnr", "3dgs_full_psnr_fg",
+                       "full_psnr_fg", "albedo_psnr_fg", "shading_psnr_fg", "leakage")
 # decomposition metrics the printed aggregate leaves to the JSON (SSIM, LPIPS)
 JSON_ONLY = ("_ssim", "_lpips")
 DECOMPOSITION_SETTINGS = ("preset", "views", "seed", "iterations", "downscale", "max_gaussians", "residual_points",
@@ -250,9 +250,12 @@ def decomposition_headline(bench: dict[str, Any], entry: dict[str, Any]) -> dict
     :func:`headline_metrics` flattens it (``<layer>_<psnr|ssim|lpips>[_fg]``, ``leakage``, ...)."""
     flat = headline_metrics(entry)
     vanilla, ours = bench["vanilla_3dgs"]["full"].get("psnr"), flat.get("full_psnr")
+    vanilla_fg, ours_fg = (bench["vanilla_3dgs"].get("full_foreground") or {}).get("psnr"), flat.get("full_psnr_fg")
     out: dict[str, float | None] = {
         "3dgs_full_psnr": vanilla,
         "full_vs_3dgs_db": None if ours is None or vanilla is None else round(ours - vanilla, 3),
+        "3dgs_full_psnr_fg": vanilla_fg,
+        "full_vs_3dgs_fg_db": None if ours_fg is None or vanilla_fg is None else round(ours_fg - vanilla_fg, 3),
         "time_vs_3dgs": bench["three_set"].get("time_vs_3dgs")}
     if bench.get("single_set") is not None:
         out["single_set_albedo_psnr"] = ((bench["single_set"]["layers"].get("albedo") or {}).get("psnr"))

@@ -261,3 +261,27 @@ def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], down
             cells.append(("GT shading/2", show(half(g.get("shading")))))
         rows.append((f.name, cells))
     return rows
+
+
+def radiance_foreground(g: GaussianSet, frames: Sequence[Frame], downscale: float, space: str,
+                        backend: Backend = "auto") -> dict[str, Any] | None:
+    """A one-set radiance field's (vanilla 3DGS's) held-out image metrics on the foreground, as
+    :func:`evaluate_layers` scores the decomposition's full image there: {"psnr", "ssim", "lpips", "views",
+    "fraction"}; None when no view has a ground-truth albedo. ``space``: the field's colour space
+    ("srgb" or "linear")."""
+    per_view, fractions = [], []
+    with torch_threads():
+        for f in frames:
+            if "albedo" not in f.gt:
+                continue
+            cam = view_camera(f.camera, downscale)
+            with torch.no_grad():
+                pred = render_layers([layer_splats(g)], cam, backend=backend)[0].color.cpu()
+            gt = ground_truth(f, cam.width, cam.height)
+            mask = foreground_mask(gt["albedo"])
+            fractions.append(float(mask.float().mean()))
+            if bool(mask.any()):
+                per_view.append(masked_image_metrics(to_display(pred, space), to_display(gt["image"], "linear"), mask))
+    if not per_view:
+        return None
+    return {**mean_metrics(per_view), "views": len(per_view), "fraction": float(np.mean(fractions))}
