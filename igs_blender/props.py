@@ -116,7 +116,12 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     synth_preset: EnumProperty(name="Preset", items=[("test", "Test", "16 tiny views, seconds"),
                                                      ("demo", "Demo", "96 views 256x192, minutes"),
                                                      ("paper", "Paper", "288 larger views, long")], default="demo")
-    synth_seed: IntProperty(name="Seed", default=0, min=0)
+    synth_seed: IntProperty(name="Seed", default=0, min=0, description="Camera path and Cycles sampling")
+    synth_family: BoolProperty(name="Procedural Scene", default=False,
+                               description="Build scene K of the procedural family (open sides, near-black and "
+                               "metal surfaces, sun, area and point lights, a framed canvas) instead of the room")
+    synth_scene_seed: IntProperty(name="Scene", default=100, min=0,
+                                  description="Which scene of the procedural family (igs synth --scene-seed)")
     every: IntProperty(name="Every Nth Frame", default=5, min=1, description="Video: keep one frame in N (the sharpest)")
     max_frames: IntProperty(name="Max Frames", default=0, min=0, description="Keep at most this many frames; 0: all")
     max_side: IntProperty(name="Max Side", default=0, min=0, subtype="PIXEL",

@@ -21,7 +21,8 @@ def import_args(props) -> list:
         # The running Blender renders when the backend's Python has no bpy module (3.13/3.14);
         # the backend still prefers its own bpy when it has one. Empty when Blender is the bpy module.
         blender = ["--blender", bpy.app.binary_path] if bpy.app.binary_path else []
-        return ["synth", ws, "--preset", props.synth_preset, "--seed", props.synth_seed, *blender, *force]
+        family = ["--scene-seed", props.synth_scene_seed] if props.synth_family else []
+        return ["synth", ws, "--preset", props.synth_preset, "--seed", props.synth_seed, *family, *blender, *force]
     src = resolve(props.source_path, "Source")
     if not src.exists():
         raise UserError(f"Source {src} does not exist")

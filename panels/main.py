@@ -109,6 +109,9 @@ class IGS_PT_capture(_SubPanel, bpy.types.Panel):
         if props.source_kind == "SYNTHETIC":
             col.prop(props, "synth_preset")
             col.prop(props, "synth_seed")
+            col.prop(props, "synth_family")
+            if props.synth_family:
+                col.prop(props, "synth_scene_seed")
         else:
             col.prop(props, "source_path", text="")
             if props.source_kind == "VIDEO":

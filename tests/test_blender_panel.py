@@ -574,3 +574,14 @@ def test_a_model_download_shows_in_the_progress_line_like_any_stage(addon):
     state.apply({"event": "progress", "stage": "depth", "step": 3, "total": 40, "eta_s": None})
     assert state.status_text().startswith("depth 3/40")
     assert state.fraction > 0
+
+
+def test_the_synthetic_capture_can_be_a_scene_of_the_procedural_family(scene, tmp_path):
+    capture = sys.modules[f"{MOD}.operators.capture"]
+    props = scene.igs
+    props.source_kind, props.workspace, props.synth_preset = "SYNTHETIC", str(tmp_path / "ws"), "test"
+    args = [str(a) for a in capture.import_args(props)]
+    assert args[:4] == ["synth", str(tmp_path / "ws"), "--preset", "test"] and "--scene-seed" not in args
+    props.synth_family, props.synth_scene_seed = True, 103
+    args = [str(a) for a in capture.import_args(props)]
+    assert args[args.index("--scene-seed") + 1] == "103" and args[args.index("--seed") + 1] == "0"
