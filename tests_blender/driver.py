@@ -251,6 +251,23 @@ def flow():
         assert s.data["warning"].startswith("Marigold IID and Depth Anything V2 Small run on each of up to 40 frames on the CPU: about 49 min"), s.data
     yield 1.0
     shot("05a-capture-model-priors")
+    with Step("capture_procedural_scene") as s:
+        # The synthetic demo as a scene of the procedural family: the panel draws the scene field and the
+        # command line carries it (not rendered here: the rest of the flow works on the room).
+        pr = props()
+        pr.albedo_prior = pr.depth_prior = "NONE"
+        pr.workspace = CONFIG["workspace"]
+        pr.source_kind = "SYNTHETIC"
+        pr.synth_preset = "test"
+        pr.synth_family, pr.synth_scene_seed = True, 103
+        redraw()
+        capture_ops = sys.modules[f"{MOD}.operators.capture"]
+        args = [str(a) for a in capture_ops.import_args(pr)]
+        s.data["args"] = args
+        assert args[args.index("--scene-seed") + 1] == "103", args
+    yield 1.0
+    shot("05b-capture-procedural-scene")
+    props().synth_family = False
     with Step("import_synthetic") as s:
         pr = props()
         pr.albedo_prior = pr.depth_prior = "NONE"
