@@ -89,6 +89,7 @@ def test_an_edit_spilling_one_pixel_past_the_region_shows_in_the_bleed_only():
     assert p["bake/image_border"] == math.inf
     assert p["bake/image_bleed"] == pytest.approx(_psnr(44, 14 * 14 - 100))  # 1-pixel of the 2-pixel ring
     assert p["bake/image_bleed"] < 10.0
+    assert acc.pixels["bake/image"] == 100 and acc.pixels["bake/image_bleed"] == 14 * 14 - 100
 
 
 def test_multi_view_lead_is_the_difference_in_region_psnr():

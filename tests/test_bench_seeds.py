@@ -184,6 +184,13 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path):
         assert isinstance(wall[key], float) and math.isfinite(wall[key])
     assert result["aggregate"]["decomposition"]["full_psnr"]["std"] is None  # one seed
     assert "| room | wall_decal |" in result["tables"]["per_seed"]
+    # the outer ring split where the proxy wins the depth test and the rest: the counts add up to the ring
+    res = json.loads((ws / "bench_edit.json").read_text())["results"]["wall_decal"]
+    if "psnr" in res:
+        px = res["bleed_pixels"]
+        assert px["proxy"] + px["field"] > 0 and 0.0 <= wall["bleed_proxy_share"] <= 1.0
+        assert wall["bleed_proxy_share"] == pytest.approx(px["proxy"] / (px["proxy"] + px["field"]))
+        assert isinstance(wall["albedo_bleed_field"], float)
 
     again = bench_seeds.run(tmp_path, [None], s)
     assert again["seeds"]["room"]["date"] == entry["date"]  # not rerun

@@ -253,10 +253,14 @@ def _srgb(lin: np.ndarray) -> np.ndarray:
 
 
 def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: ProxyMesh, original, backend: Backend,
-             margin: int, ring: int = RING, lighting: dict[str, GaussianSet] | None = None) -> dict[str, float]:
+             margin: int, ring: int = RING, lighting: dict[str, GaussianSet] | None = None,
+             bleed_pixels: dict[str, int] | None = None) -> dict[str, float]:
     """PSNR per ``<method>/<measure>`` over the held-out views that see the edit (module docstring);
-    every in-region measure also split by ``ring`` pixels into ``_interior``, ``_border`` and ``_bleed``.
-    ``lighting``: the decomposed 'shading' and 'residual' sets, for the ``image_decomposed`` measures."""
+    every in-region measure also split by ``ring`` pixels into ``_interior``, ``_border`` and ``_bleed``,
+    and the albedo's bleed ring once more into ``_bleed_proxy`` (where the proxy wins the composite's
+    depth test over the unedited field: what a bake's composited views paint) and ``_bleed_field`` (the
+    rest). ``lighting``: the decomposed 'shading' and 'residual' sets, for the ``image_decomposed``
+    measures. ``bleed_pixels``, when given, receives the pixel counts of the two parts of the ring."""
     folder = ws_root / "gt_edit" / edit_name
     acc = RegionPSNR()
     for f, cover in edit_views(ws_root, edit_name):
@@ -286,16 +290,25 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         over = np.where(pm[..., None], colour, orig_img)
         region("tint/image", _srgb(tint), gt_img)
         region("overwrite/image", _srgb(over), gt_img)
+        # the outer ring where the proxy wins the composite's depth test over the unedited field (a bake's
+        # composited views paint these pixels), and the rest of the ring
+        bleed_split = {"proxy": rings.bleed & pm, "field": rings.bleed & ~pm}
         for key, g in variants.items():
             a = render_albedo(g, cam, backend).color.clamp(0, 1).numpy()
             region(f"{key}/albedo", _srgb(a), gt_alb)
+            for part, m in bleed_split.items():
+                acc.add(f"{key}/albedo_bleed_{part}", _srgb(a), gt_alb, m)
             region(f"{key}/image", _srgb(compose(a, shading, residual)), gt_img)
             if decomposed is not None:
                 region(f"{key}/image_decomposed", _srgb(compose(a, *decomposed)), gt_img)
             acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
         region("unedited/albedo", _srgb(a0), gt_alb)
+        for part, m in bleed_split.items():
+            acc.add(f"unedited/albedo_bleed_{part}", _srgb(a0), gt_alb, m)
         if "albedo" in f.gt:  # the field's own error against the capture's albedo: the floor under a bake
             region("unedited/albedo_capture", _srgb(a0), read_image(f.gt["albedo"])[..., :3])
+    if bleed_pixels is not None:
+        bleed_pixels.update({part: acc.pixels.get(f"unedited/albedo_bleed_{part}", 0) for part in ("proxy", "field")})
     return acc.psnr()
 
 
@@ -382,10 +395,11 @@ def _bench_edit(ws_root: Path, capture, original, name: str, cfg: BakeConfig, ma
             s = bake_edit(ws_root, proxy, f"bench_{name}_{key}", replace(c, view=edit["edit_view"]))
             variants[key], _ = load_albedo(capture.workspace, f"bench_{name}_{key}")
             bakes[key] = {k: s[k] for k in ("edit_pixels", "spawned", "editable", "train_seconds", "wall_seconds")}
+    bleed_pixels: dict[str, int] = {}
     psnr = evaluate(ws_root, name, variants, proxies["fitted"][0], original, cfg.backend, margin, ring,
-                    load_lighting(ws_root))
+                    load_lighting(ws_root), bleed_pixels)
     print(f"{name}: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(psnr.items())), file=sys.stderr)
-    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "proxy": source,
+    return {"psnr": psnr, "multi_view_lead_db": multi_view_lead(psnr), "bleed_pixels": bleed_pixels, "proxy": source,
             "fit": {k: v[1] for k, v in proxies.items()}, "bakes": bakes}
 
 

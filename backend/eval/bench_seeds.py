@@ -75,6 +75,11 @@ EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image",
     ("single_view_albedo", "single_view/albedo"),
     # the unedited field's error in the outer ring: the floor under the bake's albedo_bleed
     ("unedited_albedo_bleed", "unedited/albedo_bleed"),
+    # the outer ring split where the proxy wins the composite's depth test over the unedited field, and the rest
+    ("albedo_bleed_proxy", "multi_view/albedo_bleed_proxy"),
+    ("albedo_bleed_field", "multi_view/albedo_bleed_field"),
+    ("unedited_albedo_bleed_proxy", "unedited/albedo_bleed_proxy"),
+    ("unedited_albedo_bleed_field", "unedited/albedo_bleed_field"),
     # the unedited field against the capture's albedo in the region's rings: the floor under a bake
     ("floor_albedo_border", "unedited/albedo_capture_border"),
     ("floor_albedo_interior", "unedited/albedo_capture_interior"),
@@ -272,6 +277,9 @@ def edit_headline(result: dict[str, Any]) -> dict[str, Any]:
     psnr, lead = result["psnr"], result.get("multi_view_lead_db") or {}
     metrics = {key: psnr.get(src) for key, src in EDIT_MEASURES}
     metrics.update({f"lead_{m}_db": lead.get(m) for m in bench_edit.LEAD_MEASURES})
+    pixels = result.get("bleed_pixels") or {}
+    ring = sum(pixels.values())
+    metrics["bleed_proxy_share"] = pixels.get("proxy", 0) / ring if ring else None
     return {"metrics": metrics, "error": None, "seconds": result.get("seconds")}
 
 

@@ -104,12 +104,15 @@ class RegionPSNR:
     def __init__(self) -> None:
         self.se: dict[Hashable, float] = {}
         self.n: dict[Hashable, int] = {}
+        self.pixels: dict[Hashable, int] = {}
+        """Pixels added per key."""
 
     def add(self, key: Hashable, a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> None:
         """Add the pixels of (H, W, C) images ``a`` and ``b`` where the (H, W) bool ``mask`` is set."""
         if mask.any():
             self.se[key] = self.se.get(key, 0.0) + float(np.sum((a[mask] - b[mask]) ** 2))
             self.n[key] = self.n.get(key, 0) + int(mask.sum()) * a.shape[-1]
+            self.pixels[key] = self.pixels.get(key, 0) + int(mask.sum())
 
     def add_rings(self, key: str, a: np.ndarray, b: np.ndarray, rings: RingMasks) -> None:
         """Add (H, W, C) images ``a`` and ``b`` under ``<key>_interior``, ``<key>_border`` and ``<key>_bleed``."""
