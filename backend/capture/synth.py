@@ -557,14 +557,15 @@ def _write_edited_view(ws: Workspace, cam: Camera, P: dict[str, np.ndarray], box
         raise RuntimeError(f"the border render of {cam.name} does not cover the pixels {box}")
     img_src, alb_src, sh_src, res_src = _edit_sources(ws, cam.name)
     img_out, alb_out, sh_out, res_out = outs
+    crop = {k: v[y0:y1, x0:x1] for k, v in P.items()}
     image = read_image(img_src)
-    image[y0:y1, x0:x1] = linear_to_srgb(P["Combined"][y0:y1, x0:x1, :3])
+    image[y0:y1, x0:x1] = linear_to_srgb(crop["Combined"][..., :3])
     albedo = read_image(alb_src)
-    albedo[y0:y1, x0:x1] = linear_to_srgb(P["Diffuse Color"][y0:y1, x0:x1])
+    albedo[y0:y1, x0:x1] = linear_to_srgb(crop["Diffuse Color"])
     shading = read_exr(sh_src)[..., :3]
-    shading[y0:y1, x0:x1] = (P["Diffuse Direct"] + P["Diffuse Indirect"])[y0:y1, x0:x1]
+    shading[y0:y1, x0:x1] = crop["Diffuse Direct"] + crop["Diffuse Indirect"]
     residual = read_exr(res_src)[..., :3]
-    residual[y0:y1, x0:x1] = _residual(P)[y0:y1, x0:x1]
+    residual[y0:y1, x0:x1] = _residual(crop)
     write_image(alb_out, albedo, bits=16)
     write_exr(sh_out, shading)
     write_exr(res_out, residual)

@@ -69,7 +69,7 @@ from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
 from backend.eval.bench_cli import error
-from backend.eval.edit_region import (  # noqa: F401 (resolve_edits: part of this module's API)
+from backend.eval.edit_region import (
     RING_PARTS,
     RegionPSNR,
     edit_views,
@@ -293,20 +293,22 @@ def evaluate(ws_root: Path, edit_name: str, variants: dict[str, Any], proxy: Pro
         # the outer ring where the proxy wins the composite's depth test over the unedited field (a bake's
         # composited views paint these pixels), and the rest of the ring
         bleed_split = {"proxy": rings.bleed & pm, "field": rings.bleed & ~pm}
+        a0_srgb = _srgb(a0)
         for key, g in variants.items():
             a = render_albedo(g, cam, backend).color.clamp(0, 1).numpy()
-            region(f"{key}/albedo", _srgb(a), gt_alb)
+            a_srgb = _srgb(a)
+            region(f"{key}/albedo", a_srgb, gt_alb)
             for part, m in bleed_split.items():
-                acc.add(f"{key}/albedo_bleed_{part}", _srgb(a), gt_alb, m)
+                acc.add(f"{key}/albedo_bleed_{part}", a_srgb, gt_alb, m)
             region(f"{key}/image", _srgb(compose(a, shading, residual)), gt_img)
             if decomposed is not None:
                 region(f"{key}/image_decomposed", _srgb(compose(a, *decomposed)), gt_img)
-            acc.add(f"{key}/outside", _srgb(a), _srgb(a0), outside)
-        region("unedited/albedo", _srgb(a0), gt_alb)
+            acc.add(f"{key}/outside", a_srgb, a0_srgb, outside)
+        region("unedited/albedo", a0_srgb, gt_alb)
         for part, m in bleed_split.items():
-            acc.add(f"unedited/albedo_bleed_{part}", _srgb(a0), gt_alb, m)
+            acc.add(f"unedited/albedo_bleed_{part}", a0_srgb, gt_alb, m)
         if "albedo" in f.gt:  # the field's own error against the capture's albedo: the floor under a bake
-            region("unedited/albedo_capture", _srgb(a0), read_image(f.gt["albedo"])[..., :3])
+            region("unedited/albedo_capture", a0_srgb, read_image(f.gt["albedo"])[..., :3])
     if bleed_pixels is not None:
         bleed_pixels.update({part: acc.pixels.get(f"unedited/albedo_bleed_{part}", 0) for part in ("proxy", "field")})
     return acc.psnr()

@@ -297,8 +297,8 @@ def _timed(seconds: dict[str, float], step: str, where: str, fn: Callable[[], T]
 
 def layer_versions(ws: Path) -> dict[str, list[int] | None]:
     """:func:`file_version` of each of ``<ws>/layers/{albedo,shading,residual}.ply``, as stored in an entry."""
-    return {k: (lambda v: None if v is None else list(v))(file_version(ws / "layers" / f"{k}.ply"))
-            for k in ("albedo", "shading", "residual")}
+    versions = {k: file_version(ws / "layers" / f"{k}.ply") for k in ("albedo", "shading", "residual")}
+    return {k: None if v is None else list(v) for k, v in versions.items()}
 
 
 def decomposition_to_reuse(ws: Path, previous: dict[str, Any] | None, s: SeedSettings) -> dict[str, Any] | None:
