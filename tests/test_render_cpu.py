@@ -303,3 +303,16 @@ def test_auto_on_gsplat_hands_one_low_pass_to_gsplat_and_mixed_ones_to_the_refer
     ref = render(s.means, s.quats, s.scales, s.opacities, s.colors, cam, backend="reference", eps2d=mixed.eps2d)
     torch.testing.assert_close(out.color, ref.color)
     assert len(sent) == 1
+
+
+def test_polynomial_exp_matches_exp_over_the_blended_range():
+    """The kernels' exp_neg against float64 exp on every power an alpha >= 1/255 can have."""
+    from backend.render import cpu_kernel as K
+    p = np.linspace(float(K.EXP_LO), 0.0, 200_001).astype(np.float32)
+    got = np.array([K.exp_neg(v) for v in p[::7]], np.float64)
+    want = np.exp(p[::7].astype(np.float64))
+    assert np.abs(got / want - 1.0).max() < 2e-6
+    assert K.exp_neg(np.float32(0.0)) == np.float32(1.0)
+    # Below the domain the value is clamped, never garbage: alpha stays below 1/255 there.
+    assert 0.0 < K.exp_neg(np.float32(-50.0)) < 1.0 / 255.0
+

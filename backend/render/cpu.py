@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from backend.core.errors import IGSError
 from backend.render import cpu_kernel as K
 from backend.render import cpu_projection as P
 from backend.render.cpu_buffers import BufferPool
@@ -156,6 +157,9 @@ def _bin(gbox: np.ndarray, tiles_x: int, tiles_y: int) -> dict[str, np.ndarray]:
          "rank_offsets": POOL.take("rank_offsets", m + 1, np.int64),
          "tile_cost": POOL.take("tile_cost", n_tiles, np.float64)}
     n_isect = int(K.count_tiles(gbox, tiles_x, b["tile_offsets"], b["rank_offsets"], b["tile_cost"]))
+    if n_isect >= 2**31:  # the kernels keep intersection indices in int32
+        raise IGSError(f"the cpu rasterizer got {n_isect:,} tile-Gaussian intersections (at most 2**31 - 1): "
+                       "render at a lower resolution or with fewer Gaussians")
     b["isect"] = POOL.take("isect", n_isect, np.int32)
     b["isect_of_rank"] = POOL.take("isect_of_rank", n_isect, np.int64)
     K.fill_tiles(gbox, tiles_x, b["tile_offsets"], b["rank_offsets"], b["isect"], b["isect_of_rank"],

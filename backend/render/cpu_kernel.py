@@ -1,6 +1,6 @@
 """The compiled CPU rasterizer: tile binning, front-to-back blending and its hand-written backward.
 
-numba ``parallel=True`` kernels over 16x16 tiles, float32, compiled once and cached on disk.
+numba kernels over 16x16 tiles, float32, compiled once and cached on disk (threads: see below).
 
 Layout shared by every kernel (all arrays C-contiguous):
 
@@ -15,13 +15,15 @@ Layout shared by every kernel (all arrays C-contiguous):
 
 Blending is 3DGS's: per pixel and layer, front to back, ``alpha = min(0.99, o * exp(power))``, skipped
 below 1/255, stopping (without this Gaussian) when the transmittance would fall below 1e-4.
-A tile walks its Gaussians in depth order and each Gaussian visits only the pixels of its bounding box
-inside the tile (per-pixel "done" flags keep 3DGS's per-pixel early stop), so a small Gaussian costs
-its footprint, not the tile.
+A tile walks its Gaussians in depth order; each Gaussian visits the rows of its bounding box inside
+the tile, and each row is evaluated as 16 lanes at once: a branch-free loop with the pixels outside
+the box, outside the power cut-off or already stopped masked out, which LLVM turns into SIMD. The
+exponential is :func:`exp_neg`, a polynomial, because a call to ``expf`` would keep the loop scalar.
+The tile's transmittance, features and bookkeeping stay in small tile-local arrays while it runs.
 
-Determinism: every tile is processed by one thread, serially; the backward writes one gradient row
-per intersection (no shared accumulators, no float atomics) and a second pass sums each Gaussian's
-rows in a fixed order. Two runs give bit-identical gradients whatever the thread timing.
+Determinism: every tile is processed by one thread, serially; in the backward each lane sums its own
+part and the lanes are added in a fixed order, one gradient row per intersection (no shared
+accumulators, no float atomics), and a second pass sums each Gaussian's rows in a fixed order. Two runs give bit-identical gradients whatever the thread timing.
 
 Parallelism: the heavy kernels are GIL-free (``nogil``) functions over a list of tiles, called on
 chunks of tiles by :mod:`backend.render.threads` (the calling thread takes part, chunks are pulled
@@ -47,10 +49,13 @@ ALPHA_MAX = np.float32(0.99)
 ALPHA_MIN = np.float32(1.0 / 255.0)
 T_MIN = np.float32(1e-4)
 N_GRAD_COLS = 6  # d mean2d x, d mean2d y, d conic a, b, c, d opacity; then d feature channels
-# Below power < log(1/(255 o)) - CUT_MARGIN, alpha < 1/255 for certain: skip the exp. The margin
-# dwarfs exp's rounding, so the exact alpha test still takes every decision near the threshold.
+# Below power < log(1/(255 o)) - CUT_MARGIN, alpha < 1/255 for certain: the pixel is masked. The
+# margin dwarfs exp_neg's error, so the alpha test still takes every decision near the threshold.
 CUT_MARGIN = 1e-3
-SPAN_MARGIN = 0.02  # pixels
+# exp_neg's domain: opacity <= 1 puts every cut-off above log(1/255) - CUT_MARGIN = -5.55.
+EXP_LO = np.float32(-6.0)
+SIXTEENTH = np.float32(1.0 / 16.0)
+C2, C3, C4, C5, C6, C7 = (np.float32(1.0 / f) for f in (2, 6, 24, 120, 720, 5040))
 
 
 @njit(nogil=True, cache=True)
@@ -188,53 +193,32 @@ def _gaussian(gdat, r):
 
 
 @njit(cache=True, inline="always")
-def _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1):
-    """Pixels [xa, xb] of row y (within [x0, x1]) inside the ellipse where power >= the cut-off.
+def exp_neg(p):
+    """exp(p) in float32 for p in [EXP_LO, 0], where every alpha the blend keeps lies, from arithmetic only.
 
-    The box bounds the whole ellipse; on one row the ellipse is an interval, and skipping the box's
-    corners saves a fifth to a half of the visits. Float64 and a margin: an excluded pixel has
-    power < cut-off by far, so the decision stays with :func:`_alpha`.
+    exp(p / 16) by its degree-7 Taylor polynomial (|p / 16| <= 0.41: truncation below 1e-7), squared
+    four times; relative error about 1e-6. Unlike a call to ``expf``, the loops over a tile row
+    vectorise. Inputs below EXP_LO are clamped (their alpha is below 1/255 and is masked anyway).
     """
-    a, b, c = np.float64(ca), np.float64(cb), np.float64(cc)
-    q = -2.0 * np.float64(pcut)  # a dx^2 + 2 b dx dy + c dy^2 <= q
-    dy = np.float64(my) - (y + 0.5)
-    bdy = b * dy
-    disc = bdy * bdy - a * (c * dy * dy - q)
-    if not disc >= 0.0:  # also false for NaN
-        return x0, x0 - 1
-    sq = math.sqrt(disc)
-    m = np.float64(mx)
-    # Clamp in float before rounding: huge footprints must not overflow the integer conversion.
-    lo = min(max(m - (sq - bdy) / a - 0.5 - SPAN_MARGIN, -1.0), 1e9)
-    hi = min(max(m + (sq + bdy) / a - 0.5 + SPAN_MARGIN, -1.0), 1e9)
-    return max(x0, int(math.ceil(lo))), min(x1, int(math.floor(hi)))
+    u = max(p, EXP_LO) * SIXTEENTH
+    e = ONE + u * (ONE + u * (C2 + u * (C3 + u * (C4 + u * (C5 + u * (C6 + u * C7))))))
+    e = e * e
+    e = e * e
+    e = e * e
+    return e * e
 
 
 @njit(cache=True, inline="always")
-def _alpha(mx, my, ca, cb, cc, o, pcut, x, y):
-    """(alpha, exp(power), dx, dy, unclamped) of one Gaussian at pixel (x, y); alpha 0 if skipped.
+def _power(ca, cb, cdy, dx, dy):
+    """The Gaussian's exponent at offset (dx, dy); ``cdy`` = c dy^2, hoisted out of the row.
 
-    The forward and the backward both call this so that they take the same skip decisions. The
-    Gaussian's values come in as locals: read from the packed array inside the pixel loop, the
-    compiler would reload them after every store to the (possibly aliasing) outputs.
+    The forward and the backward both call this (and :func:`exp_neg`), so that they take the same
+    skip decisions from bit-identical alphas.
     """
-    dx = mx - (F32(x) + HALF)
-    dy = my - (F32(y) + HALF)
-    power = NEG_HALF * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-    if power > ZERO or power < pcut:
-        return ZERO, ZERO, dx, dy, False
-    g = F32(math.exp(power))
-    a = o * g
-    free = True
-    if a > ALPHA_MAX:
-        a = ALPHA_MAX
-        free = False
-    if a < ALPHA_MIN:
-        return ZERO, g, dx, dy, free
-    return a, g, dx, dy, free
+    return NEG_HALF * (ca * dx * dx + cdy) - cb * dx * dy
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, error_model="numpy")
 def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox, order, tiles_x,
                             out_feat, out_T, last, ids, tile_evals):
     """Blend every layer front to back on ``tiles`` (an int64 array of tile indices).
@@ -243,20 +227,29 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
     out_feat (L, H, W, F) (background not added), out_T (L, H, W) final transmittance,
     last (L, H, W) intersection index of the last contributor (-1: none),
     ids (L, H, W) Gaussian (caller's index) with the largest blending weight (-1: none),
-    tile_evals[t] the (pixel, Gaussian) evaluations tile t did.
-    Expects out_feat 0, out_T 1, last and ids -1 on entry.
+    tile_evals[t] the (pixel, Gaussian) evaluations tile t did (pixels of the box, not yet stopped,
+    inside the power cut-off).
+    The tile's state lives in tile-local arrays, lanes (x) innermost; out_* are written once at the end.
     """
     n_layers, height, width, n_feat = out_feat.shape
-    done = np.zeros((n_layers, TILE, TILE), np.bool_)
-    best_w = np.zeros((n_layers, TILE, TILE), np.float32)
+    t_loc = np.empty((n_layers, TILE, TILE), np.float32)  # transmittance; negated once the pixel stopped
+    f_loc = np.empty((n_layers, n_feat, TILE, TILE), np.float32)
+    best_w = np.empty((n_layers, TILE, TILE), np.float32)
+    last_loc = np.empty((n_layers, TILE, TILE), np.int32)
+    best_rank = np.empty((n_layers, TILE, TILE), np.int32)
+    w_row = np.empty(TILE, np.float32)
     alive = np.zeros(n_layers, np.int64)
     for t in tiles:
         px0, px1, py0, py1 = _tile_pixels(t, tiles_x, width, height)
-        done[:] = False
+        t_loc[:] = ONE
+        f_loc[:] = ZERO
         best_w[:] = ZERO
+        last_loc[:] = -1
+        best_rank[:] = -1
         n_alive = n_layers * (px1 - px0 + 1) * (py1 - py0 + 1)
         alive[:] = (px1 - px0 + 1) * (py1 - py0 + 1)
         evals = 0
+        fx0 = F32(px0) + HALF
         for k in range(tile_offsets[t], tile_offsets[t + 1]):
             r = isect[k]
             lay = glay[r]
@@ -264,37 +257,57 @@ def rasterize_forward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox,
                 continue
             x0, x1, y0, y1 = _clip_box(gbox, r, px0, px1, py0, py1)
             mx, my, ca, cb, cc, o, pcut = _gaussian(gdat, r)
-            gid = order[r]
+            la, lb = x0 - px0, x1 - px0
+            k32, r32 = np.int32(k), np.int32(r)
             for y in range(y0, y1 + 1):
-                xa, xb = _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1)
-                for x in range(xa, xb + 1):
-                    if done[lay, y - py0, x - px0]:
-                        continue
-                    evals += 1
-                    a, _g, _dx, _dy, _free = _alpha(mx, my, ca, cb, cc, o, pcut, x, y)
-                    if a == ZERO:
-                        continue
-                    T = out_T[lay, y, x]
+                ly = y - py0
+                dy = my - (F32(y) + HALF)
+                cdy = cc * dy * dy
+                n_stop = 0
+                # All 16 lanes of the row, masked: a fixed, branch-free loop vectorises; a loop over
+                # the box's span does not.
+                for i in range(TILE):
+                    dx = mx - (fx0 + F32(i))
+                    power = _power(ca, cb, cdy, dx, dy)
+                    T = t_loc[lay, ly, i]
+                    ok = (i >= la) & (i <= lb) & (T > ZERO) & (power <= ZERO) & (power >= pcut)
+                    a = min(o * exp_neg(power), ALPHA_MAX)
+                    evals += ok
+                    ok = ok & (a >= ALPHA_MIN)
                     next_T = T * (ONE - a)
-                    if next_T < T_MIN:
-                        done[lay, y - py0, x - px0] = True
-                        alive[lay] -= 1
-                        n_alive -= 1
-                        continue
-                    w = a * T
-                    for ch in range(n_feat):
-                        out_feat[lay, y, x, ch] += w * gfeat[r, ch]
-                    if w > best_w[lay, y - py0, x - px0]:
-                        best_w[lay, y - py0, x - px0] = w
-                        ids[lay, y, x] = gid
-                    out_T[lay, y, x] = next_T
-                    last[lay, y, x] = k
+                    stop = ok & (next_T < T_MIN)  # stops without this Gaussian
+                    take = ok & (next_T >= T_MIN)
+                    w = a * T if take else ZERO
+                    w_row[i] = w
+                    t_loc[lay, ly, i] = next_T if take else (-T if stop else T)
+                    better = take & (w > best_w[lay, ly, i])
+                    best_w[lay, ly, i] = w if better else best_w[lay, ly, i]
+                    best_rank[lay, ly, i] = r32 if better else best_rank[lay, ly, i]
+                    last_loc[lay, ly, i] = k32 if take else last_loc[lay, ly, i]
+                    n_stop += stop
+                for ch in range(n_feat):
+                    f = gfeat[r, ch]
+                    for i in range(TILE):
+                        f_loc[lay, ch, ly, i] += w_row[i] * f
+                if n_stop:
+                    alive[lay] -= n_stop
+                    n_alive -= n_stop
             if n_alive == 0:
                 break
         tile_evals[t] = evals
+        for lay in range(n_layers):
+            for y in range(py0, py1 + 1):
+                for x in range(px0, px1 + 1):
+                    ly, lx = y - py0, x - px0
+                    out_T[lay, y, x] = abs(t_loc[lay, ly, lx])
+                    last[lay, y, x] = last_loc[lay, ly, lx]
+                    rank = best_rank[lay, ly, lx]
+                    ids[lay, y, x] = order[rank] if rank >= 0 else -1
+                    for ch in range(n_feat):
+                        out_feat[lay, y, x, ch] = f_loc[lay, ch, ly, lx]
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, error_model="numpy")
 def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox, tiles_x, out_T, last,
                              grad_feat, grad_alpha, rows):
     """Gradients of sum(grad_feat * out_feat) + sum(grad_alpha * (1 - out_T)) on ``tiles``.
@@ -304,25 +317,45 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
     its layer's last contributor. Walks each tile back to front,
     rebuilding the transmittance before each Gaussian from the final one
     (T_before = T_after / (1 - alpha); alpha <= 0.99 keeps this well conditioned).
+    Like the forward, 16 lanes of a tile row at a time; each lane keeps its own partial sums, added in
+    lane order at the end of the Gaussian (a fixed order: deterministic).
     """
     n_layers, height, width = out_T.shape
     n_feat = gfeat.shape[1]
-    T_cur = np.empty((n_layers, TILE, TILE), np.float32)
-    behind = np.empty((n_layers, TILE, TILE, n_feat), np.float32)
-    g_feat = np.empty(n_feat, np.float32)
+    t_cur = np.empty((n_layers, TILE, TILE), np.float32)
+    last_loc = np.empty((n_layers, TILE, TILE), np.int32)
+    behind = np.empty((n_layers, n_feat, TILE, TILE), np.float32)
+    g_out = np.empty((n_layers, n_feat, TILE, TILE), np.float32)
+    g_trans = np.empty((n_layers, TILE, TILE), np.float32)  # grad_alpha * final T
+    acc = np.empty((N_GRAD_COLS, TILE), np.float32)
+    acc_feat = np.empty((n_feat, TILE), np.float32)
+    a_row = np.empty(TILE, np.float32)  # alpha, 0 where the Gaussian is skipped
+    g_row = np.empty(TILE, np.float32)  # exp(power)
+    t_row = np.empty(TILE, np.float32)  # T before the Gaussian
+    d_row = np.empty(TILE, np.float32)  # d loss / d alpha, colour part
     layer_stop = np.empty(n_layers, np.int64)
     for t in tiles:
         px0, px1, py0, py1 = _tile_pixels(t, tiles_x, width, height)
         # Nothing after a layer's last contributor in this tile needs visiting.
         layer_stop[:] = -1
+        t_cur[:] = ONE
+        last_loc[:] = -1
+        g_out[:] = ZERO
+        g_trans[:] = ZERO
+        behind[:] = ZERO
         for lay in range(n_layers):
             for y in range(py0, py1 + 1):
                 for x in range(px0, px1 + 1):
-                    T_cur[lay, y - py0, x - px0] = out_T[lay, y, x]
+                    ly, lx = y - py0, x - px0
+                    t_cur[lay, ly, lx] = out_T[lay, y, x]
+                    last_loc[lay, ly, lx] = last[lay, y, x]
                     layer_stop[lay] = max(layer_stop[lay], last[lay, y, x])
-        behind[:] = ZERO
+                    g_trans[lay, ly, lx] = grad_alpha[lay, y, x] * out_T[lay, y, x]
+                    for ch in range(n_feat):
+                        g_out[lay, ch, ly, lx] = grad_feat[lay, y, x, ch]
         k_stop = layer_stop.max()
         rows[max(k_stop + 1, tile_offsets[t]):tile_offsets[t + 1]] = ZERO
+        fx0 = F32(px0) + HALF
         for k in range(k_stop, tile_offsets[t] - 1, -1):
             r = isect[k]
             lay = glay[r]
@@ -331,50 +364,59 @@ def rasterize_backward_tiles(tiles, tile_offsets, isect, gdat, gfeat, glay, gbox
                 continue
             x0, x1, y0, y1 = _clip_box(gbox, r, px0, px1, py0, py1)
             mx, my, ca, cb, cc, o, pcut = _gaussian(gdat, r)
-            g_mx = ZERO
-            g_my = ZERO
-            g_a = ZERO
-            g_b = ZERO
-            g_c = ZERO
-            g_o = ZERO
-            g_feat[:] = ZERO
+            la, lb = x0 - px0, x1 - px0
+            k32 = np.int32(k)
+            acc[:] = ZERO
+            acc_feat[:] = ZERO
             for y in range(y0, y1 + 1):
-                xa, xb = _row_span(mx, my, ca, cb, cc, pcut, y, x0, x1)
-                for x in range(xa, xb + 1):
-                    if k > last[lay, y, x]:
-                        continue
-                    a, gauss, dx, dy, free = _alpha(mx, my, ca, cb, cc, o, pcut, x, y)
-                    if a == ZERO:
-                        continue
-                    ly, lx = y - py0, x - px0
-                    one_m = ONE - a
-                    T_before = T_cur[lay, ly, lx] / one_m
-                    w = a * T_before
-                    d_alpha = ZERO
-                    for ch in range(n_feat):
-                        gf = grad_feat[lay, y, x, ch]
-                        fc = gfeat[r, ch]
-                        g_feat[ch] += w * gf
-                        d_alpha += gf * (fc - behind[lay, ly, lx, ch])
-                        behind[lay, ly, lx, ch] = a * fc + one_m * behind[lay, ly, lx, ch]
-                    d_alpha = d_alpha * T_before + grad_alpha[lay, y, x] * out_T[lay, y, x] / one_m
-                    T_cur[lay, ly, lx] = T_before
-                    if free:  # alpha clamped at 0.99 has no gradient
-                        g_o += gauss * d_alpha
-                        d_pow = a * d_alpha
-                        g_mx -= d_pow * (ca * dx + cb * dy)
-                        g_my -= d_pow * (cb * dx + cc * dy)
-                        g_a += NEG_HALF * dx * dx * d_pow
-                        g_b -= dx * dy * d_pow
-                        g_c += NEG_HALF * dy * dy * d_pow
-            rows[k, 0] = g_mx
-            rows[k, 1] = g_my
-            rows[k, 2] = g_a
-            rows[k, 3] = g_b
-            rows[k, 4] = g_c
-            rows[k, 5] = g_o
+                ly = y - py0
+                dy = my - (F32(y) + HALF)
+                cdy = cc * dy * dy
+                for i in range(TILE):
+                    dx = mx - (fx0 + F32(i))
+                    power = _power(ca, cb, cdy, dx, dy)
+                    ok = (i >= la) & (i <= lb) & (k32 <= last_loc[lay, ly, i]) & (power <= ZERO) & (power >= pcut)
+                    gauss = exp_neg(power)
+                    a = min(o * gauss, ALPHA_MAX)
+                    a = a if ok & (a >= ALPHA_MIN) else ZERO
+                    T_before = t_cur[lay, ly, i] / (ONE - a)
+                    a_row[i] = a
+                    g_row[i] = gauss
+                    t_row[i] = T_before
+                    t_cur[lay, ly, i] = T_before
+                    d_row[i] = ZERO
+                for ch in range(n_feat):
+                    fc = gfeat[r, ch]
+                    for i in range(TILE):
+                        a = a_row[i]
+                        gf = g_out[lay, ch, ly, i]
+                        b = behind[lay, ch, ly, i]
+                        acc_feat[ch, i] += (a * t_row[i]) * gf
+                        d_row[i] += gf * (fc - b) if a > ZERO else ZERO
+                        behind[lay, ch, ly, i] = a * fc + (ONE - a) * b
+                for i in range(TILE):
+                    a = a_row[i]
+                    gauss = g_row[i]
+                    d_alpha = d_row[i] * t_row[i] + g_trans[lay, ly, i] / (ONE - a)
+                    free = (a > ZERO) & (o * gauss <= ALPHA_MAX)  # alpha clamped at 0.99 has no gradient
+                    d_pow = a * d_alpha if free else ZERO
+                    dx = mx - (fx0 + F32(i))
+                    acc[0, i] -= d_pow * (ca * dx + cb * dy)
+                    acc[1, i] -= d_pow * (cb * dx + cc * dy)
+                    acc[2, i] += NEG_HALF * dx * dx * d_pow
+                    acc[3, i] -= dx * dy * d_pow
+                    acc[4, i] += NEG_HALF * dy * dy * d_pow
+                    acc[5, i] += gauss * d_alpha if free else ZERO
+            for c in range(N_GRAD_COLS):
+                s = ZERO
+                for i in range(TILE):
+                    s += acc[c, i]
+                rows[k, c] = s
             for ch in range(n_feat):
-                rows[k, N_GRAD_COLS + ch] = g_feat[ch]
+                s = ZERO
+                for i in range(TILE):
+                    s += acc_feat[ch, i]
+                rows[k, N_GRAD_COLS + ch] = s
 
 
 @njit(nogil=True, cache=True)
