@@ -424,42 +424,6 @@ def test_composite_with_the_gaussian_renderer_at_slanted_views():
             assert mask[free].all() and not mask[hidden].any()
 
 
-def test_cover_test_paints_through_a_faint_floater_but_not_through_an_occluder():
-    """A wall with an opaque occluder and a faint floater (cover 0.3-0.5, 8 % of the depth in front) over
-    parts of the decal: the floater's Gaussians are the pixels' largest contributors, so the centre test
-    hides the decal there; the cover test paints through them and still hides it behind the occluder."""
-    from backend.edit.albedo_render import edited_albedo, render_albedo
-    from backend.splats.gaussians import GaussianSet
-    wall = plane_proxy([0, 0, 0], [0, -1, 0], [1, 0, 0], [0, 0, 1], [3.0, 2.0], texture=smooth_texture(16, 16))
-    occluder = plane_proxy([0.3, -0.25, 0.1], [0, -1, 0], [1, 0, 0], [0, 0, 1], [0.3, 0.3], color=[1, 0, 0])
-    floater = plane_proxy([-0.3, -0.2, 0.0], [0, -1, 0], [1, 0, 0], [0, 0, 1], [0.3, 0.3], color=[0, 0, 1])
-    edit = Camera.look_at("edit", [0, -2.5, 0], [0, 0, 0], [0, 0, 1], 96, 72, 60)
-    parts = [flattened_gaussians(spawn_points_on_proxy(edit, check_proxy_visible(edit, p), 0.2), edit)
-             for p in (wall, occluder)]
-    # Two wide Gaussians of opacity 0.3: they cover 0.3-0.5 of the pixels and outweigh each wall Gaussian.
-    parts.append(flattened_gaussians(spawn_points_on_proxy(edit, check_proxy_visible(edit, floater), 0.02), edit,
-                                     fraction=0.02, spacing_scale=0.7, opacity=0.3))
-    a = {k: torch.from_numpy(np.concatenate([q[k] for q in parts])) for k in parts[0]}
-    g = GaussianSet.from_activated("albedo", a["means"], a["colors"], a["log_scales"], a["opacities"], a["quats"])
-    decal = plane_proxy([0, 0, 0], [0, -1, 0], [1, 0, 0], [0, 0, 1], [1.2, 1.0], color=[0, 1, 0])
-    view = Camera.look_at("v", [0.3, -2.5, 0.0], [0, 0, 0], [0, 0, 1], 96, 72, 60)
-    rd = rasterize_proxy(decal, view)
-
-    def inside(p, k):
-        m = rasterize_proxy(p, view).mask & rd.mask
-        return cv2.erode(m.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
-    hidden, faint = inside(occluder, 3), inside(floater, 5)
-    # The occluder's splats blur its edge over a few pixels, where both tests rightly hide the decal.
-    free = rd.mask & ~cv2.dilate((hidden | faint).astype(np.uint8), np.ones((13, 13), np.uint8)).astype(bool)
-    assert hidden.sum() > 5 and faint.sum() > 20 and free.sum() > 100
-    out = render_albedo(g, view, "cpu", return_ids=True)
-    _, centre = composite_over_albedo(out.color, out.depth, out.alpha, rd, albedo_ids=out.ids, centres=g.means.detach(),
-                                      camera=view)
-    assert centre[faint].mean() < 0.5  # the floater's Gaussians win the centre test
-    _, mask, _ = edited_albedo(g, decal, view, "cpu", proxy_render=rd)
-    assert mask[free].all() and mask[faint].all() and not mask[hidden].any()
-
-
 # ----------------------------------------------------------------------------------------------
 # Views, spawned Gaussians
 

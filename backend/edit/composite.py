@@ -32,20 +32,6 @@ decomposition: offsets span -2.5 %..+3.5 % of depth (5th..95th percentile); the 
 of the decal's pixels to the wall's own Gaussians, the adaptive ~5 % loses about 1 %, while an
 occluder more than 8 % of the depth in front always hides the decal.
 
-Both tests above judge a pixel by one Gaussian or by an average, so a faint floater in front of the
-surface (a few low-opacity Gaussians that a short decomposition leaves 5-10 % of the depth in front
-of a wall) hides the proxy wherever it is the largest contributor. **The cover test** (used where
-``occluders`` is given: :func:`backend.edit.albedo_render.occluder_cover` renders it) asks instead how
-much the Gaussians whose centres lie in front of the proxy's tangent plane, by more than the
-tolerance above, cover the pixel: the proxy loses where that alpha reaches ``occluder_alpha``
-(0.5). A real occluder is opaque and hides the proxy; a floater does not. Only centres that project
-onto the proxy count: extended by tangent planes, a cylinder's silhouette judged the column's own
-edge Gaussians to lie in front. On procedural scene 100 decomposed at the defaults (256x192, 2000
-iterations), over five held-out views and with the true proxy, the centre test lost 11.5 % of the
-canvas's pixels 2 px or more inside its border, the cover test 8.7 %; after 1000 iterations, 3.7 %
-against 2.6 %. What is left is mostly the field's own surface, 1-4 % of the depth in front of the
-true canvas, beyond the adaptive tolerance.
-
 Where the proxy wins, the edited albedo is ``albedo (1 - a) + proxy_colour a`` with ``a`` the
 proxy's alpha (texture alpha x opacity); the edit mask is those pixels with ``a > 0``.
 """
@@ -80,8 +66,6 @@ class CompositeConfig:
     """The tolerance is this times that scatter (occluding side: front-to-back weights favour near centres)."""
     max_rel_tolerance: float = 0.08
     """Upper bound of the adaptive relative tolerance: anything further in front is an occluder."""
-    occluder_alpha: float = 0.5
-    """Cover test: the proxy loses where the Gaussians in front of it cover at least this much."""
 
 
 def _np(x) -> np.ndarray:
@@ -90,67 +74,13 @@ def _np(x) -> np.ndarray:
     return np.asarray(x)
 
 
-def _pixel_rays(camera: Camera, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """(M, 3) camera-space rays with z = 1 through the centres of pixels (rows, cols)."""
-    return np.stack([(cols + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy,
-                     np.ones(len(rows))], axis=1)
-
-
-def _heights(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, proxy: ProxyRender,
-             camera: Camera) -> np.ndarray:
-    """(M,) height of ``points`` (M, 3) above the proxy's tangent plane at pixels (rows, cols), as a depth
-    offset along the view ray (positive: towards the camera)."""
-    z_s = proxy.depth[rows, cols].astype(np.float64)
-    surf = (_pixel_rays(camera, rows, cols) * z_s[:, None] - camera.t) @ camera.R  # the proxy's surface point
-    n = proxy.normal[rows, cols].astype(np.float64)  # towards the camera
-    cos = np.clip(proxy.cos[rows, cols].astype(np.float64), GRAZING_COS, 1.0)
-    return np.sum((points - surf) * n, axis=1) / cos
-
-
-def centre_tolerance(proxy: ProxyRender, config: CompositeConfig, albedo_ids, centres, camera: Camera
-                     ) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The centre test's relative tolerance (adaptive: module docstring), with the proxy pixels that have
-    a max-contributor and their centres' heights: (rel, (rows (M,), cols (M,), ahead (M,)))."""
-    ids = _np(albedo_ids).astype(np.int64)
-    if ids.shape != proxy.mask.shape:
-        raise ValueError(f"composite: ids shape {ids.shape} != proxy render {proxy.mask.shape}")
-    rows, cols = np.nonzero(proxy.mask & (ids >= 0))
-    ahead = _heights(_np(centres).astype(np.float64)[ids[rows, cols]], rows, cols, proxy, camera)
-    rel = config.rel_tolerance
-    if config.adaptive and len(ahead) >= 20:
-        scatter = -np.percentile(ahead / proxy.depth[rows, cols], config.adaptive_percentile)
-        rel = float(np.clip(config.adaptive_scale * scatter, config.rel_tolerance, config.max_rel_tolerance))
-    return rel, (rows, cols, ahead)
-
-
-def in_front_of_proxy(centres, camera: Camera, proxy: ProxyRender, rel: float,
-                      config: CompositeConfig = CompositeConfig()) -> np.ndarray:
-    """(N,) bool: the Gaussians whose centre projects onto a proxy pixel and lies in front of the proxy's
-    tangent plane there by more than the tolerance (``rel`` x depth + ``abs_tolerance``). All False when
-    the proxy covers no pixel."""
-    c = _np(centres).astype(np.float64)
-    if not proxy.mask.any() or len(c) == 0:
-        return np.zeros(len(c), bool)
-    H, W = proxy.mask.shape
-    uv, z = camera.project(c)
-    finite = np.isfinite(uv).all(axis=1) & (z > 0)
-    col = np.clip(np.floor(np.where(finite, uv[:, 0], 0.0)), 0, W - 1).astype(np.int64)
-    row = np.clip(np.floor(np.where(finite, uv[:, 1], 0.0)), 0, H - 1).astype(np.int64)
-    on = finite & proxy.mask[row, col]
-    ahead = np.zeros(len(c), bool)
-    h = _heights(c[on], row[on], col[on], proxy, camera)
-    ahead[on] = h > proxy.depth[row[on], col[on]] * rel + config.abs_tolerance
-    return ahead
-
-
 def proxy_wins(albedo_depth, albedo_alpha, proxy: ProxyRender, config: CompositeConfig = CompositeConfig(), *,
-               albedo_ids=None, centres=None, camera: Camera | None = None, occluders=None) -> np.ndarray:
+               albedo_ids=None, centres=None, camera: Camera | None = None) -> np.ndarray:
     """(H, W) bool: where the proxy is visible over the albedo field (rules in the module docstring).
 
     albedo_depth: (H, W) expected camera z; albedo_alpha: (H, W); albedo_ids: (H, W) int64
     max-contributor ids (-1: none) with centres: (N, 3) albedo Gaussian means and the ``camera``
-    of the render, to use the centre test; occluders: (H, W) the cover of the Gaussians in front of
-    the proxy, to use the cover test instead.
+    of the render, to use the centre test.
     """
     d = _np(albedo_depth).astype(np.float64)
     w = _np(albedo_alpha).astype(np.float64)
@@ -158,36 +88,46 @@ def proxy_wins(albedo_depth, albedo_alpha, proxy: ProxyRender, config: Composite
     if d.shape != (H, W) or w.shape != (H, W):
         raise ValueError(f"composite: shapes differ: depth {d.shape}, alpha {w.shape}, proxy render {(H, W)}")
     empty = (w < config.min_alpha) | ~np.isfinite(d) | (d <= 0)
-    if occluders is not None:
-        cover = _np(occluders).astype(np.float64)
-        if cover.shape != (H, W):
-            raise ValueError(f"composite: occluders shape {cover.shape} != proxy render {(H, W)}")
-        return proxy.mask & (empty | (cover < config.occluder_alpha))
     zp = proxy.depth.astype(np.float64)
     cos = np.clip(proxy.cos.astype(np.float64), GRAZING_COS, 1.0)
     slope = config.slope_pixels * (zp / proxy.focal) * np.sqrt(1.0 - cos * cos) / cos
     wins = zp <= d * (1.0 + config.rel_tolerance) + config.abs_tolerance + slope
     if albedo_ids is not None and centres is not None and camera is not None:
-        rel, (rows, cols, ahead) = centre_tolerance(proxy, config, albedo_ids, centres, camera)
-        wins[rows, cols] = ahead <= zp[rows, cols] * rel + config.abs_tolerance
+        ids = _np(albedo_ids).astype(np.int64)
+        if ids.shape != (H, W):
+            raise ValueError(f"composite: ids shape {ids.shape} != proxy render {(H, W)}")
+        rows, cols = np.nonzero(proxy.mask & (ids >= 0))
+        c = _np(centres).astype(np.float64)[ids[rows, cols]]
+        z_s = zp[rows, cols]
+        rays = np.stack([(cols + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy,
+                         np.ones(len(rows))], axis=1)
+        surf = (rays * z_s[:, None] - camera.t) @ camera.R  # the proxy's surface point at the pixel
+        n = proxy.normal[rows, cols].astype(np.float64)  # towards the camera
+        # Height of the centre above the proxy's tangent plane, as a depth offset along the view ray.
+        ahead = np.sum((c - surf) * n, axis=1) / cos[rows, cols]
+        rel = config.rel_tolerance
+        if config.adaptive and len(ahead) >= 20:
+            scatter = -np.percentile(ahead / z_s, config.adaptive_percentile)
+            rel = float(np.clip(config.adaptive_scale * scatter, config.rel_tolerance, config.max_rel_tolerance))
+        wins[rows, cols] = ahead <= z_s * rel + config.abs_tolerance
     return proxy.mask & (empty | wins)
 
 
 def composite_over_albedo(albedo, albedo_depth, albedo_alpha, proxy: ProxyRender,
                           config: CompositeConfig = CompositeConfig(), *, albedo_ids=None, centres=None,
-                          camera: Camera | None = None, occluders=None) -> tuple[np.ndarray, np.ndarray]:
+                          camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Composite ``proxy`` over an albedo render.
 
     albedo: (H, W, 3) linear RGB; albedo_depth: (H, W) expected camera z (sum w z / sum w);
     albedo_alpha: (H, W) accumulated alpha; optional albedo_ids (H, W), centres (N, 3) and camera for
-    the centre test, or occluders (H, W) for the cover test (numpy arrays or torch tensors). Returns
-    the edited albedo (H, W, 3) float32 and the edit mask (H, W) bool.
+    the centre test (numpy arrays or torch tensors). Returns the edited albedo (H, W, 3) float32 and
+    the edit mask (H, W) bool.
     """
     a = _np(albedo).astype(np.float32)
     if a.shape != (*proxy.mask.shape, 3):
         raise ValueError(f"composite: albedo shape {a.shape} != proxy render {proxy.mask.shape} x 3")
     wins = proxy_wins(albedo_depth, albedo_alpha, proxy, config, albedo_ids=albedo_ids, centres=centres,
-                      camera=camera, occluders=occluders)
+                      camera=camera)
     alpha = np.where(wins, proxy.alpha, 0.0).astype(np.float32)
     edited = a * (1.0 - alpha[..., None]) + proxy.color * alpha[..., None]
     return edited.astype(np.float32), alpha > 0
