@@ -23,7 +23,8 @@ The tile's transmittance, features and bookkeeping stay in small tile-local arra
 
 Determinism: every tile is processed by one thread, serially; in the backward each lane sums its own
 part and the lanes are added in a fixed order, one gradient row per intersection (no shared
-accumulators, no float atomics), and a second pass sums each Gaussian's rows in a fixed order. Two runs give bit-identical gradients whatever the thread timing.
+accumulators, no float atomics), and a second pass sums each Gaussian's rows in a fixed order. Two
+runs give bit-identical gradients whatever the thread timing.
 
 Parallelism: the heavy kernels are GIL-free (``nogil``) functions over a list of tiles, called on
 chunks of tiles by :mod:`backend.render.threads` (the calling thread takes part, chunks are pulled
