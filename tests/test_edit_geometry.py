@@ -427,6 +427,32 @@ def test_adaptive_tolerance_measures_the_spread_from_the_fields_own_surface():
     assert not mask[hidden].any() and mask[render.mask & ~hidden].mean() > 0.99
 
 
+def test_supersampling_covers_the_pixels_an_edge_crosses_beside_their_centres():
+    """A flat proxy facing the camera whose left and right edges cross pixels 19 and 40 a fifth and two
+    fifths of the way in, beside their centres: a centre-sampled mask leaves both out, the supersampled
+    render covers them with the fraction of its samples that hit (1/3 of 3 x 3) and the proxy's colour
+    and depth. Such pixels hold the edit's edge in a photograph; left out, the bake kept the old colour
+    there."""
+    cam = Camera("front", 64, 32, 100.0, 100.0, 32.0, 16.0, np.eye(3), np.zeros(3))
+    left, right = (19.8 - 32.0) / 50.0, (40.4 - 32.0) / 50.0  # u = 50 x + 32 at depth 2
+    proxy = plane_proxy([(left + right) / 2, 0.0, 2.0], [0, 0, -1], [1, 0, 0], [0, 1, 0], [right - left, 0.2],
+                        color=[0.9, 0.1, 0.1])
+    centre = rasterize_proxy(proxy, cam)
+    fine = rasterize_proxy(proxy, cam, RasterConfig(supersample=3))
+    row = 16
+    assert not centre.mask[row, 19] and not centre.mask[row, 40] and centre.mask[row, 20:40].all()
+    assert fine.mask[row, 19:41].all() and not fine.mask[row, 18] and not fine.mask[row, 41]
+    np.testing.assert_allclose(fine.alpha[row, [19, 40]], 1 / 3, atol=1e-6)
+    np.testing.assert_allclose(fine.alpha[row, 20:40], 1.0)
+    np.testing.assert_allclose(fine.color[row, [19, 40]], [[0.9, 0.1, 0.1]] * 2, atol=1e-6)
+    np.testing.assert_allclose(fine.depth[row, [19, 40]], 2.0, rtol=1e-6)
+    assert (fine.face[row, [19, 40]] >= 0).all() and np.allclose(fine.normal[row, [19, 40]], [0, 0, -1])
+    for k in ("depth", "face", "uv", "normal"):  # where the centre hits, its geometry
+        np.testing.assert_array_equal(getattr(fine, k)[centre.mask], getattr(centre, k)[centre.mask])
+    _, edit = composite_over_albedo(np.zeros((32, 64, 3)), np.full((32, 64), 5.0), np.ones((32, 64)), fine)
+    assert edit[row, 19] and edit[row, 40]  # the wall behind: the proxy wins its edge pixels too
+
+
 def test_supersampling_filters_a_texture_finer_than_the_pixels():
     cam = Camera.look_at("v", [0, -2.0, 0], [0, 0, 0], [0, 0, 1], 48, 40, 50)
     checker = ((np.indices((256, 256)).sum(axis=0) % 2)[..., None] * np.ones(3)).astype(np.float32)

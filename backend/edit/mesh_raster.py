@@ -184,10 +184,13 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, extension: str = "REPEAT
 def rasterize_proxy(proxy: ProxyMesh, camera: Camera, config: RasterConfig = RasterConfig()) -> ProxyRender:
     """Render ``proxy`` (validated) in ``camera``: colour, alpha, depth, mask, face, UV, normal.
 
-    With ``config.supersample`` s > 1 the geometry (mask, depth, face, UV, normal) stays that of the
-    pixel centre, while colour and alpha are the box-filtered average of s x s samples: a texture
-    finer than the pixels is filtered as a camera integrates it, instead of aliasing (the targets of
-    the bake are then comparable with a rendered photograph), and edges get fractional coverage.
+    With ``config.supersample`` s > 1, colour and alpha are the box-filtered average of s x s samples:
+    a texture finer than the pixels is filtered as a camera integrates it, instead of aliasing (the
+    targets of the bake are then comparable with a rendered photograph), and edges get fractional
+    coverage. Where the pixel centre hits the proxy the geometry (depth, face, UV, normal) is the
+    centre's; the pixels at the edge that some sample hits but the centre misses are covered too, with
+    the geometry of their hit sample nearest the centre: a pixel a third covered is a third the proxy's
+    colour, as in a photograph, not left out as a centre-sampled mask would leave it.
     """
     s = int(config.supersample)
     if s < 1:
@@ -200,10 +203,27 @@ def rasterize_proxy(proxy: ProxyMesh, camera: Camera, config: RasterConfig = Ras
     a = fine.alpha.reshape(H, s, W, s)
     ca = (fine.color * fine.alpha[..., None]).reshape(H, s, W, s, 3).sum(axis=(1, 3))
     a_sum = a.sum(axis=(1, 3))
+    edge = ~centre.mask & fine.mask.reshape(H, s, W, s).any(axis=(1, 3))
+    if edge.any():
+        _take_edge_geometry(centre, fine, edge, s)
     m = centre.mask & (a_sum > 0)
     centre.color[m] = ca[m] / a_sum[m][:, None]
     centre.alpha[centre.mask] = (a_sum[centre.mask] / (s * s)).astype(np.float32)
     return centre
+
+
+def _take_edge_geometry(centre: ProxyRender, fine: ProxyRender, edge: np.ndarray, s: int) -> None:
+    """Cover the ``edge`` pixels (H, W) of ``centre`` with the geometry of their hit sample of ``fine``
+    (the s x s render) nearest the pixel centre."""
+    rows, cols = np.nonzero(edge)
+    k = (np.arange(s) + 0.5) / s - 0.5
+    dist = (k[:, None] ** 2 + k[None, :] ** 2).ravel()  # (s*s,) sample (a, b) at index a*s + b
+    hit = fine.mask.reshape(centre.mask.shape[0], s, centre.mask.shape[1], s)[rows, :, cols, :].reshape(len(rows), s * s)
+    best = np.argmin(np.where(hit, dist[None, :], np.inf), axis=1)
+    fr, fc = rows * s + best // s, cols * s + best % s
+    for name in ("depth", "face", "uv", "normal", "cos", "front"):
+        getattr(centre, name)[rows, cols] = getattr(fine, name)[fr, fc]
+    centre.mask[rows, cols] = True
 
 
 def _rasterize_centres(proxy: ProxyMesh, camera: Camera, config: RasterConfig) -> ProxyRender:
