@@ -449,8 +449,14 @@ def test_supersampling_covers_the_pixels_an_edge_crosses_beside_their_centres():
     assert (fine.face[row, [19, 40]] >= 0).all() and np.allclose(fine.normal[row, [19, 40]], [0, 0, -1])
     for k in ("depth", "face", "uv", "normal"):  # where the centre hits, its geometry
         np.testing.assert_array_equal(getattr(fine, k)[centre.mask], getattr(centre, k)[centre.mask])
-    _, edit = composite_over_albedo(np.zeros((32, 64, 3)), np.full((32, 64), 5.0), np.ones((32, 64)), fine)
+    # the old region dark (0.05) on a light wall (0.8), its edge pixels mixed as a render mixes them
+    old = np.full((32, 64, 3), 0.8)
+    old[:, 19:41] = 0.05 + (0.8 - 0.05) * (1 - fine.covered()[:, 19:41, None])
+    edited, edit = composite_over_albedo(old, np.full((32, 64), 5.0), np.ones((32, 64)), fine)
     assert edit[row, 19] and edit[row, 40]  # the wall behind: the proxy wins its edge pixels too
+    # an edge pixel is the new colour over the covered third and the wall, not the old dark, over the rest
+    np.testing.assert_allclose(edited[row, 19], np.array([0.9, 0.1, 0.1]) / 3 + 0.8 * 2 / 3, atol=1e-5)
+    np.testing.assert_allclose(edited[row, 30], [0.9, 0.1, 0.1], atol=1e-6)
 
 
 def test_supersampling_filters_a_texture_finer_than_the_pixels():

@@ -41,13 +41,21 @@ where the scenes really hide a decal won. An occluder more than ``max_rel_tolera
 depth in front always hides the proxy.
 
 Where the proxy wins, the edited albedo is ``albedo (1 - a) + proxy_colour a`` with ``a`` the
-proxy's alpha (texture alpha x opacity); the edit mask is those pixels with ``a > 0``.
+proxy's alpha (coverage x texture alpha x opacity); the edit mask is those pixels with ``a > 0``. In
+a pixel the proxy's edge crosses (coverage ``c`` < 1, from a supersampled proxy render), the albedo
+rendered there still holds the old region's share, so the uncovered ``1 - c`` takes the colour
+around the proxy instead: the albedo at the nearest pixel the proxy does not touch, within
+``surround_reach`` pixels. ``proxy_colour a + around (1 - c) + albedo (c - a)``: what a camera sees
+at the edge of a repainted region, without the old colour. Measured on procedural scene 101's dark
+panel recoloured to a light colour (true proxy, held-out views, the bake's targets against the
+edited ground truth): the 2-px ring inside the region's border went from 27.8 to 38.6 dB.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from backend.core.cameras import Camera
@@ -77,6 +85,8 @@ class CompositeConfig:
     docstring)."""
     max_rel_tolerance: float = 0.08
     """Upper bound of the adaptive relative tolerance: anything further in front is an occluder."""
+    surround_reach: float = 2.5
+    """Edge pixels take the colour around the proxy from at most this many pixels away (else their own)."""
 
 
 def _np(x) -> np.ndarray:
@@ -143,4 +153,30 @@ def composite_over_albedo(albedo, albedo_depth, albedo_alpha, proxy: ProxyRender
                       camera=camera)
     alpha = np.where(wins, proxy.alpha, 0.0).astype(np.float32)
     edited = a * (1.0 - alpha[..., None]) + proxy.color * alpha[..., None]
+    cover = proxy.covered()
+    edge = wins & (cover < 1.0)
+    if edge.any():
+        around = _around(a, _np(albedo_alpha) >= config.min_alpha, proxy.mask, edge, config.surround_reach)
+        c, al = cover[edge][:, None], alpha[edge][:, None]
+        edited[edge] = proxy.color[edge] * al + around * (1.0 - c) + a[edge] * (c - al)
     return edited.astype(np.float32), alpha > 0
+
+
+def _around(albedo: np.ndarray, solid: np.ndarray, touched: np.ndarray, edge: np.ndarray, reach: float
+            ) -> np.ndarray:
+    """(E, 3): for each ``edge`` pixel, ``albedo`` (H, W, 3) at the nearest pixel that the proxy does not
+    touch (``~touched``), if it is within ``reach`` pixels and ``solid`` there (the field covers it);
+    else the edge pixel's own albedo."""
+    free = ~touched
+    own = albedo[edge]
+    if not free.any():
+        return own
+    dist, label = cv2.distanceTransformWithLabels(touched.astype(np.uint8), cv2.DIST_L2, 5,
+                                                  labelType=cv2.DIST_LABEL_PIXEL)
+    fr, fc = np.nonzero(free)
+    lut = np.zeros(int(label.max()) + 1, np.int64)
+    lut[label[fr, fc]] = np.arange(len(fr))
+    k = lut[label[edge]]
+    r, c = fr[k], fc[k]
+    ok = (dist[edge] <= reach) & solid[r, c]
+    return np.where(ok[:, None], albedo[r, c], own)

@@ -75,6 +75,13 @@ class ProxyRender:
     """(H, W) bool, the visible side is the front (counter-clockwise) side."""
     focal: float = 1.0
     """Focal length of the camera in pixels (sqrt(fx fy)): a pixel spans depth / focal world units."""
+    coverage: np.ndarray | None = None
+    """(H, W) float32 fraction of the pixel's samples that hit the proxy, before texture alpha and
+    opacity (supersampled renders; None: the mask, 1 where covered)."""
+
+    def covered(self) -> np.ndarray:
+        """(H, W) float32 :attr:`coverage`, or the mask as 0/1 when there is none."""
+        return self.mask.astype(np.float32) if self.coverage is None else self.coverage
 
 
 @dataclass
@@ -209,6 +216,7 @@ def rasterize_proxy(proxy: ProxyMesh, camera: Camera, config: RasterConfig = Ras
     m = centre.mask & (a_sum > 0)
     centre.color[m] = ca[m] / a_sum[m][:, None]
     centre.alpha[centre.mask] = (a_sum[centre.mask] / (s * s)).astype(np.float32)
+    centre.coverage = (fine.mask.reshape(H, s, W, s).sum(axis=(1, 3)) / (s * s)).astype(np.float32)
     return centre
 
 
