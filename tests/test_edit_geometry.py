@@ -464,6 +464,16 @@ def test_supersampling_covers_the_pixels_an_edge_crosses_beside_their_centres():
     # an edge pixel is the new colour over the covered third and the wall, not the old dark, over the rest
     np.testing.assert_allclose(edited[row, 19], np.array([0.9, 0.1, 0.1]) / 3 + 0.8 * 2 / 3, atol=1e-5)
     np.testing.assert_allclose(edited[row, 30], [0.9, 0.1, 0.1], atol=1e-6)
+    # two thirds covered (left edge at 19.4): the small rest takes the albedo beside the proxy (the wall)
+    left = (19.4 - 32.0) / 50.0
+    proxy = plane_proxy([(left + right) / 2, 0.0, 2.0], [0, 0, -1], [1, 0, 0], [0, 1, 0], [right - left, 0.2],
+                        color=[0.9, 0.1, 0.1])
+    fine = rasterize_proxy(proxy, cam, RasterConfig(supersample=3))
+    assert fine.covered()[row, 19] == pytest.approx(2 / 3)
+    old[:, 19:41] = 0.05 + (0.8 - 0.05) * (1 - fine.covered()[:, 19:41, None])
+    old[:, 18] = 0.3  # the wall just beside the edge
+    edited, _ = composite_over_albedo(old, np.full((32, 64), 5.0), np.ones((32, 64)), fine)
+    np.testing.assert_allclose(edited[row, 19], np.array([0.9, 0.1, 0.1]) * 2 / 3 + 0.3 / 3, atol=1e-5)
 
 
 def test_supersampling_filters_a_texture_finer_than_the_pixels():
