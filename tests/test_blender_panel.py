@@ -338,7 +338,7 @@ def test_fit_sends_the_panel_settings_names_them_in_errors_and_clears_the_rectan
 
 def test_fit_error_words_name_the_panel_settings():
     words = sys.modules[f"{MOD}.operators.edit"].panel_words
-    msg = words("plane fit: only 18% of the 60 selected points lie within 0.0136 of one plane (need 20%); "
+    msg = words("plane fit: only 11 of the 60 selected points (18.3%) lie within 0.0136 of one plane (need 20%); "
                 "select a flatter region or raise --threshold")
     assert msg.endswith("raise Inlier Distance (Edit panel > Fit Settings)")
     assert words("the selection looks planar; use fit-plane)").endswith("use Fit Plane)")

@@ -216,8 +216,8 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
                                    lambda q, m: _plane_lsq(q, what))
     ratio = float(inl.mean())
     if inl.sum() < 3 or ratio < min_inlier_ratio:
-        raise IGSError(f"{what}: only {ratio:.0%} of the {n_pts} selected points lie within {thr:.3g} of one plane "
-                       f"(need {min_inlier_ratio:.0%}); select a flatter region or raise --threshold")
+        raise IGSError(f"{what}: only {int(inl.sum())} of the {n_pts} selected points ({ratio:.1%}) lie within {thr:.3g} "
+                       f"of one plane (need {min_inlier_ratio:.0%}); select a flatter region or raise --threshold")
     center = p[inl].mean(axis=0)
     u, v = orthonormal_axes(normal)
     # Report the mask over the caller's points (non-finite rows are never inliers).
@@ -398,8 +398,8 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
     inl_all = np.abs(cylinder_residuals(p_all, point, axis, radius)) < thr
     ratio = float(inl_all.mean())
     if inl_all.sum() < MIN_CYLINDER_POINTS or ratio < min_inlier_ratio:
-        raise IGSError(f"{what}: only {ratio:.0%} of the {len(p_all)} selected points lie within {thr:.3g} of one "
-                       f"cylinder (need {min_inlier_ratio:.0%}); select a cleaner region or raise --threshold")
+        raise IGSError(f"{what}: only {int(inl_all.sum())} of the {len(p_all)} selected points ({ratio:.1%}) lie within "
+                       f"{thr:.3g} of one cylinder (need {min_inlier_ratio:.0%}); select a cleaner region or raise --threshold")
     q = p_all[inl_all]
     h = (q - point) @ axis
     point = point + h.mean() * axis  # centre the axis point on the inliers
