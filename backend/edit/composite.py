@@ -169,6 +169,11 @@ def composite_over_albedo(albedo, albedo_depth, albedo_alpha, proxy: ProxyRender
     return edited.astype(np.float32), alpha > 0
 
 
+MIX_TOLERANCE = 0.2
+"""Largest linear-albedo difference between an edge pixel and its mix of the old region's colour and
+the colour beside the proxy for which that colour beside counts as what the pixel holds."""
+
+
 def _nearest(sources: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each ``targets`` pixel (H, W bool), the nearest ``sources`` pixel: (rows (E,), cols (E,),
     distance (E,)); distance inf when there is no source."""
@@ -200,5 +205,8 @@ def _uncovered_colour(albedo: np.ndarray, cover: np.ndarray, edge: np.ndarray, i
     unmixed = np.clip((own - c * albedo[ir, ic]) / np.maximum(1.0 - c, 0.5), 0.0, 1.0)
     fr, fc, fdist = _nearest(~touched, edge)
     beside = np.where(((fdist <= reach) & solid[fr, fc])[:, None], albedo[fr, fc], own)
-    low = (c[:, 0] <= 0.5) & (idist <= reach)
+    # the colour beside explains the pixel as a mix with the old region: keep it (it is clean); else
+    # the pixel holds something that no neighbour does (a thin strip along the edge): unmix it
+    explained = np.abs(own - (c * albedo[ir, ic] + (1.0 - c) * beside)).max(axis=1) <= MIX_TOLERANCE
+    low = (c[:, 0] <= 0.5) & (idist <= reach) & ~explained
     return np.where(low[:, None], unmixed, beside).astype(np.float32)
