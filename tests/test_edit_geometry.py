@@ -464,6 +464,11 @@ def test_supersampling_covers_the_pixels_an_edge_crosses_beside_their_centres():
     # an edge pixel is the new colour over the covered third and the wall, not the old dark, over the rest
     np.testing.assert_allclose(edited[row, 19], np.array([0.9, 0.1, 0.1]) / 3 + 0.8 * 2 / 3, atol=1e-5)
     np.testing.assert_allclose(edited[row, 30], [0.9, 0.1, 0.1], atol=1e-6)
+    # the uncovered two thirds show a strip (0.3: a rug's side) that the wall beside does not explain:
+    # it is unmixed from the pixel itself
+    old[:, 19] = 0.05 / 3 + 0.3 * 2 / 3
+    edited, _ = composite_over_albedo(old, np.full((32, 64), 5.0), np.ones((32, 64)), fine)
+    np.testing.assert_allclose(edited[row, 19], np.array([0.9, 0.1, 0.1]) / 3 + 0.3 * 2 / 3, atol=1e-5)
     # two thirds covered (left edge at 19.4): the small rest takes the albedo beside the proxy (the wall)
     left = (19.4 - 32.0) / 50.0
     proxy = plane_proxy([(left + right) / 2, 0.0, 2.0], [0, 0, -1], [1, 0, 0], [0, 1, 0], [right - left, 0.2],

@@ -45,15 +45,16 @@ Where the proxy wins, the edited albedo is ``albedo (1 - a) + proxy_colour a`` w
 proxy's alpha (coverage x texture alpha x opacity); the edit mask is those pixels with ``a > 0``. In
 a pixel the proxy's edge crosses (coverage ``c`` < 1, from a supersampled proxy render), the albedo
 rendered there still holds the old region's share, so the uncovered ``1 - c`` takes an estimate of
-what lies beside the region instead: ``proxy_colour a + beside (1 - c) + albedo (c - a)``. Where
-``c`` <= 1/2, beside is the pixel's albedo unmixed from the old region's colour at the nearest fully
-covered pixel; above, the albedo at the nearest pixel the proxy does not touch (within
-``surround_reach`` pixels). Measured on the bake's targets against the edited ground truth on
-held-out views (true proxies), the 2-px ring inside the region's border: scene 101's dark panel 27.8
--> 35.0 dB, the demo room's rug 25.7 -> 28.1 dB, scene 100's canvas 16.4 -> 20.9 dB (with the edge
-pixels' coverage). Taking the albedo beside the proxy for every edge pixel gave 38.6 dB on the dark
-panel but 23.2 on the rug, whose edge pixels show a thin strip of another colour (the rug's edge)
-that no pixel beside them holds.
+what lies beside the region instead: ``proxy_colour a + beside (1 - c) + albedo (c - a)``. Beside is
+the albedo at the nearest pixel the proxy does not touch (within ``surround_reach`` pixels), unless
+the pixel is not a mix of it and the old region's colour at the nearest fully covered pixel (by more
+than ``MIX_TOLERANCE``) and ``c`` <= 1/2: then the pixel holds something no neighbour does (a thin
+strip along the edge, such as a rug's side), and beside is the pixel's albedo with the old colour
+unmixed out of it. Measured on the bake's targets against the edited ground truth on held-out views
+(true proxies), the 2-px ring inside the region's border: scene 101's dark panel 27.8 -> 38.6 dB,
+the demo room's rug 25.7 -> 27.2 dB, scene 100's canvas 16.4 -> 20.9 dB (with the edge pixels'
+coverage). Always the colour beside: dark panel 38.6, rug 23.2; always unmixed where ``c`` <= 1/2:
+35.0 and 28.1.
 """
 
 from __future__ import annotations
