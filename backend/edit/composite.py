@@ -194,12 +194,12 @@ def _uncovered_colour(albedo: np.ndarray, cover: np.ndarray, edge: np.ndarray, i
                       touched: np.ndarray, solid: np.ndarray, reach: float) -> np.ndarray:
     """(E, 3): the albedo of the part of each ``edge`` pixel that the proxy does not cover.
 
-    albedo (H, W, 3) mixes, at an edge pixel of coverage c, the old region (c) with what lies beside
-    it (1 - c). Where c <= 1/2 that is unmixed with the old region's colour at the nearest ``inside``
-    pixel (fully covered): (albedo - c inside) / (1 - c), at most doubling that colour's error.
-    Where c > 1/2 the uncovered part is small and the unmixing unstable: it takes the albedo at the
-    nearest pixel the proxy does not touch (``~touched``, ``solid``: the field covers it). Either
-    source must lie within ``reach`` pixels; else the edge pixel's own albedo."""
+    albedo (H, W, 3) mixes, at an edge pixel of coverage c, the old region (c) with what lies beside it
+    (1 - c). That is the albedo at the nearest pixel the proxy does not touch (``~touched``; ``solid``:
+    the field covers it) when the pixel is that mix, within :data:`MIX_TOLERANCE`, with the old region's
+    colour at the nearest ``inside`` pixel (fully covered). Otherwise, where c <= 1/2, the pixel is
+    unmixed: (albedo - c inside) / (1 - c), at most doubling that colour's error. Both sources must lie
+    within ``reach`` pixels; else the edge pixel's own albedo."""
     own = albedo[edge].astype(np.float64)
     c = cover[edge].astype(np.float64)[:, None]
     ir, ic, idist = _nearest(inside, edge)
