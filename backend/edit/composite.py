@@ -65,7 +65,7 @@ import cv2
 import numpy as np
 
 from backend.core.cameras import Camera
-from backend.edit.mesh_raster import GRAZING_COS, ProxyRender
+from backend.edit.mesh_raster import GRAZING_COS, ProxyRender, pixel_rays
 
 
 @dataclass(frozen=True)
@@ -127,9 +127,7 @@ def proxy_wins(albedo_depth, albedo_alpha, proxy: ProxyRender, config: Composite
         rows, cols = np.nonzero(proxy.mask & (ids >= 0))
         c = _np(centres).astype(np.float64)[ids[rows, cols]]
         z_s = zp[rows, cols]
-        rays = np.stack([(cols + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy,
-                         np.ones(len(rows))], axis=1)
-        surf = (rays * z_s[:, None] - camera.t) @ camera.R  # the proxy's surface point at the pixel
+        surf = (pixel_rays(camera, cols, rows) * z_s[:, None] - camera.t) @ camera.R  # the proxy's point there
         n = proxy.normal[rows, cols].astype(np.float64)  # towards the camera
         # Height of the centre above the proxy's tangent plane, as a depth offset along the view ray.
         ahead = np.sum((c - surf) * n, axis=1) / cos[rows, cols]
