@@ -210,23 +210,25 @@ def rasterize_proxy(proxy: ProxyMesh, camera: Camera, config: RasterConfig = Ras
     a = fine.alpha.reshape(H, s, W, s)
     ca = (fine.color * fine.alpha[..., None]).reshape(H, s, W, s, 3).sum(axis=(1, 3))
     a_sum = a.sum(axis=(1, 3))
-    edge = ~centre.mask & fine.mask.reshape(H, s, W, s).any(axis=(1, 3))
+    hits = fine.mask.reshape(H, s, W, s)
+    centre.coverage = (hits.sum(axis=(1, 3)) / (s * s)).astype(np.float32)
+    edge = ~centre.mask & (centre.coverage > 0)
     if edge.any():
-        _take_edge_geometry(centre, fine, edge, s)
+        _take_edge_geometry(centre, fine, hits, edge)
     m = centre.mask & (a_sum > 0)
     centre.color[m] = ca[m] / a_sum[m][:, None]
     centre.alpha[centre.mask] = (a_sum[centre.mask] / (s * s)).astype(np.float32)
-    centre.coverage = (fine.mask.reshape(H, s, W, s).sum(axis=(1, 3)) / (s * s)).astype(np.float32)
     return centre
 
 
-def _take_edge_geometry(centre: ProxyRender, fine: ProxyRender, edge: np.ndarray, s: int) -> None:
+def _take_edge_geometry(centre: ProxyRender, fine: ProxyRender, hits: np.ndarray, edge: np.ndarray) -> None:
     """Cover the ``edge`` pixels (H, W) of ``centre`` with the geometry of their hit sample of ``fine``
-    (the s x s render) nearest the pixel centre."""
+    (the s x s render; ``hits``: its mask as (H, s, W, s)) nearest the pixel centre."""
+    s = hits.shape[1]
     rows, cols = np.nonzero(edge)
     k = (np.arange(s) + 0.5) / s - 0.5
     dist = (k[:, None] ** 2 + k[None, :] ** 2).ravel()  # (s*s,) sample (a, b) at index a*s + b
-    hit = fine.mask.reshape(centre.mask.shape[0], s, centre.mask.shape[1], s)[rows, :, cols, :].reshape(len(rows), s * s)
+    hit = hits[rows, :, cols, :].reshape(len(rows), s * s)
     best = np.argmin(np.where(hit, dist[None, :], np.inf), axis=1)
     fr, fc = rows * s + best // s, cols * s + best % s
     for name in ("depth", "face", "uv", "normal", "cos", "front"):
