@@ -46,14 +46,15 @@ def render(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colo
            *, sh_degree: int | None = None, log_scales: bool = False,
            background: Background = None, near: float = 0.01, far: float = 1e10,
            backend: Backend = "auto", return_ids: bool = False,
-           eps2d: Tensor | float | None = None) -> RenderOutput:
+           eps2d: Tensor | float | None = None, sh_rest: Tensor | None = None) -> RenderOutput:
     """Render one set of Gaussians for ``camera``.
 
     means: (N, 3); quats: (N, 4) wxyz; scales: (N, 3) (log-scales if ``log_scales``); opacities: (N,);
     colors: (N, C) features or (N, K, C) SH with ``sh_degree``; background: (C,), a scalar or None (0);
-    eps2d: the screen-space low-pass, a scalar or (N,) (see :attr:`Splats.eps2d`).
+    eps2d: the screen-space low-pass, a scalar or (N,) (see :attr:`Splats.eps2d`); sh_rest: the SH
+    coefficients after the DC term when ``colors`` holds only that (see :attr:`Splats.sh_rest`).
     """
-    splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales, eps2d)
+    splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales, eps2d, sh_rest)
     return render_layers([splats], camera, backgrounds=[background], near=near, far=far, backend=backend,
                          return_ids=return_ids)[0]
 
@@ -76,7 +77,8 @@ def render_layers(layers: Sequence[Splats], camera: Camera, *,
     if len(backgrounds) != len(layers):
         raise IGSError(f"render_layers: {len(backgrounds)} backgrounds for {len(layers)} layers")
     for i, s in enumerate(layers):
-        check_gaussians(s.means, s.quats, s.scales, s.opacities, s.colors, s.sh_degree, what=f"layer {i}")
+        check_gaussians(s.means, s.quats, s.scales, s.opacities, s.colors, s.sh_degree, what=f"layer {i}",
+                        sh_rest=s.sh_rest)
         if s.means.device != layers[0].means.device:
             raise IGSError(f"layer {i} is on {s.means.device} but layer 0 is on {layers[0].means.device}")
     if near <= 0 or far <= near:

@@ -15,7 +15,8 @@ import numpy as np
 import torch
 from numba import njit
 
-from backend.render.sh import SH_C0, SH_C1, SH_C2, SH_C3, check_sh_coeffs
+from backend.core.errors import IGSError
+from backend.render.sh import SH_C0, SH_C1, SH_C2, SH_C3, check_sh_coeffs, num_sh_bases
 from backend.render.threads import run_chunks
 
 _C2 = np.array(SH_C2, np.float32)
@@ -90,61 +91,63 @@ def _direction(means, center, i):
 
 
 @njit(cache=True, inline="always")
-def _unclamped(b, coeffs, i, c, k):
-    """Channel ``c`` of Gaussian ``i`` before the clamp at 0: sum_j b[j] coeffs[i, j, c] + 0.5."""
-    acc = np.float32(0.5)
-    for j in range(k):
-        acc += b[j] * coeffs[i, j, c]
+def _unclamped(b, dc, rest, i, c, k):
+    """Channel ``c`` of Gaussian ``i`` before the clamp at 0: the basis ``b`` against its k coefficients
+    (``dc[i, 0]``, then ``rest[i, :k-1]``), + 0.5."""
+    acc = np.float32(0.5) + b[0] * dc[i, 0, c]
+    for j in range(1, k):
+        acc += b[j] * rest[i, j - 1, c]
     return acc
 
 
 @njit(nogil=True, cache=True)
-def sh_forward_range(coeffs, means, center, k, out, start, stop):
-    """Rows [start, stop) of out (N, C) = max(sum_k basis_k(dir) coeffs[:, k] + 0.5, 0).
+def sh_forward_range(dc, rest, means, center, k, out, start, stop):
+    """Rows [start, stop) of out (N, C) = max(sum_j basis_j(dir) coeff_j + 0.5, 0).
 
-    coeffs (N, K, C) float32, means (N, 3), center (3,); dir = normalised means - center.
+    dc (N, 1, C) and rest (N, R, C) float32 with R >= k - 1: coefficient 0 and coefficients 1..k-1;
+    means (N, 3), center (3,); dir = normalised means - center.
     """
-    n_ch = coeffs.shape[2]
+    n_ch = dc.shape[2]
     b = np.empty(16, np.float32)
     for i in range(start, stop):
         x, y, z, _inv = _direction(means, center, i)
         _basis(x, y, z, k, b)
         for c in range(n_ch):
-            out[i, c] = max(_unclamped(b, coeffs, i, c, k), np.float32(0.0))
+            out[i, c] = max(_unclamped(b, dc, rest, i, c, k), np.float32(0.0))
 
 
 @njit(nogil=True, cache=True)
-def sh_backward_range(coeffs, means, center, k, grad_color, need_means, g_coeffs, g_means, start, stop):
-    """Rows [start, stop) of d coeffs (N, K, C) and d means (N, 3) of sum(grad_color * colour).
+def sh_backward_range(dc, rest, means, center, k, grad_color, need_means, g_dc, g_rest, g_means, start, stop):
+    """Rows [start, stop) of d dc (N, 1, C), d rest (N, R, C) and d means (N, 3) of sum(grad_color * colour).
 
-    Both outputs must be zero beforehand (rows whose colour is clamped everywhere stay zero).
+    Every entry of the rows is written (zeros where the colour is clamped and past coefficient k), so
+    the outputs need no clearing beforehand.
     """
-    n_ch = coeffs.shape[2]
+    n_ch, n_rest = dc.shape[2], rest.shape[1]
     b = np.empty(16, np.float32)
     gb = np.empty((16, 3), np.float32)
     gc = np.empty(n_ch, np.float32)
+    zero = np.float32(0.0)
     for i in range(start, stop):
         x, y, z, inv = _direction(means, center, i)
         _basis(x, y, z, k, b)
-        live = False
         for c in range(n_ch):
             # as torch's clamp_min: no gradient where the colour is clamped
-            gc[c] = grad_color[i, c] if _unclamped(b, coeffs, i, c, k) >= 0.0 else np.float32(0.0)
-            live = live or gc[c] != 0.0
-        if not live:
-            continue
-        for j in range(k):
+            gc[c] = grad_color[i, c] if _unclamped(b, dc, rest, i, c, k) >= 0.0 else zero
+            g_dc[i, 0, c] = b[0] * gc[c]
+        for j in range(n_rest):
             for c in range(n_ch):
-                g_coeffs[i, j, c] = b[j] * gc[c]
+                g_rest[i, j, c] = b[j + 1] * gc[c] if j + 1 < k else zero
+        g_means[i, 0] = g_means[i, 1] = g_means[i, 2] = zero
         if need_means and k > 1:
             _basis_grad(x, y, z, k, gb)
-            ux = np.float32(0.0)
-            uy = np.float32(0.0)
-            uz = np.float32(0.0)
+            ux = zero
+            uy = zero
+            uz = zero
             for j in range(1, k):
-                s = np.float32(0.0)
+                s = zero
                 for c in range(n_ch):
-                    s += coeffs[i, j, c] * gc[c]
+                    s += rest[i, j - 1, c] * gc[c]
                 ux += s * gb[j, 0]
                 uy += s * gb[j, 1]
                 uz += s * gb[j, 2]
@@ -162,36 +165,48 @@ def _chunks(n: int) -> list[tuple[int, int]]:
     return [(s, min(s + CHUNK, n)) for s in range(0, n, CHUNK)]
 
 
+def _arrays(*tensors: torch.Tensor) -> list[np.ndarray]:
+    return [t.detach().to(torch.float32).contiguous().numpy() for t in tensors]
+
+
 class _SHColor(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, coeffs, means, center, k):
-        c = coeffs.detach().contiguous().numpy()
-        m = means.detach().contiguous().numpy()
-        ctr = center.detach().to(torch.float32).contiguous().numpy()
-        out = np.empty((c.shape[0], c.shape[2]), np.float32)
-        run_chunks(lambda s, e: sh_forward_range(c, m, ctr, k, out, s, e), _chunks(len(c)))
-        ctx.save_for_backward(coeffs, means, center)
+    def forward(ctx, dc, rest, means, center, k):
+        d, r, m, ctr = _arrays(dc, rest, means, center)
+        out = np.empty((d.shape[0], d.shape[2]), np.float32)
+        run_chunks(lambda s, e: sh_forward_range(d, r, m, ctr, k, out, s, e), _chunks(len(d)))
+        ctx.save_for_backward(dc, rest, means, center)
         ctx.k = k
         return torch.from_numpy(out)
 
     @staticmethod
     def backward(ctx, grad):
-        coeffs, means, center = ctx.saved_tensors
-        c = coeffs.detach().contiguous().numpy()
-        m = means.detach().contiguous().numpy()
-        ctr = center.detach().to(torch.float32).contiguous().numpy()
-        g = grad.contiguous().to(torch.float32).numpy()
-        need_means = bool(ctx.needs_input_grad[1])
-        g_c = np.zeros(c.shape, np.float32)
-        g_m = np.zeros((len(c), 3), np.float32)
-        run_chunks(lambda s, e: sh_backward_range(c, m, ctr, ctx.k, g, need_means, g_c, g_m, s, e), _chunks(len(c)))
-        return (torch.from_numpy(g_c) if ctx.needs_input_grad[0] else None,
+        d, r, m, ctr, g = _arrays(*ctx.saved_tensors, grad)
+        need_means = bool(ctx.needs_input_grad[2])
+        g_d, g_r, g_m = np.empty(d.shape, np.float32), np.empty(r.shape, np.float32), np.empty(m.shape, np.float32)
+        run_chunks(lambda s, e: sh_backward_range(d, r, m, ctr, ctx.k, g, need_means, g_d, g_r, g_m, s, e),
+                   _chunks(len(d)))
+        return (torch.from_numpy(g_d) if ctx.needs_input_grad[0] else None,
+                torch.from_numpy(g_r) if ctx.needs_input_grad[1] else None,
                 torch.from_numpy(g_m) if need_means else None, None, None)
 
 
-def sh_to_color(degree: int, coeffs: torch.Tensor, means: torch.Tensor, cam_center: torch.Tensor) -> torch.Tensor:
+def sh_to_color(degree: int, coeffs: torch.Tensor, means: torch.Tensor, cam_center: torch.Tensor,
+                rest: torch.Tensor | None = None) -> torch.Tensor:
     """:func:`backend.render.sh.sh_to_color` for float32 CPU tensors, compiled.
 
-    coeffs: (N, K, C) with K >= (degree + 1) ** 2; means: (N, 3); cam_center: (3,). Returns (N, C).
+    coeffs: (N, K, C) with K >= (degree + 1) ** 2, or with ``rest`` (N, R, C) only the DC term (N, 1, C)
+    and ``rest`` the coefficients after it (as the Gaussians store them: no concatenated copy, and
+    the gradients come back in two parts); means: (N, 3); cam_center: (3,). Returns (N, C).
     """
-    return _SHColor.apply(coeffs, means, cam_center, check_sh_coeffs(degree, coeffs))
+    if rest is None:
+        k = check_sh_coeffs(degree, coeffs)
+        dc, rest = coeffs[:, :1], coeffs[:, 1:]
+    else:
+        k = num_sh_bases(degree)
+        if (coeffs.dim() != 3 or coeffs.shape[1] != 1 or rest.dim() != 3 or rest.shape[::2] != coeffs.shape[::2]
+                or 1 + rest.shape[1] < k):
+            raise IGSError(f"colors: SH coefficients split as DC {tuple(coeffs.shape)} and rest "
+                           f"{tuple(rest.shape)}; expected (N, 1, C) and (N, R>={k - 1}, C) for sh_degree={degree}")
+        dc = coeffs
+    return _SHColor.apply(dc, rest, means, cam_center, k)

@@ -86,9 +86,11 @@ def _colors(s: Splats, n_ch: int, cam: CameraTensors, backend: Literal["referenc
     dtype = cam.R.dtype
     if s.sh_degree is None:
         c = s.colors.to(dtype)
+    elif backend == "cpu" and dtype == torch.float32:
+        rest = None if s.sh_rest is None else s.sh_rest.to(dtype)
+        c = cpu_sh.sh_to_color(s.sh_degree, s.colors.to(dtype), s.means.to(dtype), cam.center, rest=rest)
     else:
-        fn = cpu_sh.sh_to_color if backend == "cpu" and dtype == torch.float32 else sh_to_color
-        c = fn(s.sh_degree, s.colors.to(dtype), s.means.to(dtype), cam.center)
+        c = sh_to_color(s.sh_degree, s.sh_coefficients().to(dtype), s.means.to(dtype), cam.center)
     if c.shape[1] < n_ch:  # sets with fewer channels blend zeros in the spare ones
         c = torch.cat([c, c.new_zeros(c.shape[0], n_ch - c.shape[1])], dim=1)
     return c

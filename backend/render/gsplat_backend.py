@@ -51,7 +51,7 @@ def render_splats(splats: Splats, camera: Camera, background: Background, near: 
     scales = splats.activated_scales
     viewmats = torch.as_tensor(camera.world_to_cam, device=means.device, dtype=dtype)[None]
     Ks = torch.as_tensor(camera.K, device=means.device, dtype=dtype)[None]
-    colors = splats.colors.to(dtype)
+    colors = (splats.colors if splats.sh_degree is None else splats.sh_coefficients()).to(dtype)
     render_colors, render_alphas, meta = gsplat.rasterization(
         means.to(dtype), splats.quats.to(dtype), scales.to(dtype), splats.opacities.to(dtype), colors,
         viewmats, Ks, int(camera.width), int(camera.height), near_plane=near, far_plane=far,

@@ -164,8 +164,8 @@ def _footprint(means2d: Tensor, var_x: Tensor, var_y: Tensor, opacities: Tensor,
 
 
 def check_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
-                    sh_degree: int | None, what: str = "gaussians") -> None:
-    """Shape checks with one clear message per problem."""
+                    sh_degree: int | None, what: str = "gaussians", sh_rest: Tensor | None = None) -> None:
+    """Shape checks with one clear message per problem. ``sh_rest``: see :attr:`Splats.sh_rest`."""
     if means.dim() != 2 or means.shape[1] != 3:
         raise IGSError(f"{what}: means must be (N, 3), got {tuple(means.shape)}")
     n = means.shape[0]
@@ -176,13 +176,21 @@ def check_gaussians(means: Tensor, quats: Tensor, scales: Tensor, opacities: Ten
         if colors.dim() != 2 or colors.shape[0] != n or colors.shape[1] < 1:
             raise IGSError(f"{what}: colors must be (N, C) features (or pass sh_degree for (N, K, 3) "
                            f"SH coefficients), got {tuple(colors.shape)} for N={n}")
-    else:
+    elif sh_rest is None:
         need = (sh_degree + 1) ** 2
         if colors.dim() != 3 or colors.shape[0] != n or colors.shape[1] < need:
             raise IGSError(f"{what}: colors must be (N, K>={need}, C) SH coefficients for sh_degree="
                            f"{sh_degree}, got {tuple(colors.shape)} for N={n}")
-    for name, t in (("means", means), ("quats", quats), ("scales", scales), ("opacities", opacities),
-                    ("colors", colors)):
+    else:
+        need = (sh_degree + 1) ** 2 - 1
+        if colors.dim() != 3 or tuple(colors.shape[:2]) != (n, 1):
+            raise IGSError(f"{what}: with sh_rest, colors must be the (N, 1, C) DC term, got {tuple(colors.shape)} "
+                           f"for N={n}")
+        if sh_rest.dim() != 3 or sh_rest.shape[0] != n or sh_rest.shape[1] < need or sh_rest.shape[2] != colors.shape[2]:
+            raise IGSError(f"{what}: sh_rest must be (N, R>={need}, C) SH coefficients for sh_degree={sh_degree}, "
+                           f"got {tuple(sh_rest.shape)} for N={n}, C={colors.shape[2]}")
+    tensors = (("means", means), ("quats", quats), ("scales", scales), ("opacities", opacities), ("colors", colors))
+    for name, t in tensors + ((("sh_rest", sh_rest),) if sh_rest is not None else ()):
         if not t.is_floating_point():
             raise IGSError(f"{what}: {name} must be a floating-point tensor, got {t.dtype}")
         if t.device != means.device:

@@ -33,7 +33,8 @@ class Splats:
     opacities: Tensor
     """(N,) opacities in [0, 1]."""
     colors: Tensor
-    """(N, C) features, or (N, K, C) SH coefficients when ``sh_degree`` is set."""
+    """(N, C) features, or (N, K, C) SH coefficients when ``sh_degree`` is set (only the DC term,
+    (N, 1, C), when ``sh_rest`` holds the others)."""
     sh_degree: int | None = None
     """SH bands to evaluate (0..3, the first (d+1)^2 of K coefficients); None: ``colors`` are features."""
     log_scales: bool = False
@@ -42,6 +43,10 @@ class Splats:
     """Screen-space low-pass: the variance (pixels^2) added to each projected covariance, one value or
     (N,) per Gaussian; None: :data:`EPS2D` (0.3, as 3DGS and gsplat). Gaussians fitted to sharp detail
     (an edit's texture) carry a smaller one."""
+    sh_rest: Tensor | None = None
+    """With ``sh_degree``: the SH coefficients after the DC term, (N, R, C), when ``colors`` holds only
+    the DC term. Kept apart as the Gaussians store them: the cpu backend reads the two without a
+    concatenated copy, and its gradient needs no split."""
 
     def __len__(self) -> int:
         return self.means.shape[0]
@@ -49,6 +54,17 @@ class Splats:
     @property
     def num_channels(self) -> int:
         return self.colors.shape[-1]
+
+    def sh_coefficients(self) -> Tensor:
+        """(N, K, C) SH coefficients in one tensor: ``colors``, followed by the bands of ``sh_rest`` that
+        ``sh_degree`` uses when it is set."""
+        if self.sh_rest is None:
+            return self.colors
+        rest = self.sh_rest
+        used = (self.sh_degree + 1) ** 2 - 1
+        if rest.shape[1] > used:  # slicing the whole tensor would still cost a zero-filled copy backwards
+            rest = rest[:, :used]
+        return torch.cat([self.colors, rest], dim=1)
 
     @property
     def activated_scales(self) -> Tensor:

@@ -195,15 +195,19 @@ class GaussianSet(nn.Module):
             return self.colors.clone()
 
     def render_args(self) -> dict:
-        """Keyword arguments for :func:`backend.render.render` (differentiable w.r.t. the raw params)."""
+        """Keyword arguments for :func:`backend.render.render` (differentiable w.r.t. the raw params).
+
+        SH kinds pass their DC term and the other bands apart (``colors`` and ``sh_rest``), as stored."""
+        sh = self.kind in SH_KINDS
         return {
             "means": self.params["means"],
             "quats": self.params["quats"],
             "scales": self.params["log_scales"],
             "log_scales": True,
             "opacities": self.opacities,
-            "colors": self.colors,
-            "sh_degree": self.active_sh_degree if self.kind in SH_KINDS else None,
+            "colors": self.params["sh0"] if sh else self.colors,
+            "sh_rest": self.params["shN"] if sh else None,
+            "sh_degree": self.active_sh_degree if sh else None,
             "eps2d": self.eps2d.detach() if FILTER in self.params else None,
         }
 
