@@ -150,20 +150,37 @@ _PACKED = ("gdat", "gfeat", "glay", "gbox")
 
 
 def _bin(gbox: np.ndarray, tiles_x: int, tiles_y: int) -> dict[str, np.ndarray]:
-    """The intersection lists of the packed Gaussians (:func:`cpu_kernel.count_tiles`, ``fill_tiles``)
-    in pooled arrays."""
+    """The intersection lists of the packed Gaussians (:func:`cpu_kernel.count_tiles_range`,
+    ``fill_tiles_range``) in pooled arrays: ``tile_offsets`` (T + 1,), ``rank_offsets`` (M + 1,),
+    ``tile_cost`` (T,), ``isect`` (I,) and ``isect_of_rank`` (I,).
+
+    Both passes run in chunks of ranks on the thread pool, each chunk counting into its own row of
+    per-tile counts; the rows' running sums tell each chunk where its entries of every tile start.
+    """
     n_tiles, m = tiles_x * tiles_y, gbox.shape[0]
+    chunks = _range_chunks(m, GAUSSIANS_PER_CHUNK)
+    counts = np.zeros((len(chunks), n_tiles), np.int64)  # small: (chunks, T)
+    costs = np.zeros((len(chunks), n_tiles), np.float64)
     b = {"tile_offsets": POOL.take("tile_offsets", n_tiles + 1, np.int64),
          "rank_offsets": POOL.take("rank_offsets", m + 1, np.int64),
          "tile_cost": POOL.take("tile_cost", n_tiles, np.float64)}
-    n_isect = int(K.count_tiles(gbox, tiles_x, b["tile_offsets"], b["rank_offsets"], b["tile_cost"]))
+    b["rank_offsets"][0] = 0
+    run_chunks(K.count_tiles_range, [(gbox, tiles_x, a, z, counts[i], costs[i], b["rank_offsets"])
+                                     for i, (a, z) in enumerate(chunks)])
+    np.cumsum(b["rank_offsets"], out=b["rank_offsets"])
+    np.sum(costs, axis=0, out=b["tile_cost"])
+    b["tile_offsets"][0] = 0
+    np.cumsum(counts.sum(axis=0), out=b["tile_offsets"][1:])
+    n_isect = int(b["tile_offsets"][-1])
     if n_isect >= 2**31:  # the kernels keep intersection indices in int32
         raise IGSError(f"the cpu rasterizer got {n_isect:,} tile-Gaussian intersections (at most 2**31 - 1): "
                        "render at a lower resolution or with fewer Gaussians")
+    # Chunk i's entries of tile t start after the tile's start and the earlier chunks' entries.
+    cursors = np.cumsum(counts, axis=0) - counts + b["tile_offsets"][:-1]
     b["isect"] = POOL.take("isect", n_isect, np.int32)
     b["isect_of_rank"] = POOL.take("isect_of_rank", n_isect, np.int64)
-    K.fill_tiles(gbox, tiles_x, b["tile_offsets"], b["rank_offsets"], b["isect"], b["isect_of_rank"],
-                 np.empty(n_tiles, np.int64))
+    run_chunks(K.fill_tiles_range, [(gbox, tiles_x, a, z, b["rank_offsets"], cursors[i], b["isect"], b["isect_of_rank"])
+                                    for i, (a, z) in enumerate(chunks)])
     return b
 
 

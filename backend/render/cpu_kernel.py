@@ -100,46 +100,39 @@ def order_ties(order, sorted_keys):
         i = j
 
 
-@njit(cache=True)
-def count_tiles(gbox, tiles_x, tile_offsets, rank_offsets, tile_cost):
-    """First pass of the binning: how many tiles each packed Gaussian touches.
+@njit(nogil=True, cache=True)
+def count_tiles_range(gbox, tiles_x, start, stop, tile_count, tile_cost, rank_count):
+    """First pass of the binning, for ranks [start, stop) of the packed Gaussians: how many tiles each
+    touches.
 
-    gbox: (M, 4) int32 in depth order. Fills tile_offsets (T + 1,) int64 (tile t's intersections will be
-    ``tile_offsets[t]:tile_offsets[t + 1]``), rank_offsets (M + 1,) int64 (rank r's, in
-    ``isect_of_rank``: see :func:`fill_tiles`) and tile_cost (T,) float64, the pixel evaluations the
-    tile's boxes allow (to balance the threads). Returns the intersection count I.
+    gbox: (M, 4) int32 in depth order. Adds to this chunk's tile_count (T,) int64 and tile_cost (T,)
+    float64 (the pixel evaluations the tile's boxes allow, to balance the threads); writes
+    rank_count[r + 1] (M + 1,) int64, rank r's tile count (a prefix sum makes it ``rank_offsets``).
     """
-    n_tiles = tile_cost.shape[0]
-    m = gbox.shape[0]
-    tile_offsets[:] = 0
-    tile_cost[:] = 0.0
-    rank_offsets[0] = 0
-    for r in range(m):
+    for r in range(start, stop):
         x0, x1, y0, y1 = gbox[r, 0], gbox[r, 1], gbox[r, 2], gbox[r, 3]
         tx0, tx1, ty0, ty1 = x0 // TILE, x1 // TILE, y0 // TILE, y1 // TILE
         for ty in range(ty0, ty1 + 1):
             h = min(y1, ty * TILE + TILE - 1) - max(y0, ty * TILE) + 1
             for tx in range(tx0, tx1 + 1):
                 t = ty * tiles_x + tx
-                tile_offsets[t + 1] += 1
+                tile_count[t] += 1
                 w = min(x1, tx * TILE + TILE - 1) - max(x0, tx * TILE) + 1
                 tile_cost[t] += 4.0 + w * h  # per-Gaussian overhead + its pixels
-        rank_offsets[r + 1] = rank_offsets[r] + (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
-    for t in range(n_tiles):
-        tile_offsets[t + 1] += tile_offsets[t]
-    return tile_offsets[n_tiles]
+        rank_count[r + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
 
 
-@njit(cache=True)
-def fill_tiles(gbox, tiles_x, tile_offsets, rank_offsets, isect, isect_of_rank, cursor):
-    """Second pass: the tile-major, front-to-back intersection list of the packed Gaussians.
+@njit(nogil=True, cache=True)
+def fill_tiles_range(gbox, tiles_x, start, stop, rank_offsets, cursor, isect, isect_of_rank):
+    """Second pass, for ranks [start, stop): their entries of the tile-major, front-to-back
+    intersection list.
 
     Writes isect (I,) int32 ranks, sorted by tile then depth, and isect_of_rank (I,) int64 (the
     intersections of rank r are ``isect_of_rank[rank_offsets[r]:rank_offsets[r + 1]]``; used to sum
-    gradients per Gaussian). cursor: (T,) int64 scratch.
+    gradients per Gaussian). cursor: (T,) int64, where this chunk's first intersection of each tile
+    goes (advanced in place): chunks of earlier ranks come first in every tile, so depth order holds.
     """
-    cursor[:] = tile_offsets[:-1]
-    for r in range(gbox.shape[0]):
+    for r in range(start, stop):
         j = rank_offsets[r]
         for ty in range(gbox[r, 2] // TILE, gbox[r, 3] // TILE + 1):
             for tx in range(gbox[r, 0] // TILE, gbox[r, 1] // TILE + 1):
