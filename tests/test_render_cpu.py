@@ -5,6 +5,7 @@ import pytest
 import torch
 from _render_scenes import PARAMS, make_camera, random_splats, weighted_loss, with_grad
 
+from backend.core.errors import IGSError
 from backend.render import Splats, render, render_layers
 
 
@@ -54,6 +55,20 @@ def test_cpu_matches_reference_on_random_scenes(width, height, channels):
     assert out_r.alpha.max() > 0.5  # the scene is actually drawn
     # Culled Gaussians (behind the camera, before the near plane) get exactly zero gradient.
     assert (g_c["means"][:2] == 0).all() and (g_c["colors"][:2] == 0).all()
+
+
+def test_cpu_matches_reference_when_the_binning_runs_in_many_chunks(monkeypatch):
+    """The tile lists are built by chunks of ranks on the thread pool; with chunks of a few Gaussians
+    (each tile's entries come from several chunks) the depth order per tile, the image and every
+    gradient still match the reference."""
+    from backend.render import cpu as cpu_backend
+
+    monkeypatch.setattr(cpu_backend, "GAUSSIANS_PER_CHUNK", 5)
+    cam = make_camera(50, 40)
+    s = random_splats(150, seed=5)
+    out_c, out_r, _ = compare(s, cam)
+    assert out_r.alpha.max() > 0.5
+    assert len(cpu_backend._range_chunks(150, 5)) > 2  # the chunks really are several
 
 
 def test_cpu_matches_reference_for_huge_tiny_and_nearly_opaque_gaussians():
@@ -228,6 +243,63 @@ def test_compiled_sh_colour_matches_torch_with_gradients(degree):
     torch.testing.assert_close(g_got[0], g_ref[0], atol=2e-6, rtol=1e-5)
     torch.testing.assert_close(g_got[1], g_ref[1], atol=2e-6, rtol=1e-4)
     assert (g_got[0][:, k:] == 0).all()
+
+
+@pytest.mark.parametrize("degree", [0, 1, 3])
+def test_compiled_sh_colour_takes_the_dc_term_and_the_rest_apart(degree):
+    """Split as the Gaussians store them (sh0, shN): the same colour, and each part's gradient is that
+    part of the gradient of the concatenated coefficients (zero past the bands in use)."""
+    from backend.render import cpu_sh
+
+    gen = torch.Generator().manual_seed(10 + degree)
+    n = cpu_sh.CHUNK + 33
+    coeffs = 0.6 * torch.randn(n, 16, 3, generator=gen)
+    dc, rest = coeffs[:, :1].clone().requires_grad_(True), coeffs[:, 1:].clone().requires_grad_(True)
+    whole = coeffs.clone().requires_grad_(True)
+    means = torch.randn(n, 3, generator=gen).requires_grad_(True)
+    center = torch.tensor([0.3, -0.2, -4.0])
+    grad = torch.randn(n, 3, generator=gen)
+    ref = cpu_sh.sh_to_color(degree, whole, means, center)
+    got = cpu_sh.sh_to_color(degree, dc, means, center, rest=rest)
+    torch.testing.assert_close(got, ref, atol=0, rtol=0)
+    g_ref = torch.autograd.grad(ref, (whole, means), grad)
+    g_dc, g_rest, g_means = torch.autograd.grad(got, (dc, rest, means), grad)
+    torch.testing.assert_close(torch.cat([g_dc, g_rest], dim=1), g_ref[0], atol=0, rtol=0)
+    torch.testing.assert_close(g_means, g_ref[1], atol=0, rtol=0)
+    assert (g_rest[:, (degree + 1) ** 2 - 1:] == 0).all() and (g_dc != 0).any()
+    with pytest.raises(IGSError, match="R>=15"):
+        cpu_sh.sh_to_color(3, dc, means, center, rest=rest[:, :8])
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+def test_gaussian_set_renders_the_same_with_its_sh_bands_apart(backend):
+    """``GaussianSet.render_args`` passes sh0 and shN apart (``sh_rest``); the image and every gradient
+    equal those of a render from the concatenated coefficients."""
+    from backend.splats.gaussians import GaussianSet
+
+    s = random_splats(300, seed=21)
+    g = GaussianSet.from_activated("radiance", s.means, s.colors.clamp(0, 1), torch.log(s.scales), s.opacities,
+                                   quats=s.quats, sh_degree=3)
+    g.set_active_sh_degree(2)
+    with torch.no_grad():
+        g.params["shN"].normal_(0.0, 0.3, generator=torch.Generator().manual_seed(4))
+    cam = make_camera(45, 35)
+    grads = []
+    for split in (True, False):
+        g.zero_grad(set_to_none=True)
+        args = g.render_args()
+        if not split:
+            args["colors"], args["sh_rest"] = g.colors, None
+        out = render(**args, camera=cam, backend=backend)
+        weighted_loss([out]).backward()
+        grads.append((out.color.detach(), *(g.params[k].grad.clone() for k in ("means", "sh0", "shN"))))
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b, atol=1e-6, rtol=1e-5)
+    assert (grads[0][3][:, 8:] == 0).all() and (grads[0][3][:, :8] != 0).any()
+    args = g.render_args()
+    args["sh_rest"] = args["sh_rest"][:, :5]
+    with pytest.raises(IGSError, match=r"sh_rest must be \(N, R>=8, C\)"):
+        render(**args, camera=cam, backend=backend)
 
 
 def test_depth_argsort_is_the_stable_order_with_and_without_ties():
