@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 from backend.train.losses import (
@@ -92,3 +93,71 @@ def test_blur_is_the_zero_padded_gaussian_window_at_every_pixel_borders_included
     window = (g[:, None] * g[None, :]).view(1, 1, 11, 11)
     ref = torch.nn.functional.conv2d(x[:, None], window, padding=5)[:, 0]
     torch.testing.assert_close(_blur(x, 11, 1.5), ref)
+
+
+def _float32_pair(shape, seed):
+    """A prediction that requires a gradient and a nearby target, float32 (H, W, C): SSIM well below 1
+    and well above 0, so the gradient is not dominated by one term."""
+    g = torch.Generator().manual_seed(seed)
+    b = torch.rand(*shape, generator=g)
+    a = (b + 0.2 * torch.randn(*shape, generator=g)).clamp(0, 1).requires_grad_(True)
+    return a, b
+
+
+_SSIM_SHAPES = [(7, 13, 3), (4, 6, 3), (37, 50, 1), (64, 48, 3)]  # the first two smaller than the window
+
+
+@pytest.mark.parametrize("shape", _SSIM_SHAPES)
+def test_compiled_ssim_equals_the_torch_mean_ssim_and_its_gradient(shape):
+    from backend.train.losses import _MeanSSIM
+
+    a, b = _float32_pair(shape, seed=sum(shape))
+    value = ssim(a, b)
+    assert type(value.grad_fn).__name__ == "_MeanSSIMCPUBackward"  # float32 on the CPU: the compiled path
+    g, = torch.autograd.grad(-0.2 * value, a)  # an upstream gradient other than 1
+    ref = _MeanSSIM.apply(a, b, 11, 1.5, 1.0)
+    g_ref, = torch.autograd.grad(-0.2 * ref, a)
+    g_auto, = torch.autograd.grad(-0.2 * ssim_map(a, b).mean(), a)
+    a64 = a.detach().double().requires_grad_(True)
+    g64, = torch.autograd.grad(-0.2 * _MeanSSIM.apply(a64, b.double(), 11, 1.5, 1.0), a64)
+
+    assert abs(float(value.detach()) - float(ref.detach())) < 1e-6
+    assert abs(float(value.detach()) - float(ssim_map(a, b).detach().mean())) < 1e-6
+    scale = float(g64.abs().max())
+    for other in (g_ref, g_auto, g64.float()):
+        torch.testing.assert_close(g, other, rtol=1e-4, atol=1e-5 * scale)
+
+
+def test_compiled_ssim_other_window_data_range_and_a_strided_prediction():
+    a4, b = _float32_pair((20, 31, 4), seed=3)
+    a = a4[..., :3]  # not contiguous
+    b = b[..., :3].contiguous()
+    value = ssim(a, b, window=7, sigma=1.0, data_range=2.0)
+    assert type(value.grad_fn).__name__ == "_MeanSSIMCPUBackward"
+    g, = torch.autograd.grad(value, a4)
+    g_ref, = torch.autograd.grad(ssim_map(a, b, 7, 1.0, 2.0).mean(), a4)
+    assert abs(float(value.detach()) - float(ssim_map(a, b, 7, 1.0, 2.0).detach().mean())) < 1e-6
+    torch.testing.assert_close(g, g_ref, rtol=1e-4, atol=1e-5 * float(g_ref.abs().max()))
+    assert float(g[..., 3].abs().max()) == 0.0
+    with torch.no_grad():  # evaluation: the same value, no gradient maps
+        assert float(ssim(a, b, 7, 1.0, 2.0)) == float(value.detach())
+    assert float(ssim(a.detach(), b, 7, 1.0, 2.0)) == float(value.detach())
+
+
+@pytest.mark.parametrize("shape", [(37, 50, 1), (64, 48, 3)])
+def test_compiled_ssim_is_bit_identical_on_one_and_two_threads(shape):
+    from backend.render.threads import get_threads, set_threads
+
+    a, b = _float32_pair(shape, seed=7)
+    saved = get_threads()
+    results = []
+    try:
+        for n in (1, 2):
+            set_threads(n)
+            value = ssim(a, b)
+            g, = torch.autograd.grad(value, a)
+            results.append((value, g))
+    finally:
+        set_threads(saved)
+    assert torch.equal(results[0][0], results[1][0])
+    assert torch.equal(results[0][1], results[1][1])

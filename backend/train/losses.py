@@ -3,6 +3,9 @@
 Images are (H, W, C) tensors. The photometric loss is 3DGS's ``(1 - λ) L1 + λ (1 - SSIM)``
 (paper eq. 4, λ = 0.2); the regularisers are the paper's depth L1, mean scale and gray terms,
 and the inverse domain ``1 / (1 + x)`` of the shading stage (paper 3.2.3, after Careaga and Aksoy).
+
+The mean SSIM of float32 CPU images runs in compiled kernels (:mod:`backend.train.ssim_cpu`); other
+dtypes and devices use the torch blur below with the same closed-form backward.
 """
 
 from __future__ import annotations
@@ -11,6 +14,8 @@ import functools
 
 import torch
 import torch.nn.functional as F
+
+from backend.train import ssim_cpu
 
 
 @functools.lru_cache(maxsize=8)
@@ -23,9 +28,11 @@ def _gauss_1d(size: int, sigma: float) -> torch.Tensor:
 def _blur(x: torch.Tensor, size: int, sigma: float) -> torch.Tensor:
     """Separable Gaussian blur of each of the B maps in (B, H, W), zero padding (as the 3DGS SSIM).
 
-    On the CPU, ``size`` shifted multiply-adds per axis: 3x faster than PyTorch's grouped
-    convolution at 256x192 (1.7 against 5.3 ms for 15 maps on 2 cores), never slower at 1024x768,
-    and the same sums. On a GPU one grouped convolution over all maps with contiguous per-map weights.
+    Used by :func:`ssim_map` and by the mean SSIM where :mod:`backend.train.ssim_cpu` does not apply
+    (float64, a GPU, a target that requires a gradient). On the CPU, ``size`` shifted multiply-adds
+    per axis: 3x faster than PyTorch's grouped convolution at 256x192 (1.7 against 5.3 ms for 15 maps
+    on 2 cores), never slower at 1024x768, and the same sums. On a GPU one grouped convolution over all
+    maps with contiguous per-map weights.
     """
     b, h, w = x.shape
     r = size // 2
@@ -94,12 +101,49 @@ class _MeanSSIM(torch.autograd.Function):
         return dx.permute(1, 2, 0), None, None, None, None
 
 
+class _MeanSSIMCPU(torch.autograd.Function):
+    """:class:`_MeanSSIM` for float32 CPU images in compiled kernels (:mod:`backend.train.ssim_cpu`).
+
+    The forward also leaves the three per-pixel maps of the backward for a unit upstream gradient
+    (the gradient is linear in it), so the backward is one blur of three maps and a combination.
+    """
+
+    @staticmethod
+    def forward(ctx, a, b, window, sigma, data_range):
+        x = a.detach().contiguous().numpy()
+        y = b.detach().contiguous().numpy()
+        w = _gauss_1d(window, sigma).numpy()
+        need_grad = bool(ctx.needs_input_grad[0])
+        mean, maps = ssim_cpu.mean_ssim(x, y, w, (0.01 * data_range) ** 2, (0.03 * data_range) ** 2, need_grad)
+        if need_grad:  # saved as tensors: autograd frees them after the backward, and checks a's version
+            ctx.save_for_backward(torch.from_numpy(maps), a, b)
+            ctx.blur = (window, sigma)
+        return torch.tensor(mean, dtype=torch.float32)
+
+    @staticmethod
+    def backward(ctx, grad):
+        maps, x, y = (t.detach().contiguous().numpy() for t in ctx.saved_tensors)
+        w = _gauss_1d(*ctx.blur).numpy()
+        return torch.from_numpy(ssim_cpu.mean_ssim_grad(maps, x, y, w, float(grad))), None, None, None, None
+
+
+def _compiled_ssim_applies(a: torch.Tensor, b: torch.Tensor, window: int) -> bool:
+    return (a.device.type == "cpu" and b.device.type == "cpu" and a.dtype == torch.float32
+            and b.dtype == torch.float32 and a.ndim == 3 and a.shape == b.shape and a.numel() > 0
+            and window % 2 == 1)
+
+
 def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5,
          data_range: float = 1.0) -> torch.Tensor:
     """Mean SSIM of two (H, W, C) images (scalar); differentiable w.r.t. ``a`` (closed-form backward)
-    and, through autograd, w.r.t. ``b`` when it requires a gradient."""
+    and, through autograd, w.r.t. ``b`` when it requires a gradient.
+
+    float32 CPU images take the compiled path (:class:`_MeanSSIMCPU`), others :class:`_MeanSSIM`.
+    """
     if b.requires_grad:
         return ssim_map(a, b, window, sigma, data_range).mean()
+    if _compiled_ssim_applies(a, b, window):
+        return _MeanSSIMCPU.apply(a, b.detach(), window, sigma, data_range)
     return _MeanSSIM.apply(a, b.detach(), window, sigma, data_range)
 
 
