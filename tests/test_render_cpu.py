@@ -269,6 +269,14 @@ def test_compiled_sh_colour_takes_the_dc_term_and_the_rest_apart(degree):
     assert (g_rest[:, (degree + 1) ** 2 - 1:] == 0).all() and (g_dc != 0).any()
     with pytest.raises(IGSError, match="R>=15"):
         cpu_sh.sh_to_color(3, dc, means, center, rest=rest[:, :8])
+    with pytest.raises(IGSError, match="3 channels"):
+        cpu_sh.sh_to_color(0, torch.zeros(4, 1, 2), means[:4], center)
+
+
+def test_cpu_matches_reference_with_spherical_harmonics_of_other_channel_counts():
+    """The compiled SH colour takes RGB; SH features of another width go through the torch expression."""
+    s = random_splats(60, seed=8, channels=2, sh_degree=1)
+    compare(s, make_camera(33, 20))
 
 
 @pytest.mark.parametrize("backend", ["cpu", "reference"])

@@ -86,7 +86,7 @@ def _colors(s: Splats, n_ch: int, cam: CameraTensors, backend: Literal["referenc
     dtype = cam.R.dtype
     if s.sh_degree is None:
         c = s.colors.to(dtype)
-    elif backend == "cpu" and dtype == torch.float32:
+    elif backend == "cpu" and dtype == torch.float32 and s.num_channels == 3:
         rest = None if s.sh_rest is None else s.sh_rest.to(dtype)
         c = cpu_sh.sh_to_color(s.sh_degree, s.colors.to(dtype), s.means.to(dtype), cam.center, rest=rest)
     else:
