@@ -21,11 +21,14 @@ from backend.edit.fit import FitConfig, fit_cylinder_from_rect, fit_plane_from_r
 from backend.edit.mesh_raster import RasterConfig, pixel_rays, rasterize_proxy
 from backend.edit.proxy import ProxyMesh, cylinder_proxy, load_proxy, plane_proxy, save_proxy
 from backend.edit.ransac import (
+    AUTO_THRESHOLD_RATIO,
+    AUTO_THRESHOLD_STEPS,
     fit_cylinder_ransac,
     fit_plane_ransac,
     grow_cylinder,
     grow_plane,
     orthonormal_axes,
+    robust_size,
 )
 from backend.edit.spawn import flattened_gaussians, spawn_points_on_proxy
 from backend.edit.sweep import shifted, sweep_offset
@@ -77,6 +80,30 @@ def test_plane_ransac_recovers_known_plane_with_30_percent_outliers():
         assert abs(np.dot(fit.center - c_true, n_true)) < 0.005
         assert fit.inliers[:700].mean() > 0.9 and fit.inliers[700:].mean() < 0.1
         np.testing.assert_allclose(np.cross(fit.u_axis, fit.v_axis), fit.normal, atol=1e-12)
+
+
+def test_automatic_threshold_widens_for_centres_scattered_beyond_two_percent():
+    """Centres scattered along the normal by 5 % of the patch (as a far canvas's are along the view rays):
+    at 2 % of the robust size too few lie on any plane; the automatic threshold doubles until 20 % do.
+    The slab found is thin against the scatter, so its normal is rough; growing it (as the fit commands
+    do) levels it. A threshold the caller gives is kept, and the fit fails with it."""
+    rng = np.random.default_rng(4)
+    n_true, c_true = unit([0.1, 0.2, 1.0]), np.array([0.0, 0.5, 3.0])
+    u, v = orthonormal_axes(n_true)
+    ab = rng.uniform(-0.3, 0.3, (400, 2))
+    pts = c_true + ab[:, :1] * u + ab[:, 1:] * v + rng.normal(0, 0.03, (400, 1)) * n_true
+    base = AUTO_THRESHOLD_RATIO * robust_size(pts)
+    assert (np.abs((pts - c_true) @ n_true) < base).mean() < 0.2  # the first step cannot succeed
+    fit = fit_plane_ransac(pts, seed=0)
+    assert fit.threshold in [f * base for f in AUTO_THRESHOLD_STEPS[1:]]
+    assert fit.inliers.mean() >= 0.2 and angle_deg(fit.normal, n_true) < 5.0
+    _, normal, _ = grow_plane(pts, fit)
+    assert angle_deg(normal, n_true) < 1.5
+    with pytest.raises(IGSError, match="raise --threshold"):
+        fit_plane_ransac(pts, threshold=base, seed=0)
+    hopeless = rng.uniform(-1, 1, (300, 3))  # no plane at any step: the error names the widest distance
+    with pytest.raises(IGSError, match=f"within {AUTO_THRESHOLD_STEPS[-1] * AUTO_THRESHOLD_RATIO * robust_size(hopeless):.3g} "):
+        fit_plane_ransac(hopeless, seed=0)
 
 
 def test_plane_ransac_rejects_too_few_and_collinear_points():

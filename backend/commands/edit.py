@@ -37,7 +37,8 @@ def fit_options(kind: ProxyKind) -> tuple[Option, ...]:
         Option("--out", "out", "proxy.json path (default <ws>/edits/NAME/proxy.json)"),
         Option("--color", "color", "flat linear colour r,g,b instead of the projected albedo texture"),
         Option("--threshold", "fit.threshold",
-               "RANSAC inlier distance in world units (default: 2%% of the selection's robust size)", type=opt.POSITIVE),
+               "RANSAC inlier distance in world units (default: 2%% of the selection's robust size, "
+               "widened up to 8%% while fewer than 20%% of the centres fit)", type=opt.POSITIVE),
         Option("--min-selected", "fit.min_selected",
                f"fewest distinct Gaussians the rectangle must select (default {FitConfig.min_selected})", type=opt.COUNT),
         Option("--no-grow", "fit.grow",

@@ -55,7 +55,8 @@ class FitConfig:
     """Settings of :func:`fit_plane_from_rect` / :func:`fit_cylinder_from_rect`."""
 
     threshold: float | None = None
-    """RANSAC inlier distance (world units); None = 2 % of the selection's robust size."""
+    """RANSAC inlier distance (world units); None = 2 % of the selection's robust size, widened up to
+    8 % while fewer than ``min_inlier_ratio`` of the centres fit (:data:`ransac.AUTO_THRESHOLD_STEPS`)."""
     iterations: int = 2000
     """Upper bound on RANSAC hypotheses (adaptive stopping at 99.9 % confidence)."""
     seed: int = 0

@@ -8,7 +8,11 @@ inliers and the inlier set recomputed, twice.
 The threshold is the inlier distance in world units. Left at ``None`` it is
 ``AUTO_THRESHOLD_RATIO`` (2 %) of the points' robust size (the median distance to the
 coordinate-wise median), which suits albedo Gaussian centres that scatter around the surface by a
-fraction of the selected patch.
+fraction of the selected patch. When fewer than the required share of the points lie on the best
+surface at that distance, the automatic threshold is doubled, up to ``AUTO_THRESHOLD_STEPS``' last
+factor: the centres scatter by a share of the surface's *depth* (a few per cent along the view
+rays), which for a small patch far away outgrows 2 % of the patch (a picture's canvas 0.6 m wide,
+3 m away: 20 % of the centres within 2 %). A threshold the caller gives is never widened.
 
 Cylinder hypotheses (why this way): albedo Gaussian centres carry no reliable orientation, so unless
 the caller passes normals (e.g. the shortest axis of flat Gaussians) they are estimated by local PCA
@@ -31,6 +35,7 @@ import numpy as np
 from backend.core.errors import IGSError
 
 AUTO_THRESHOLD_RATIO = 0.02
+AUTO_THRESHOLD_STEPS = (1.0, 2.0, 4.0)
 MIN_PLANE_POINTS = 3
 MIN_CYLINDER_POINTS = 10
 
@@ -98,15 +103,27 @@ def robust_size(points: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(points - np.median(points, axis=0), axis=1)))
 
 
-def _auto_threshold(points: np.ndarray, threshold: float | None, what: str) -> float:
+def _thresholds(points: np.ndarray, threshold: float | None, what: str) -> list[float]:
+    """The inlier distances to try in turn: the caller's ``threshold``, or the automatic ladder."""
     if threshold is None:
         size = robust_size(points)
         if size <= 0:
             raise IGSError(f"{what}: the points are (almost) all identical; nothing to fit")
-        return AUTO_THRESHOLD_RATIO * size
+        return [step * AUTO_THRESHOLD_RATIO * size for step in AUTO_THRESHOLD_STEPS]
     if not (np.isfinite(threshold) and threshold > 0):
         raise IGSError(f"{what}: --threshold must be a positive number, got {threshold}")
-    return float(threshold)
+    return [float(threshold)]
+
+
+def _widening(thresholds: list[float], min_inlier_ratio: float, attempt: Callable[[float], tuple[Any, np.ndarray]]
+              ) -> tuple[Any, np.ndarray, float]:
+    """(model, inlier mask, threshold) of ``attempt(thr)`` at the first of ``thresholds`` where at least
+    ``min_inlier_ratio`` of the points are inliers, else at the last."""
+    for thr in thresholds:
+        model, inl = attempt(thr)
+        if inl.mean() >= min_inlier_ratio:
+            break
+    return model, inl, thr
 
 
 def _needed_iterations(inlier_ratio: float, sample_size: int, confidence: float) -> float:
@@ -189,7 +206,7 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
     """
     what = "plane fit"
     p = _as_points(points, what, MIN_PLANE_POINTS)
-    thr = _auto_threshold(p, threshold, what)
+    thresholds = _thresholds(p, threshold, what)
     rng = np.random.default_rng(seed)
     n_pts = len(p)
     scale = max(robust_size(p), 1e-300)
@@ -209,11 +226,14 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
         d = np.abs(p @ nrm.T - np.sum(a * nrm, axis=1))  # (N, m') point-to-plane distances
         return d, lambda k: (a[k], nrm[k])
 
-    best = _msac(n_pts, iterations, 3, confidence, thr, planes)
-    if best is None:
-        raise IGSError(f"{what}: all sampled point triples are collinear; the points do not span a plane")
-    (center, normal), inl = _refit(p, best, thr, 3, MIN_PLANE_POINTS, lambda q, m: (q - m[0]) @ m[1],
-                                   lambda q, m: _plane_lsq(q, what))
+    def attempt(thr: float) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+        best = _msac(n_pts, iterations, 3, confidence, thr, planes)
+        if best is None:
+            raise IGSError(f"{what}: all sampled point triples are collinear; the points do not span a plane")
+        return _refit(p, best, thr, 3, MIN_PLANE_POINTS, lambda q, m: (q - m[0]) @ m[1],
+                      lambda q, m: _plane_lsq(q, what))
+
+    (center, normal), inl, thr = _widening(thresholds, min_inlier_ratio, attempt)
     ratio = float(inl.mean())
     if inl.sum() < 3 or ratio < min_inlier_ratio:
         raise IGSError(f"{what}: only {int(inl.sum())} of the {n_pts} selected points ({ratio:.1%}) lie within {thr:.3g} "
@@ -365,7 +385,7 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
     what = "cylinder fit"
     raw = np.asarray(points, dtype=np.float64)
     p_all = _as_points(raw, what, MIN_CYLINDER_POINTS)
-    thr = _auto_threshold(p_all, threshold, what)
+    thresholds = _thresholds(p_all, threshold, what)
     rng = np.random.default_rng(seed)
     sub = rng.choice(len(p_all), max_points, replace=False) if len(p_all) > max_points else np.arange(len(p_all))
     p = p_all[sub]
@@ -386,16 +406,19 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
         dist = np.abs(np.sqrt(np.maximum(q2 - along * along, 0.0)) - radius[None, :])
         return dist, lambda k: (centre[k], axis[k], float(radius[k]))
 
-    best = _msac(n_pts, iterations, 2, confidence, thr, cylinders)
-    if best is None:
-        raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
-                       "the selection looks planar; use fit-plane)")
-    (point, axis, radius), _ = _refit(p, best, thr, 2, MIN_CYLINDER_POINTS, lambda q, m: cylinder_residuals(q, *m),
-                                      lambda q, m: _refine_cylinder(q, *m))
+    def attempt(thr: float) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray]:
+        best = _msac(n_pts, iterations, 2, confidence, thr, cylinders)
+        if best is None:
+            raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
+                           "the selection looks planar; use fit-plane)")
+        model, _ = _refit(p, best, thr, 2, MIN_CYLINDER_POINTS, lambda q, m: cylinder_residuals(q, *m),
+                          lambda q, m: _refine_cylinder(q, *m))
+        return model, np.abs(cylinder_residuals(p_all, *model)) < thr
+
+    (point, axis, radius), inl_all, thr = _widening(thresholds, min_inlier_ratio, attempt)
     if radius > 50.0 * size:
         raise IGSError(f"{what}: the best cylinder has radius {radius:.3g}, far larger than the selection "
                        f"({size:.3g}); the points look planar, use fit-plane")
-    inl_all = np.abs(cylinder_residuals(p_all, point, axis, radius)) < thr
     ratio = float(inl_all.mean())
     if inl_all.sum() < MIN_CYLINDER_POINTS or ratio < min_inlier_ratio:
         raise IGSError(f"{what}: only {int(inl_all.sum())} of the {len(p_all)} selected points ({ratio:.1%}) lie within "

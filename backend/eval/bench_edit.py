@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import re
 import sys
 import time
 from collections.abc import Sequence
@@ -102,19 +101,10 @@ def _look(edit: dict, folder: Path) -> tuple[np.ndarray | None, np.ndarray | Non
 
 
 def _fit(fn, cam, ids, centres, rect, fit_cfg: FitConfig, capture=None, grow_on: str = "centres"):
-    """``fn`` with the default inlier threshold, and once more with twice the threshold it reports when
-    too few centres are inliers (what an artist does after the error message); returns (fit, threshold note)."""
-    try:
-        return _grown(fn, cam, ids, centres, rect, fit_cfg, capture, grow_on), "default"
-    except IGSError as e:
-        if fit_cfg.threshold is not None or "raise --threshold" not in str(e):
-            raise
-        found = re.search(r"within ([0-9.eE+-]+) of", str(e))
-        if not found:
-            raise
-        t = 2.0 * float(found.group(1))
-        return (_grown(fn, cam, ids, centres, rect, replace(fit_cfg, threshold=t), capture, grow_on),
-                f"{t:.4g} (default failed: {e})")
+    """``fn`` as ``igs edit fit-*`` runs it; returns ((fit, what it grew on), the inlier distance used,
+    which the automatic threshold may have widened)."""
+    fitted = _grown(fn, cam, ids, centres, rect, fit_cfg, capture, grow_on)
+    return fitted, f"{fitted[0].fit.threshold:.4g}"
 
 
 def _grown(fn, cam, ids, centres, rect, fit_cfg: FitConfig, capture, grow_on: str):
