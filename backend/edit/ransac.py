@@ -11,8 +11,8 @@ coordinate-wise median), which suits albedo Gaussian centres that scatter around
 fraction of the selected patch. When fewer than the required share of the points lie on the best
 surface at that distance, the automatic threshold is doubled, up to ``AUTO_THRESHOLD_STEPS``' last
 factor: the centres scatter by a share of the surface's *depth* (a few per cent along the view
-rays), which for a small patch far away outgrows 2 % of the patch (a picture's canvas 0.6 m wide,
-3 m away: 20 % of the centres within 2 %). A threshold the caller gives is never widened.
+rays), which for a small patch far away outgrows 2 % of the patch (a picture's canvas 0.9 m wide,
+4.8 m away: 19.8 % of the centres within 2 %). A threshold the caller gives is never widened.
 
 Cylinder hypotheses (why this way): albedo Gaussian centres carry no reliable orientation, so unless
 the caller passes normals (e.g. the shortest axis of flat Gaussians) they are estimated by local PCA
