@@ -186,6 +186,13 @@ def project_backward_range(start, end, means, quats, scales, Rw, tw, fx, fy, cx,
     Gaussians ``start..end-1``, written into d_means (N, 3), d_quats (N, 4), d_scales (N, 3)."""
     lo_u, hi_u, lo_v, hi_v = _fov_bounds(fx, fy, cx, cy, width, height)
     for i in range(start, end):
+        if (g_means2d[i, 0] == 0.0 and g_means2d[i, 1] == 0.0 and g_conics[i, 0] == 0.0 and g_conics[i, 1] == 0.0
+                and g_conics[i, 2] == 0.0 and g_depths[i] == 0.0):
+            # no gradient in, none out: the Gaussians no pixel saw (a quarter of them in a typical view)
+            d_means[i, 0] = d_means[i, 1] = d_means[i, 2] = 0.0
+            d_quats[i, 0] = d_quats[i, 1] = d_quats[i, 2] = d_quats[i, 3] = 0.0
+            d_scales[i, 0] = d_scales[i, 1] = d_scales[i, 2] = 0.0
+            continue
         # ---- forward again (cheaper than storing it) ----
         g = _terms(i, means, quats, scales, eps2d, Rw, tw, fx, fy, near, far, lo_u, hi_u, lo_v, hi_v)
         x, y, in_depth, inv_z, u, v, uc, vc = g.x, g.y, g.in_depth, g.inv_z, g.u, g.v, g.uc, g.vc

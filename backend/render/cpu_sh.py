@@ -136,6 +136,12 @@ def sh_backward_range(dc, rest, means, center, k, grad_color, need_means, g_dc, 
     gb = np.empty((16, 3), np.float32)
     zero = np.float32(0.0)
     for i in range(start, stop):
+        if grad_color[i, 0] == zero and grad_color[i, 1] == zero and grad_color[i, 2] == zero:
+            # no gradient in, none out: the Gaussians no pixel saw
+            g_dc[i, 0, 0] = g_dc[i, 0, 1] = g_dc[i, 0, 2] = zero
+            g_rest[i] = zero
+            g_means[i, 0] = g_means[i, 1] = g_means[i, 2] = zero
+            continue
         x, y, z, inv = _direction(means, center, i)
         _basis(x, y, z, k, b)
         c0, c1, c2 = _colour(b, dc, rest, i, k)
