@@ -226,7 +226,10 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
         d = np.abs(p @ nrm.T - np.sum(a * nrm, axis=1))  # (N, m') point-to-plane distances
         return d, lambda k: (a[k], nrm[k])
 
+    start = rng.bit_generator.state
+
     def attempt(thr: float) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+        rng.bit_generator.state = start  # every threshold draws the same hypotheses
         best = _msac(n_pts, iterations, 3, confidence, thr, planes)
         if best is None:
             raise IGSError(f"{what}: all sampled point triples are collinear; the points do not span a plane")
@@ -406,7 +409,10 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
         dist = np.abs(np.sqrt(np.maximum(q2 - along * along, 0.0)) - radius[None, :])
         return dist, lambda k: (centre[k], axis[k], float(radius[k]))
 
+    start = rng.bit_generator.state
+
     def attempt(thr: float) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray]:
+        rng.bit_generator.state = start  # every threshold draws the same hypotheses
         best = _msac(n_pts, iterations, 2, confidence, thr, cylinders)
         if best is None:
             raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
