@@ -115,11 +115,14 @@ def _thresholds(points: np.ndarray, threshold: float | None, what: str) -> list[
     return [float(threshold)]
 
 
-def _widening(thresholds: list[float], min_inlier_ratio: float, attempt: Callable[[float], tuple[Any, np.ndarray]]
-              ) -> tuple[Any, np.ndarray, float]:
+def _widening(thresholds: list[float], min_inlier_ratio: float, rng: np.random.Generator,
+              attempt: Callable[[float], tuple[Any, np.ndarray]]) -> tuple[Any, np.ndarray, float]:
     """(model, inlier mask, threshold) of ``attempt(thr)`` at the first of ``thresholds`` where at least
-    ``min_inlier_ratio`` of the points are inliers, else at the last."""
+    ``min_inlier_ratio`` of the points are inliers, else at the last. ``rng``, which the attempts draw
+    their hypotheses from, is put back to its state before each: every threshold draws the same ones."""
+    start = rng.bit_generator.state
     for thr in thresholds:
+        rng.bit_generator.state = start
         model, inl = attempt(thr)
         if inl.mean() >= min_inlier_ratio:
             break
@@ -226,17 +229,14 @@ def fit_plane_ransac(points, threshold: float | None = None, iterations: int = 2
         d = np.abs(p @ nrm.T - np.sum(a * nrm, axis=1))  # (N, m') point-to-plane distances
         return d, lambda k: (a[k], nrm[k])
 
-    start = rng.bit_generator.state
-
     def attempt(thr: float) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
-        rng.bit_generator.state = start  # every threshold draws the same hypotheses
         best = _msac(n_pts, iterations, 3, confidence, thr, planes)
         if best is None:
             raise IGSError(f"{what}: all sampled point triples are collinear; the points do not span a plane")
         return _refit(p, best, thr, 3, MIN_PLANE_POINTS, lambda q, m: (q - m[0]) @ m[1],
                       lambda q, m: _plane_lsq(q, what))
 
-    (center, normal), inl, thr = _widening(thresholds, min_inlier_ratio, attempt)
+    (center, normal), inl, thr = _widening(thresholds, min_inlier_ratio, rng, attempt)
     ratio = float(inl.mean())
     if inl.sum() < 3 or ratio < min_inlier_ratio:
         raise IGSError(f"{what}: only {int(inl.sum())} of the {n_pts} selected points ({ratio:.1%}) lie within {thr:.3g} "
@@ -409,10 +409,7 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
         dist = np.abs(np.sqrt(np.maximum(q2 - along * along, 0.0)) - radius[None, :])
         return dist, lambda k: (centre[k], axis[k], float(radius[k]))
 
-    start = rng.bit_generator.state
-
     def attempt(thr: float) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray]:
-        rng.bit_generator.state = start  # every threshold draws the same hypotheses
         best = _msac(n_pts, iterations, 2, confidence, thr, cylinders)
         if best is None:
             raise IGSError(f"{what}: no pair of points gives a cylinder (the surface normals are all parallel: "
@@ -421,7 +418,7 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
                           lambda q, m: _refine_cylinder(q, *m))
         return model, np.abs(cylinder_residuals(p_all, *model)) < thr
 
-    (point, axis, radius), inl_all, thr = _widening(thresholds, min_inlier_ratio, attempt)
+    (point, axis, radius), inl_all, thr = _widening(thresholds, min_inlier_ratio, rng, attempt)
     if radius > 50.0 * size:
         raise IGSError(f"{what}: the best cylinder has radius {radius:.3g}, far larger than the selection "
                        f"({size:.3g}); the points look planar, use fit-plane")
