@@ -5,8 +5,8 @@ tensor ops and contracts them with a batched matmul of 1x16 by 16x3 matrices; wi
 costs 75-100 ms per view at 100k Gaussians on one core, as much as the rasterizer's backward.
 Here one numba pass per direction evaluates the basis, the colour and, backwards, the gradients
 of the coefficients and of the means (through the normalised view direction, as 3DGS does).
-Colours have three channels (the SH layers' RGB). Same basis order, signs, +0.5 offset and clamp as :func:`backend.render.sh.sh_to_color`; the tests
-compare both.
+Colours have three channels (the SH layers' RGB). Same basis order, signs, +0.5 offset and clamp as
+:func:`backend.render.sh.sh_to_color`; the tests compare both.
 """
 
 from __future__ import annotations
