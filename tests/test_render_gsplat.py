@@ -21,6 +21,21 @@ def test_gsplat_backend_without_cuda_raises_a_clear_error():
         render(s.means, s.quats, s.scales, s.opacities, s.colors, make_camera(), backend="gsplat")
 
 
+def test_camera_tensors_are_made_once_per_camera_and_device():
+    from backend.render.gsplat_backend import camera_tensors
+
+    cam = make_camera(64, 48)
+    view, K = camera_tensors(cam, "cpu")
+    assert view.shape == (1, 4, 4) and K.shape == (1, 3, 3) and view.dtype == K.dtype == torch.float32
+    assert torch.allclose(view[0].double(), torch.from_numpy(cam.world_to_cam), atol=1e-6)
+    assert torch.allclose(K[0].double(), torch.from_numpy(cam.K), atol=1e-5)
+    # an equal camera (another object) shares them; another pose does not
+    again = make_camera(64, 48)
+    assert again is not cam and camera_tensors(again, "cpu")[0] is view
+    moved = type(cam)(cam.name, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.R, cam.t + 0.1)
+    assert not torch.equal(camera_tensors(moved, "cpu")[0], view)
+
+
 @pytest.mark.cuda
 @needs_gsplat
 def test_gsplat_matches_reference_on_cuda():

@@ -124,13 +124,16 @@ class Progress:
         emit(STAGE, stage=stage, total=total, unit=unit)
 
     def update(self, n: int = 1, **metrics: Any) -> None:
+        """Advance by ``n``. ``metrics`` (numbers, or scalar tensors and arrays) are read only when the bar
+        shows them, every ``every_s`` and at the end: reading a GPU tensor waits for the device."""
         self.step += n
         self.bar.update(n)
-        if metrics:
-            self.bar.set_postfix({k: _fmt(v) for k, v in metrics.items()}, refresh=False)
         now = time.perf_counter()
         if now - self._last_emit >= self._every or self.step >= self.total:
             self._last_emit = now
+            metrics = {k: _scalar(v) for k, v in metrics.items()}
+            if metrics:
+                self.bar.set_postfix({k: _fmt(v) for k, v in metrics.items()}, refresh=False)
             done = self.step - self._initial
             rate = done / max(now - self._t0, 1e-9)
             eta = (self.total - self.step) / rate if rate > 0 else None
@@ -145,6 +148,11 @@ class Progress:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _scalar(v: Any) -> Any:
+    """A scalar tensor or array as a Python number (``.item()``); anything else as it is."""
+    return v.item() if hasattr(v, "item") else v
 
 
 def _fmt(v: Any) -> Any:

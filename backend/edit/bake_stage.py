@@ -76,10 +76,10 @@ class BakeStage(Stage):
         return _TrainedPart(out.color, out.depth, out.alpha, None, out.means2d, out.radii[n:],
                             out._means2d_node, start=n)
 
-    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         target = view.image
         ignore = view.extras.get("ignore")
         if ignore is not None:  # no loss there: the target is the prediction itself
             target = torch.where(ignore[..., None], pred.detach(), target)
         loss = photometric(pred, target, self.config.lambda_dssim)
-        return loss, {"photo": float(loss.detach())}
+        return loss, {"photo": loss.detach()}

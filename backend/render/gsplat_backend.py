@@ -34,6 +34,28 @@ def _require_gsplat():
     return gsplat
 
 
+_CAMERA_TENSORS: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+CAMERA_CACHE_SIZE = 4096
+"""Cameras whose tensors are kept (a capture's views, at most a few hundred each); emptied when full."""
+
+
+def camera_tensors(camera: Camera, device: torch.device | str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(viewmats (1, 4, 4), Ks (1, 3, 3)) float32 of ``camera`` on ``device``, made once per camera.
+
+    A blocking host-to-device copy waits for the device to finish its queue, so making them at every
+    render would stall each training iteration twice. Cached by value (a Camera is immutable, but its
+    arrays make it unhashable); read-only for the caller."""
+    device = torch.device(device)
+    key = (camera.R.tobytes(), camera.t.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, str(device))
+    hit = _CAMERA_TENSORS.get(key)
+    if hit is None:
+        if len(_CAMERA_TENSORS) >= CAMERA_CACHE_SIZE:
+            _CAMERA_TENSORS.clear()
+        as_tensor = lambda a: torch.as_tensor(a, dtype=torch.float32, device=device)[None]  # noqa: E731
+        hit = _CAMERA_TENSORS[key] = (as_tensor(camera.world_to_cam), as_tensor(camera.K))
+    return hit
+
+
 def render_splats(splats: Splats, camera: Camera, background: Background, near: float, far: float,
                   return_ids: bool, eps2d: float | torch.Tensor = EPS2D) -> RenderOutput:
     """Render one set of Gaussians with gsplat.
@@ -49,8 +71,7 @@ def render_splats(splats: Splats, camera: Camera, background: Background, near: 
                        "several (an edit's sharp Gaussians): use backend 'auto' or 'reference'")
     dtype = torch.float32
     scales = splats.activated_scales
-    viewmats = torch.as_tensor(camera.world_to_cam, device=means.device, dtype=dtype)[None]
-    Ks = torch.as_tensor(camera.K, device=means.device, dtype=dtype)[None]
+    viewmats, Ks = camera_tensors(camera, means.device)
     colors = (splats.colors if splats.sh_degree is None else splats.sh_coefficients()).to(dtype)
     render_colors, render_alphas, meta = gsplat.rasterization(
         means.to(dtype), splats.quats.to(dtype), scales.to(dtype), splats.opacities.to(dtype), colors,

@@ -173,10 +173,11 @@ class DensifyStrategy:
         self._sync(gaussians)
         visible = radii > 0
         zero = torch.zeros((), dtype=self.stats.grad2d.dtype, device=self.stats.grad2d.device)
-        # pixel-space gradients -> NDC units, the scale 3DGS's threshold is tuned for
-        g = grad2d.detach().to(zero.dtype) * torch.tensor([width / 2.0, height / 2.0], dtype=zero.dtype,
-                                                          device=zero.device)
-        self.stats.grad2d += torch.where(visible, g.norm(dim=-1), zero)
+        # pixel-space gradients -> NDC units, the scale 3DGS's threshold is tuned for (by Python
+        # scalars: a per-step tensor of the two factors would be a host-to-device copy, which waits)
+        g = grad2d.detach().to(zero.dtype)
+        norm = torch.hypot(g[:, 0] * (width / 2.0), g[:, 1] * (height / 2.0))
+        self.stats.grad2d += torch.where(visible, norm, zero)
         self.stats.count += visible
         frac = radii.detach().to(zero.dtype) / float(max(width, height))
         self.stats.max_radii = torch.maximum(self.stats.max_radii, torch.where(visible, frac, zero))

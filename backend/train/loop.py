@@ -36,6 +36,7 @@ from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
 from backend.train.memory import PeakMemory, keep_freed_memory
+from backend.train.phases import phase
 from backend.train.views import ColorSpace, View, to_display
 
 CHECKPOINT_VERSION = 1
@@ -101,9 +102,12 @@ class TrainConfig:
         return max(1, round(self.sh_up_every * self.iterations / 30_000))
 
 
-def sum_terms(terms: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
-    """(the loss: the sum of the named scalar ``terms``, each term as a float for progress and logs)."""
-    return sum(terms.values()), {k: float(v.detach()) for k, v in terms.items()}
+def sum_terms(terms: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """(the loss: the sum of the named scalar ``terms``, each term detached for progress and logs).
+
+    The terms stay tensors: reading one as a float waits for the device, so the progress bar reads
+    them only when it shows them (:meth:`backend.core.events.Progress.update`)."""
+    return sum(terms.values()), {k: v.detach() for k, v in terms.items()}
 
 
 class Stage:
@@ -177,7 +181,7 @@ class Stage:
         """(H, W, 3) image the prediction must match."""
         return view.image
 
-    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Photometric (L1 + D-SSIM) + optional depth L1 and mean-scale terms (paper eq. 4)."""
         cfg = self.config
         target = self.target(view)
@@ -486,7 +490,8 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
                 loss_terms = _iteration(stage, optimizer, sampler, step, sh_every)
                 step += 1
                 if stage.strategy is not None:
-                    stage.strategy.step(step, stage.gaussians, optimizer, cameras, stage.render_features)
+                    with phase("densify"):
+                        stage.strategy.step(step, stage.gaussians, optimizer, cameras, stage.render_features)
                 train_seconds += time.perf_counter() - t0
                 if on_step is not None:
                     on_step(step)
@@ -509,8 +514,9 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
 
 
 def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler, step: int,
-               sh_every: int) -> dict[str, float]:
-    """One optimisation step on one view; ``step`` counts the iterations already done."""
+               sh_every: int) -> dict[str, torch.Tensor]:
+    """One optimisation step on one view; ``step`` counts the iterations already done. Returns the
+    loss and its terms, detached, unread (no wait for the device here)."""
     cfg = stage.config
     g = stage.gaussians
     if g.kind in SH_KINDS:
@@ -520,12 +526,17 @@ def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSamp
             group["lr"] = means_lr(step, cfg, stage.scene_extent)
     stage.iteration = step
     view = stage.train_views[sampler.next()]
-    out = stage.render(view)
-    pred = stage.predict(view, out)
-    loss, terms = stage.loss(view, out, pred)
-    loss.backward()
+    with phase("render"):
+        out = stage.render(view)
+        pred = stage.predict(view, out)
+    with phase("loss"):
+        loss, terms = stage.loss(view, out, pred)
+    with phase("backward"):
+        loss.backward()
     if stage.strategy is not None:
-        stage.strategy.accumulate(g, out.means2d_grad, out.radii, view.camera.width, view.camera.height, step)
-    optimizer.step()
-    optimizer.zero_grad(set_to_none=True)
-    return {"loss": float(loss.detach()), **terms}
+        with phase("densify_stats"):
+            stage.strategy.accumulate(g, out.means2d_grad, out.radii, view.camera.width, view.camera.height, step)
+    with phase("optimizer"):
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+    return {"loss": loss.detach(), **terms}

@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from backend.train import ssim_cpu
+from backend.train.phases import phase
 
 
 @functools.lru_cache(maxsize=8)
@@ -161,7 +162,8 @@ def photometric(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 
     """3DGS photometric loss ``(1 - λ) L1 + λ (1 - SSIM)`` of (H, W, C) images."""
     loss = (1 - lambda_dssim) * l1(pred, target)
     if lambda_dssim > 0:
-        loss = loss + lambda_dssim * (1 - ssim(pred, target))
+        with phase("ssim"):
+            loss = loss + lambda_dssim * (1 - ssim(pred, target))
     return loss
 
 
@@ -173,9 +175,9 @@ def depth_l1(rendered: torch.Tensor, target: torch.Tensor, valid: torch.Tensor |
     mask = torch.isfinite(target) & (target > 0)
     if valid is not None:
         mask = mask & valid
-    if not mask.any():
-        return rendered.sum() * 0.0
-    return (rendered[mask] - target[mask]).abs().mean()
+    # A masked sum, not rendered[mask]: boolean indexing (and "if mask.any()") waits for the device.
+    err = torch.where(mask, (rendered - torch.where(mask, target, rendered)).abs(), 0.0)
+    return err.sum() / mask.sum().clamp_min(1)
 
 
 def scale_reg(scales: torch.Tensor) -> torch.Tensor:

@@ -154,7 +154,7 @@ class SingleSetStage(Stage):
         c = out.color
         return compose(c[..., 0:3], c[..., 3:6], c[..., 6:9])
 
-    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg, g, phase = self.config, self.gaussians, self.phase()
         c = out.color
         terms = {}

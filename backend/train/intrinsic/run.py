@@ -7,7 +7,7 @@ state.json (:mod:`.state`); the run returns a :class:`DecompositionRun` for the 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -67,8 +67,10 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
 
 
 def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
-              resume: bool) -> tuple[GaussianSet, dict[str, Any]]:
-    """Train one stage (resuming its checkpoint when ``resume``); returns the set and its summary."""
+              resume: bool, *, stop_after: int | None = None,
+              on_step: Callable[[int], None] | None = None) -> tuple[GaussianSet, dict[str, Any]]:
+    """Train one stage (resuming its checkpoint when ``resume``); returns the set and its summary.
+    ``stop_after`` and ``on_step`` go to :func:`backend.train.loop.train` (a benchmark's window)."""
     tcfg = cfg.stage(name)
     t0 = time.perf_counter()
     with_depth = tcfg.lambda_depth > 0
@@ -80,7 +82,8 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     events.log(f"{name}: {len(train_views)} training / {len(test_views)} held-out views at "
                f"{train_views[0].camera.width}x{train_views[0].camera.height}, {initial_n} initial Gaussians ({how})")
     setup_seconds = time.perf_counter() - t0
-    result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device)
+    result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device,
+                   stop_after=stop_after, on_step=on_step)
     cache_seconds = getattr(stage, "cache_seconds", 0.0)
     return result.gaussians, stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
 

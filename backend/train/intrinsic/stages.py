@@ -90,7 +90,7 @@ class ShadingStage(Stage):
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         return compose(view.extras["A"], out.color)
 
-    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         w = self.terms
         terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim)}
@@ -126,7 +126,7 @@ class ResidualStage(Stage):
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         return view.extras["AS"] + out.color  # the cached A * S of compose(), plus R
 
-    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim)}
         if (d := depth_term(cfg, view, out)) is not None:

@@ -1,0 +1,228 @@
+"""Where one training iteration's time goes, for vanilla 3DGS and each decomposition stage.
+
+``python -m backend.eval.bench_step WS [--stages 3dgs,albedo,shading,residual] [--warmup 20] [--steps 50]
+[--iterations 2000] [--downscale 1] [--max-gaussians 100000] [--backend auto] [--device auto] [--out FILE]``
+
+Each stage is built as ``bench_decompose`` builds it (the same configs, :func:`bench_decompose.configs`,
+``--iterations`` being its 3DGS budget), trained from its start for ``--warmup`` iterations and then
+profiled for ``--steps`` more with the torch profiler. Nothing is written into the workspace: layers
+and checkpoints go to a temporary folder. A decomposition stage needs the ones before it, so they
+are trained for the same short window (and profiled only when named).
+
+Per stage and iteration, the table gives the wall time and the host time of each phase the loop
+marks (:mod:`backend.train.phases`): render, loss (its SSIM apart), backward, the densification
+statistics, the optimizer step and the densification. On CUDA, it adds the time the GPU was busy
+(the sum of its kernels' times) and the host-device synchronisations the host made (CUDA
+synchronise calls, and tensor reads such as ``float(loss)``): an iteration that takes much longer than
+its GPU time is bound by the host's overhead. The JSON (default ``<ws>/bench_step.json``) also holds each
+stage's ten most expensive operators.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+from backend.core.errors import IGSError
+from backend.eval.bench_cli import error, write_result
+from backend.eval.bench_decompose import configs
+from backend.render import BACKENDS
+from backend.train.baseline import baseline_stage
+from backend.train.device import add_device_argument, resolve_device
+from backend.train.intrinsic.config import STAGES, DecomposeConfig
+from backend.train.intrinsic.run import run_stage
+from backend.train.intrinsic.setup import prepare_setup
+from backend.train.loop import train
+from backend.train.phases import PHASES, PREFIX, recording
+from backend.train.views import view_camera
+
+BASELINE = "3dgs"
+ALL_STAGES = (BASELINE, *STAGES)
+SYNC_CALLS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize")
+READS = ("aten::_local_scalar_dense", "aten::nonzero")
+"""Operators that read a device tensor on the host (``.item()``, ``float()``; boolean indexing)."""
+
+
+@dataclass
+class Window:
+    """``on_step`` hook: profiles the iterations after ``warmup`` for ``steps`` iterations."""
+
+    warmup: int
+    steps: int
+    device: torch.device
+    prof: profile | None = None
+    wall: float = 0.0
+    _t0: float = 0.0
+    _recording: Any = None
+    summary: dict[str, Any] = field(default_factory=dict)
+
+    def _sync(self) -> None:
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+
+    def __call__(self, step: int) -> None:
+        if step == self.warmup:
+            self._sync()
+            acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if self.device.type == "cuda" else [])
+            self._recording = recording()
+            self._recording.__enter__()
+            self.prof = profile(activities=acts)
+            self.prof.__enter__()
+            self._t0 = time.perf_counter()
+        elif step == self.warmup + self.steps and self.prof is not None:
+            self._sync()
+            self.wall = time.perf_counter() - self._t0
+            self.prof.__exit__(None, None, None)
+            self._recording.__exit__(None, None, None)
+            self.summary = summarise(self.prof, self.steps, self.wall, self.device.type == "cuda")
+
+
+def _device_time(e: Any) -> float:
+    """An averaged event's own device time in us (the attribute's name changed across torch versions)."""
+    for name in ("self_device_time_total", "self_cuda_time_total"):
+        if hasattr(e, name):
+            return float(getattr(e, name))
+    return 0.0
+
+
+def summarise(prof: profile, steps: int, wall: float, cuda: bool) -> dict[str, Any]:
+    """Per-iteration numbers of a profiled window: ms of wall, of each phase's host time, of GPU
+    kernels; synchronisations and host reads per iteration; the ten most expensive operators."""
+    events = prof.key_averages()
+    per = lambda us: round(us / steps / 1000.0, 3)  # noqa: E731  (us over the window -> ms per iteration)
+    phases = {p: 0.0 for p in PHASES}
+    ops = []
+    for e in events:
+        if e.key.startswith(PREFIX) and e.key[len(PREFIX):] in phases:
+            phases[e.key[len(PREFIX):]] = per(e.cpu_time_total)
+        else:
+            ops.append(e)
+    out: dict[str, Any] = {"wall_ms": round(wall * 1000.0 / steps, 3), "phases_ms": phases}
+    by_host = sorted(ops, key=lambda e: -e.self_cpu_time_total)[:10]
+    out["top_host_ops_ms"] = {e.key: per(e.self_cpu_time_total) for e in by_host}
+    if cuda:
+        device_us = sum(_device_time(e) for e in ops)
+        out["gpu_busy_ms"] = per(device_us)
+        out["syncs_per_iteration"] = round(sum(e.count for e in ops if e.key in SYNC_CALLS) / steps, 2)
+        out["host_reads_per_iteration"] = round(sum(e.count for e in ops if e.key in READS) / steps, 2)
+        by_dev = sorted(ops, key=lambda e: -_device_time(e))[:10]
+        out["top_gpu_ops_ms"] = {e.key: per(_device_time(e)) for e in by_dev if _device_time(e) > 0}
+    return out
+
+
+def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: int, downscale: float,
+        max_gaussians: int, backend: str, device: str) -> dict[str, Any]:
+    ws = Path(ws)
+    if not ws.is_dir():
+        raise IGSError(f"{ws}: no such workspace")
+    vanilla, dec = configs(iterations, downscale, max_gaussians, backend, DecomposeConfig().spawn.points, device)
+    results: dict[str, Any] = {}
+    end = warmup + steps
+    scratch = Path(tempfile.mkdtemp(prefix="bench_step_"))
+    try:
+        if BASELINE in stages:
+            _check_budget(BASELINE, vanilla.train.iterations, end)
+            stage, _, _ = baseline_stage(ws, vanilla)
+            dev = resolve_device(vanilla.device)
+            window = Window(warmup, steps, dev)
+            result = train(stage, scratch / BASELINE, resume=False, stop_after=end, device=dev, on_step=window)
+            results[BASELINE] = _entry(window, len(result.gaussians), stage.train_views[0].camera, dev)
+        later = [s for s in STAGES if s in stages]
+        if later:
+            setup = prepare_setup(ws, dec, layers_dir=scratch / "layers", ckpt_root=scratch / "checkpoints")
+            layers = {}
+            for name in STAGES[: STAGES.index(later[-1]) + 1]:
+                _check_budget(name, dec.stage(name).iterations, end)
+                window = Window(warmup, steps, setup.device)
+                g, entry = run_stage(name, setup, dec, layers, resume=False, stop_after=end,
+                                     on_step=window if name in stages else None)
+                layers[name] = g
+                if name in stages:
+                    cam = view_camera(setup.train_frames[0].camera, dec.downscale)
+                    results[name] = _entry(window, entry["gaussians"], cam, setup.device)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return {"benchmark": "bench_step", "date": datetime.now(UTC).isoformat(timespec="seconds"),
+            "machine": {"platform": platform.platform(), "torch": torch.__version__,
+                        "threads": torch.get_num_threads(),
+                        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None},
+            "settings": {"workspace": str(ws), "stages": stages, "warmup": warmup, "steps": steps,
+                         "iterations": iterations, "downscale": downscale, "max_gaussians": max_gaussians,
+                         "backend": backend, "device": device},
+            "stages": results}
+
+
+def _check_budget(name: str, iterations: int, end: int) -> None:
+    if end > iterations:
+        raise IGSError(f"--warmup + --steps ({end}) exceeds the {name} stage's {iterations} iterations; "
+                       "raise --iterations")
+
+
+def _entry(window: Window, gaussians: int, camera: Any, device: torch.device) -> dict[str, Any]:
+    if not window.summary:
+        raise IGSError("the profiled window did not complete")
+    return {"gaussians": gaussians, "resolution": [camera.width, camera.height], "device": str(device),
+            **window.summary}
+
+
+def table(r: dict[str, Any]) -> str:
+    cuda = any("gpu_busy_ms" in e for e in r["stages"].values())
+    head = ["stage", "Gaussians", "image", "wall", *PHASES] + (["GPU busy", "syncs", "reads"] if cuda else [])
+    lines = ["ms per iteration (phases: host time; ssim lies inside loss)", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, e in r["stages"].items():
+        row = [name, f"{e['gaussians']:,}", "x".join(map(str, e["resolution"])), f"{e['wall_ms']:.2f}",
+               *(f"{e['phases_ms'][p]:.2f}" for p in PHASES)]
+        if cuda:
+            row += [f"{e.get('gpu_busy_ms', 0):.2f}", f"{e.get('syncs_per_iteration', 0):g}",
+                    f"{e.get('host_reads_per_iteration', 0):g}"]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    prog = "python -m backend.eval.bench_step"
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    p.add_argument("ws", help="a workspace with albedo maps (e.g. `igs synth WS --preset demo`); not modified")
+    p.add_argument("--stages", default=",".join(ALL_STAGES),
+                   help=f"comma list of {', '.join(ALL_STAGES)} (default all)")
+    p.add_argument("--warmup", type=int, default=20, help="iterations before the profiled window (default 20)")
+    p.add_argument("--steps", type=int, default=50, help="iterations profiled (default 50)")
+    p.add_argument("--iterations", type=int, default=2000,
+                   help="the schedule's 3DGS budget, as bench_decompose's (default 2000): densification and "
+                        "the learning rates follow it")
+    p.add_argument("--downscale", type=float, default=1.0, help="divide image sizes by this (default 1)")
+    p.add_argument("--max-gaussians", type=int, default=100_000, help="densification budget (default 100000)")
+    p.add_argument("--backend", default="auto", choices=BACKENDS)
+    add_device_argument(p)
+    p.add_argument("--out", default=None, help="JSON output (default <ws>/bench_step.json)")
+    args = p.parse_args(argv)
+    try:
+        stages = [s for s in args.stages.split(",") if s]
+        unknown = [s for s in stages if s not in ALL_STAGES]
+        if not stages or unknown:
+            raise IGSError(f"--stages: each of {', '.join(ALL_STAGES)}, got {args.stages!r}")
+        if args.warmup < 1 or args.steps < 1:
+            raise IGSError(f"--warmup and --steps must be >= 1, got {args.warmup} and {args.steps}")
+        if not args.downscale > 0:
+            raise IGSError(f"--downscale must be > 0, got {args.downscale}")
+        result = run(args.ws, stages, args.warmup, args.steps, args.iterations, args.downscale,
+                     args.max_gaussians, args.backend, args.device)
+    except (IGSError, ValueError) as e:
+        return error("bench_step", e)
+    out = args.out or str(Path(args.ws) / "bench_step.json")
+    return write_result(table(result), out, result)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
