@@ -14,8 +14,9 @@ marks (:mod:`backend.train.phases`): render, loss (its SSIM apart), backward, th
 statistics, the optimizer step and the densification. On CUDA, it adds the time the GPU was busy
 (the sum of its kernels' times) and the host-device synchronisations the host made (CUDA
 synchronise calls, and tensor reads such as ``float(loss)``): an iteration that takes much longer than
-its GPU time is bound by the host's overhead. The JSON (default ``<ws>/bench_step.json``) also holds each
-stage's ten most expensive operators.
+its GPU time is bound by the host's overhead. Last come the stage's peak resident memory (and GPU
+memory on CUDA) since its training started (:class:`backend.train.memory.PeakMemory`). The JSON
+(default ``<ws>/bench_step.json``) also holds each stage's ten most expensive operators.
 """
 
 from __future__ import annotations
@@ -136,7 +137,8 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
             dev = resolve_device(vanilla.device)
             window = Window(warmup, steps, dev)
             result = train(stage, scratch / BASELINE, resume=False, stop_after=end, device=dev, on_step=window)
-            results[BASELINE] = _entry(window, len(result.gaussians), stage.train_views[0].camera, dev)
+            results[BASELINE] = _entry(window, len(result.gaussians), stage.train_views[0].camera, dev,
+                                       result.peak_memory)
         later = [s for s in STAGES if s in stages]
         if later:
             setup = prepare_setup(ws, dec, layers_dir=scratch / "layers", ckpt_root=scratch / "checkpoints")
@@ -149,7 +151,9 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
                 layers[name] = g
                 if name in stages:
                     cam = view_camera(setup.train_frames[0].camera, dec.downscale)
-                    results[name] = _entry(window, entry["gaussians"], cam, setup.device)
+                    memory = {k: entry[k] for k in ("peak_rss_mib", "peak_rss_since_start", "peak_gpu_mib")
+                              if k in entry}
+                    results[name] = _entry(window, entry["gaussians"], cam, setup.device, memory)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return {"benchmark": "bench_step", "date": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -168,16 +172,18 @@ def _check_budget(name: str, iterations: int, end: int) -> None:
                        "raise --iterations")
 
 
-def _entry(window: Window, gaussians: int, camera: Any, device: torch.device) -> dict[str, Any]:
+def _entry(window: Window, gaussians: int, camera: Any, device: torch.device,
+           memory: dict[str, Any]) -> dict[str, Any]:
     if not window.summary:
         raise IGSError("the profiled window did not complete")
     return {"gaussians": gaussians, "resolution": [camera.width, camera.height], "device": str(device),
-            **window.summary}
+            **memory, **window.summary}
 
 
 def table(r: dict[str, Any]) -> str:
     cuda = any("gpu_busy_ms" in e for e in r["stages"].values())
-    head = ["stage", "Gaussians", "image", "wall", *PHASES] + (["GPU busy", "syncs", "reads"] if cuda else [])
+    head = (["stage", "Gaussians", "image", "wall", *PHASES] + (["GPU busy", "syncs", "reads"] if cuda else [])
+            + ["peak RSS MiB"] + (["peak GPU MiB"] if cuda else []))
     lines = ["ms per iteration (phases: host time; ssim lies inside loss)", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, e in r["stages"].items():
@@ -186,6 +192,9 @@ def table(r: dict[str, Any]) -> str:
         if cuda:
             row += [f"{e.get('gpu_busy_ms', 0):.2f}", f"{e.get('syncs_per_iteration', 0):g}",
                     f"{e.get('host_reads_per_iteration', 0):g}"]
+        row.append(f"{e.get('peak_rss_mib', 0):,.0f}")
+        if cuda:
+            row.append(f"{e.get('peak_gpu_mib', 0):,.0f}")
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
 
