@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# The prepared run for a lent GPU machine (docs/testing.md, "On a lent GPU"), in one call:
+#   1. the environment: python, torch, CUDA, gsplat; wheels in .whl/ are installed first
+#      (pycolmap, plyfile and gsplat: the machine has no package index);
+#   2. the CUDA tests (gsplat compiles its kernels on the first one, about 100 s);
+#   3. a workspace from the tests' box scene at the demo's size (96 views at 256x192), made there,
+#      since a rendered capture is too large to travel;
+#   4. bench_step on it: each stage's iteration by phase, GPU busy time, host-device syncs, memory.
+# Everything lands in $OUT (default /tmp/gpu_check): log.txt, env.txt, bench_step.json.
+#   scripts/gpu_check.sh              # on the GPU machine, from the repository root
+#   DEVICE=cpu BACKEND=cpu VIEWS=8 SIZE=64x48 WARMUP=5 STEPS=5 scripts/gpu_check.sh   # a dry run here
+# Each step has its own time limit and a failed step does not stop the next.
+set -u
+cd "$(dirname "$0")/.."
+OUT=${OUT:-/tmp/gpu_check}
+PY=${PYTHON:-python3}
+DEVICE=${DEVICE:-cuda}
+BACKEND=${BACKEND:-gsplat}
+VIEWS=${VIEWS:-96}
+SIZE=${SIZE:-256x192}
+WARMUP=${WARMUP:-300}
+STEPS=${STEPS:-100}
+WS=${WS:-/tmp/gpu_check_ws}
+mkdir -p "$OUT"
+exec > >(tee -a "$OUT/log.txt") 2>&1
+step() { echo; echo "== $(date -u +%H:%M:%S) $*"; }
+
+step "1. environment"
+if compgen -G ".whl/*.whl" >/dev/null; then
+  "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/igs_site .whl/*.whl \
+    && export PYTHONPATH=/tmp/igs_site:${PYTHONPATH:-}
+fi
+export PYTHONPATH=$PWD:${PYTHONPATH:-}
+"$PY" - <<'EOF' | tee "$OUT/env.txt"
+import platform, torch
+print("python", platform.python_version(), "torch", torch.__version__, "cuda", torch.version.cuda)
+print("device", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")
+for name in ("gsplat", "pycolmap", "plyfile", "numba", "cv2"):
+    try:
+        print(name, getattr(__import__(name), "__version__", "?"))
+    except Exception as e:  # noqa: BLE001  (a report, not a program)
+        print(name, "MISSING:", e)
+EOF
+
+if [ "$DEVICE" != cpu ]; then
+  step "2. the CUDA tests"
+  timeout 360 "$PY" -m pytest -q -p no:cacheprovider tests/test_render_gsplat.py tests/test_train_cuda.py
+fi
+
+step "3. the box workspace: $VIEWS views at $SIZE in $WS"
+rm -rf "$WS"
+timeout 180 "$PY" - "$WS" "$VIEWS" "${SIZE%x*}" "${SIZE#*x}" <<'EOF'
+import shutil, sys
+from pathlib import Path
+sys.path.insert(0, "tests")
+from _train_scene import make_workspace  # the tests' box scene: rendered here, nothing to carry
+root, views, w, h = Path(sys.argv[1]), *map(int, sys.argv[2:])
+make_workspace(root, n_views=views, width=w, height=h, n_points=1000)
+shutil.copytree(root / "images", root / "albedo")  # the images stand in for the albedo priors
+print("workspace", root, views, "views", w, "x", h)
+EOF
+
+step "4. bench_step on $DEVICE ($BACKEND), warm-up $WARMUP, $STEPS profiled"
+timeout 420 "$PY" -m backend.eval.bench_step "$WS" --device "$DEVICE" --backend "$BACKEND" \
+  --warmup "$WARMUP" --steps "$STEPS" --out "$OUT/bench_step.json"
+step "done"
