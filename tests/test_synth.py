@@ -340,5 +340,11 @@ def test_blur_ceiling_falls_with_the_blur(capture, tmp_path):
     assert blur_ceiling.main([str(ws), "--edits", "column_decal", "--sigmas", "0,0.55,2", "--out", str(out)]) == 0
     r = json.loads(out.read_text())["results"]["column_decal"]
     assert r["0"] > 20.0 and r["0"] > r["0.55"] + 1.0 and r["0.55"] > r["2"] + 1.0, r
+    # the same on the rings, and for the albedo alone: unblurred it is the edited albedo itself
+    for key in ("", "albedo_"):
+        for part in ("interior", "border", "bleed"):
+            assert r[f"{key}0.55_{part}"] > r[f"{key}2_{part}"], (key, part, r)
+    assert r["albedo_0"] > 60.0 and r["albedo_0"] > r["albedo_0.55"] + 10.0
+    assert blur_ceiling.main([str(ws), "--edits", "column_decal", "--ring", "0", "--out", str(out)]) == 2
     assert blur_ceiling.main([str(ws), "--edits", "nope", "--out", str(out)]) == 2
     assert blur_ceiling.main([str(ws), "--edits", "wall_decal", "--out", str(out)]) == 2  # not in a held-out view

@@ -69,6 +69,7 @@ from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
 from backend.eval.bench_cli import error
 from backend.eval.edit_region import (
+    RING,
     RING_PARTS,
     RegionPSNR,
     edit_views,
@@ -85,8 +86,6 @@ from backend.train.intrinsic.composite import compose
 ProxySource = Literal["fitted", "true"]
 """Where the baked proxy comes from: fitted to the edit view's rectangle, or the ground truth."""
 PROXY_SOURCES: tuple[ProxySource, ...] = get_args(ProxySource)
-RING = 2
-"""Default ring width, pixels, of the interior / border / bleed split."""
 
 
 def _unit(v) -> np.ndarray:

@@ -67,6 +67,8 @@ def true_lighting(ws: Path, frame: Frame, edit: str | None = None) -> tuple[np.n
 
 
 RING_PARTS = ("interior", "border", "bleed")
+RING = 2
+"""Default ring width, pixels, of the interior / border / bleed split."""
 
 
 @dataclass(frozen=True)
