@@ -55,6 +55,32 @@ def test_floater_scores_flag_the_faint_cloud_only():
     assert (frac[labels == "block"] < 0.5).all()
 
 
+def test_floater_scores_equal_separate_renders_of_the_statistics_and_the_footprints():
+    """One render carries the depth statistics and the footprint channels: the same numbers as
+    rendering each apart, because every channel blends with the same weights."""
+    g, _ = scene()
+    run = feature_renderer(g)
+    flagged, seen = floater_scores(g, cameras(), run, n_std=2.0, min_alpha=0.9)
+    want_flagged, want_seen = torch.zeros(len(g), dtype=torch.float64), torch.zeros(len(g), dtype=torch.float64)
+    for cam in cameras():
+        z = g.means.detach() @ torch.tensor(cam.R[2], dtype=torch.float32) + float(cam.t[2])
+        with torch.no_grad():
+            stats = run(cam, torch.stack([z, z * z], dim=1))
+            a = stats.alpha.clamp_min(1e-6)
+            mean = stats.color[..., 0] / a
+            std = (stats.color[..., 1] / a - mean * mean).clamp_min(0).sqrt()
+            valid = (stats.alpha >= 0.9).float()
+            thr = (mean - 2.0 * std) * valid
+        ones = torch.ones(len(g), 2, requires_grad=True)
+        (run(cam, ones).color * torch.stack([valid, thr], dim=-1)).sum().backward()
+        cover, thr_sum = ones.grad[:, 0].double(), ones.grad[:, 1].double()
+        want_flagged += torch.where((z.double() * cover < thr_sum) & (cover > 0), cover, torch.zeros_like(cover))
+        want_seen += cover
+    torch.testing.assert_close(seen, want_seen, rtol=1e-6, atol=1e-9)
+    torch.testing.assert_close(flagged, want_flagged, rtol=1e-6, atol=1e-9)
+    assert want_flagged.sum() > 0
+
+
 def test_strategy_removes_floaters_before_densifying():
     g, labels = scene()
     opt = torch.optim.Adam([{"params": [p], "name": k, "lr": 1e-3} for k, p in g.params.items()])

@@ -58,6 +58,11 @@ def test_l1_mask_and_depth_l1_ignore_pixels_without_data():
     pred[0] = 100.0
     assert abs(float(depth_l1(pred, target)) - 1.0) < 1e-6
     assert float(depth_l1(pred, torch.zeros(4, 5))) == 0.0
+    # no gradient, and no NaN, from the pixels without a prior (a masked sum, no boolean indexing)
+    pred.requires_grad_(True)
+    depth_l1(pred, target).backward()
+    assert torch.isfinite(pred.grad).all() and (pred.grad[0] == 0).all() and pred.grad[1, 0] == 0
+    torch.testing.assert_close(pred.grad[2:], torch.full((2, 5), -1.0 / 14))  # 14 pixels with a prior
     mask = torch.zeros(4, 5, dtype=torch.bool)
     mask[2] = True
     img = torch.zeros(4, 5, 3)
@@ -70,6 +75,15 @@ def test_regularisers():
     assert abs(float(scale_reg(scales)) - 1.0) < 1e-6
     colors = torch.tensor([[0.5, 0.5, 0.5], [0.1, 0.9, 0.3]])
     assert abs(float(gray_reg(colors)) - 0.4) < 1e-6
+    # the three-channel form equals max - min, value and gradient; other channel counts take max - min
+    c = torch.rand(50, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64, requires_grad=True)
+    ref = c.detach().clone().requires_grad_(True)
+    gray_reg(c).backward()
+    want = (ref.max(dim=-1).values - ref.min(dim=-1).values).mean()
+    want.backward()
+    torch.testing.assert_close(gray_reg(c.detach()), want.detach())
+    torch.testing.assert_close(c.grad, ref.grad)
+    assert abs(float(gray_reg(torch.tensor([[0.1, 0.9, 0.3, 0.95]]))) - 0.85) < 1e-6
     x = torch.tensor([0.0, 1.0, 3.0, -2.0])
     torch.testing.assert_close(inverse_domain(x), torch.tensor([1.0, 0.5, 0.25, 1.0]))
 

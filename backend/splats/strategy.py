@@ -304,19 +304,21 @@ def floater_scores(gaussians: GaussianSet, cameras: Sequence[Camera], render_fea
         R = torch.as_tensor(cam.R, dtype=torch.float32, device=dev)
         t = torch.as_tensor(cam.t, dtype=torch.float32, device=dev)
         z = means @ R[2] + t[2]
+        # One render of (z, z^2, 1, 1): the first two channels give each pixel's depth statistics, the
+        # gradient of the last two (the only ones that require it) each Gaussian's weighted footprint
+        # and threshold. The channels blend with the same weights, so this equals rendering the
+        # statistics and the ones apart, one forward pass fewer.
+        ones = torch.ones(n, 2, device=dev, requires_grad=True)
+        out = render_features(cam, torch.cat([torch.stack([z, z * z], dim=1), ones], dim=1))
         with torch.no_grad():
-            out = render_features(cam, torch.stack([z, z * z], dim=1))
             alpha = out.alpha
             a = alpha.clamp_min(1e-6)
             mean = out.color[..., 0] / a
             std = (out.color[..., 1] / a - mean * mean).clamp_min(0).sqrt()
             valid = (alpha >= min_alpha).to(torch.float32)
             thr = (mean - n_std * std) * valid
-        ones = torch.ones(n, 2, device=dev, requires_grad=True)
-        out = render_features(cam, ones)
         # d/dc_i of sum_p g_p C_p = sum_p g_p w_ip: footprint weight and weight-averaged threshold
-        grad_out = torch.stack([valid, thr], dim=-1)
-        (out.color * grad_out).sum().backward()
+        (out.color[..., 2:] * torch.stack([valid, thr], dim=-1)).sum().backward()
         cover, thr_sum = ones.grad[:, 0].double(), ones.grad[:, 1].double()
         front = (z.double() * cover < thr_sum) & (cover > 0)
         flagged += torch.where(front, cover, torch.zeros_like(cover))
