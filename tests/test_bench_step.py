@@ -90,3 +90,14 @@ def test_progress_reads_metrics_only_when_it_shows_them(monkeypatch):
     assert Counted.reads == 1  # the first update shows it; the rest fall inside the interval
     assert shown[-1]["loss"] == 0.5 and shown[-1]["step"] == 1
     bar.close()
+
+
+def test_a_window_left_open_by_an_error_is_closed():
+    import contextlib
+
+    window = bench_step.Window(warmup=1, steps=100, device=torch.device("cpu"))
+    window(1)  # the profile and the phase markers start
+    assert not isinstance(phases.phase("render"), contextlib.nullcontext)
+    window.close()  # training raised before step 101
+    assert isinstance(phases.phase("render"), contextlib.nullcontext)
+    window.close()  # twice is harmless

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
 from backend.core.errors import IGSError
@@ -71,6 +72,13 @@ class Window:
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
 
+    def close(self) -> None:
+        """End a window that training left open (an error or a cancel inside it)."""
+        if self.prof is not None and not self.summary:
+            self.prof.__exit__(None, None, None)
+            self._recording.__exit__(None, None, None)
+            self.prof = None
+
     def __call__(self, step: int) -> None:
         if step == self.warmup:
             self._sync()
@@ -88,8 +96,12 @@ class Window:
             self.summary = summarise(self.prof, self.steps, self.wall, self.device.type == "cuda")
 
 
-def _device_time(e: Any) -> float:
-    """An averaged event's own device time in us (the attribute's name changed across torch versions)."""
+def _kernel_time(e: Any) -> float:
+    """A GPU kernel's (or copy's) total time in us; 0 for host events, so that a host operator's
+    inclusive device time does not count its kernels twice (the attribute's name changed across
+    torch versions)."""
+    if getattr(e, "device_type", None) != DeviceType.CUDA:
+        return 0.0
     for name in ("self_device_time_total", "self_cuda_time_total"):
         if hasattr(e, name):
             return float(getattr(e, name))
@@ -112,12 +124,11 @@ def summarise(prof: profile, steps: int, wall: float, cuda: bool) -> dict[str, A
     by_host = sorted(ops, key=lambda e: -e.self_cpu_time_total)[:10]
     out["top_host_ops_ms"] = {e.key: per(e.self_cpu_time_total) for e in by_host}
     if cuda:
-        device_us = sum(_device_time(e) for e in ops)
-        out["gpu_busy_ms"] = per(device_us)
+        out["gpu_busy_ms"] = per(sum(_kernel_time(e) for e in ops))
         out["syncs_per_iteration"] = round(sum(e.count for e in ops if e.key in SYNC_CALLS) / steps, 2)
         out["host_reads_per_iteration"] = round(sum(e.count for e in ops if e.key in READS) / steps, 2)
-        by_dev = sorted(ops, key=lambda e: -_device_time(e))[:10]
-        out["top_gpu_ops_ms"] = {e.key: per(_device_time(e)) for e in by_dev if _device_time(e) > 0}
+        by_dev = sorted(ops, key=lambda e: -_kernel_time(e))[:10]
+        out["top_gpu_ops_ms"] = {e.key: per(_kernel_time(e)) for e in by_dev if _kernel_time(e) > 0}
     return out
 
 
@@ -136,7 +147,10 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
             stage, _, _ = baseline_stage(ws, vanilla)
             dev = resolve_device(vanilla.device)
             window = Window(warmup, steps, dev)
-            result = train(stage, scratch / BASELINE, resume=False, stop_after=end, device=dev, on_step=window)
+            try:
+                result = train(stage, scratch / BASELINE, resume=False, stop_after=end, device=dev, on_step=window)
+            finally:
+                window.close()
             results[BASELINE] = _entry(window, len(result.gaussians), stage.train_views[0].camera, dev,
                                        result.peak_memory)
         later = [s for s in STAGES if s in stages]
@@ -146,8 +160,11 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
             for name in STAGES[: STAGES.index(later[-1]) + 1]:
                 _check_budget(name, dec.stage(name).iterations, end)
                 window = Window(warmup, steps, setup.device)
-                g, entry = run_stage(name, setup, dec, layers, resume=False, stop_after=end,
-                                     on_step=window if name in stages else None)
+                try:
+                    g, entry = run_stage(name, setup, dec, layers, resume=False, stop_after=end,
+                                         on_step=window if name in stages else None)
+                finally:
+                    window.close()
                 layers[name] = g
                 if name in stages:
                     cam = view_camera(setup.train_frames[0].camera, dec.downscale)
