@@ -176,7 +176,8 @@ def depth_l1(rendered: torch.Tensor, target: torch.Tensor, valid: torch.Tensor |
     if valid is not None:
         mask = mask & valid
     # A masked sum, not rendered[mask]: boolean indexing (and "if mask.any()") waits for the device.
-    err = torch.where(mask, (rendered - torch.where(mask, target, rendered)).abs(), 0.0)
+    # Outside the mask the target is the render itself: zero error, and a zero (not NaN) gradient.
+    err = (rendered - torch.where(mask, target, rendered)).abs()
     return err.sum() / mask.sum().clamp_min(1)
 
 
