@@ -197,8 +197,9 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
     fit_threshold: FloatProperty(
         name="Inlier Distance", default=0.0, min=0.0, soft_max=1.0, subtype="DISTANCE", precision=4,
         description="How far (capture units) a Gaussian centre may lie from the fitted surface and still count "
-                    "on it. 0: automatic, 2% of the selected centres' size, widened up to 8% when too few fit. Raise it when the fit says too few "
-                    "points lie on one plane / cylinder (a briefly trained field is fuzzy)")
+                    "on it. 0: automatic, 2% of the selected centres' size, widened up to 8% when too few fit. "
+                    "Raise it when the fit says too few points lie on one plane / cylinder (a briefly trained "
+                    "field is fuzzy)")
     fit_min_selected: IntProperty(
         name="Min Gaussians", default=MIN_SELECTED, min=3, soft_max=200,
         description="The fewest distinct Gaussians the rectangle must select. Lower it for a small rectangle "
