@@ -8,20 +8,21 @@ from backend.splats.init import (
     camera_bounds,
     from_points,
     initial_log_scales,
-    knn_mean_sq_dist,
     points_from_depth,
     points_in_volume,
 )
 
 
-def test_knn_matches_brute_force_across_chunks():
+def test_initial_scale_is_the_root_mean_square_distance_to_three_neighbours():
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(300, 3))
     d2 = ((pts[:, None] - pts[None]) ** 2).sum(-1)
     np.fill_diagonal(d2, np.inf)
-    expected = np.sort(d2, axis=1)[:, :3].mean(1)
-    got = knn_mean_sq_dist(torch.from_numpy(pts).float(), k=3, chunk=64).numpy()
-    np.testing.assert_allclose(got, expected, rtol=1e-5)
+    expected = 0.5 * np.log(np.sort(d2, axis=1)[:, :3].mean(1))
+    got = initial_log_scales(torch.from_numpy(pts).float(), k=3)
+    assert got.shape == (300, 3)
+    np.testing.assert_allclose(got[:, 0].numpy(), expected, rtol=1e-5)
+    np.testing.assert_array_equal(got[:, 0].numpy(), got[:, 2].numpy())
 
 
 def test_initial_scale_on_a_grid_is_the_spacing():

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from backend.core.errors import IGSError
+from backend.core.neighbours import nearest
 
 AUTO_THRESHOLD_RATIO = 0.02
 AUTO_THRESHOLD_STEPS = (1.0, 2.0, 4.0)
@@ -262,25 +263,16 @@ def _full_mask(points, inl_finite: np.ndarray) -> np.ndarray:
 
 
 def estimate_normals(points, k: int = 16) -> np.ndarray:
-    """(N, 3) unit normals of ``points`` (N, 3) by PCA of the ``k`` nearest neighbours (brute force).
+    """(N, 3) unit normals of ``points`` (N, 3) by PCA of the ``k`` nearest neighbours (itself included).
 
-    Orientation is arbitrary (the cylinder fit does not need it). Meant for a few thousand points.
+    Orientation is arbitrary (the cylinder fit does not need it).
     """
     p = np.asarray(points, dtype=np.float64)
-    n = len(p)
-    k = int(min(max(k, 3), n))
-    out = np.empty((n, 3))
-    sq = np.sum(p * p, axis=1)
-    for s in range(0, n, 512):  # chunks keep the distance matrix small
-        e = min(n, s + 512)
-        d2 = sq[s:e, None] - 2.0 * p[s:e] @ p.T + sq[None, :]
-        nn = np.argpartition(d2, k - 1, axis=1)[:, :k]
-        nb = p[nn]  # (c, k, 3)
-        nb = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("cki,ckj->cij", nb, nb)
-        _, vecs = np.linalg.eigh(cov)
-        out[s:e] = vecs[:, :, 0]
-    return out
+    _, nn = nearest(p, max(k, 3), include_self=True)
+    nb = p[nn]  # (N, k, 3)
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return vecs[:, :, 0]
 
 
 def cylinder_residuals(p: np.ndarray, point: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:

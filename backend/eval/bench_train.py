@@ -45,8 +45,8 @@ from backend.capture.load import load_capture
 from backend.capture.transforms_io import write_ply_points, write_transforms
 from backend.core.errors import IGSError
 from backend.core.imageio import read_image, write_image
+from backend.core.neighbours import nearest
 from backend.eval.bench_cli import error, number_list, write_result
-from backend.splats.init import knn_mean_sq_dist
 from backend.train.memory import proc_status_kib
 from backend.train.views import resize_image, view_camera
 
@@ -132,7 +132,7 @@ def jittered_copies(xyz: np.ndarray, rgb: np.ndarray, copies: int, seed: int) ->
     spacing (the first copy stays put) -> (N * copies, 3) points and their colours."""
     if copies == 1:
         return xyz, rgb
-    spacing = np.sqrt(knn_mean_sq_dist(torch.from_numpy(xyz), k=1).numpy().astype(np.float64))
+    spacing = nearest(xyz, 1)[0][:, 0]
     rng = np.random.default_rng(seed)
     moved = [xyz] + [xyz + rng.normal(size=xyz.shape) * (0.5 * spacing[:, None]) for _ in range(copies - 1)]
     return np.concatenate(moved), np.tile(rgb, (copies, 1))

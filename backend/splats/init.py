@@ -1,7 +1,7 @@
 """Initial Gaussians: from SfM points, from depth maps, or from a bounding volume.
 
 Initial scales follow 3DGS: isotropic, the root mean square distance to the 3 nearest
-neighbours (exact k-NN by chunked ``torch.cdist``), so the splats start roughly touching.
+neighbours (exact, by a k-d tree: :mod:`backend.core.neighbours`), so the splats start roughly touching.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from backend.core.cameras import Camera
+from backend.core.neighbours import mean_sq_distance
 from backend.splats.gaussians import GaussianSet
 
 
@@ -34,35 +35,11 @@ class InitConfig:
     """Floor on the initial scale (duplicate points have zero neighbour distance)."""
 
 
-KNN_BLOCK = 1 << 23  # distances per block (64 MiB of float64): bounds the k-NN's memory whatever N
-
-
-def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> torch.Tensor:
-    """Mean squared distance of each point to its ``k`` nearest other points.
-
-    points: (N, 3) -> (N,). Exact; O(N^2) work in (rows, N) blocks of at most ``chunk`` rows and
-    :data:`KNN_BLOCK` distances, so memory stays bounded (a 2048-row block of 100k points would be 1.6 GB).
-    """
-    n = points.shape[0]
-    if n == 0:
-        return torch.zeros(0)
-    if n == 1:
-        return torch.ones(1)
-    k = min(k, n - 1)
-    chunk = max(1, min(chunk, KNN_BLOCK // n))
-    pts = points.to(torch.float64)
-    out = torch.empty(n, dtype=torch.float64)
-    for s in range(0, n, chunk):
-        block = pts[s:s + chunk]
-        d2 = torch.cdist(block, pts).square_()
-        d2[torch.arange(block.shape[0]), torch.arange(s, s + block.shape[0])] = float("inf")  # not itself
-        out[s:s + chunk] = d2.topk(k, dim=1, largest=False).values.mean(dim=1)
-    return out.to(torch.float32)
-
-
 def initial_log_scales(points: torch.Tensor, k: int = 3, min_scale: float = 1e-7) -> torch.Tensor:
-    """(N, 3) isotropic log-scales: log(sqrt(mean squared k-NN distance))."""
-    d2 = knn_mean_sq_dist(points, k).clamp_min(min_scale**2)
+    """(N, 3) isotropic log-scales: log(sqrt(mean squared k-NN distance)); one point gets scale 1."""
+    if len(points) < 2:
+        return torch.zeros(len(points), 3)
+    d2 = torch.from_numpy(mean_sq_distance(points.detach().cpu().numpy(), k)).to(torch.float32).clamp_min(min_scale**2)
     return (0.5 * torch.log(d2)).unsqueeze(1).repeat(1, 3)
 
 
