@@ -5,10 +5,12 @@
 #   2. the CUDA tests (gsplat compiles its kernels on the first one, about 100 s);
 #   3. a workspace from the tests' box scene at the demo's size (96 views at 256x192), made there,
 #      since a rendered capture is too large to travel;
-#   4. bench_step on it: each stage's iteration by phase, GPU busy time, host-device syncs, memory.
+#   4. bench_step on it: each stage's iteration by phase, GPU busy time, host-device syncs, memory,
+#      beside gsplat's own trainer step on the same views (the gsplat row; CUDA only).
 # Everything lands in $OUT (default /tmp/gpu_check): log.txt, env.txt, bench_step.json.
 #   scripts/gpu_check.sh              # on the GPU machine, from the repository root
-#   DEVICE=cpu BACKEND=cpu VIEWS=8 SIZE=64x48 WARMUP=5 STEPS=5 scripts/gpu_check.sh   # a dry run here
+#   DEVICE=cpu BACKEND=cpu STAGES=3dgs,albedo,shading,residual VIEWS=8 SIZE=64x48 WARMUP=5 STEPS=5 \
+#     scripts/gpu_check.sh   # a dry run here (the gsplat row needs CUDA)
 # Each step has its own time limit and a failed step does not stop the next.
 set -u
 cd "$(dirname "$0")/.."
@@ -21,6 +23,7 @@ SIZE=${SIZE:-256x192}
 WARMUP=${WARMUP:-300}
 STEPS=${STEPS:-100}
 WS=${WS:-/tmp/gpu_check_ws}
+STAGES=${STAGES:-3dgs,gsplat,albedo,shading,residual}
 mkdir -p "$OUT"
 exec > >(tee -a "$OUT/log.txt") 2>&1
 step() { echo; echo "== $(date -u +%H:%M:%S) $*"; }
@@ -61,6 +64,6 @@ print("workspace", root, views, "views", w, "x", h)
 EOF
 
 step "4. bench_step on $DEVICE ($BACKEND), warm-up $WARMUP, $STEPS profiled"
-timeout 420 "$PY" -m backend.eval.bench_step "$WS" --device "$DEVICE" --backend "$BACKEND" \
+timeout 420 "$PY" -m backend.eval.bench_step "$WS" --device "$DEVICE" --backend "$BACKEND" --stages "$STAGES" \
   --warmup "$WARMUP" --steps "$STEPS" --out "$OUT/bench_step.json"
 step "done"

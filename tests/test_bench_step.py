@@ -51,6 +51,7 @@ def test_profiles_the_named_stages_without_writing_to_the_workspace(box, tmp_pat
 
 @pytest.mark.parametrize("argv, says", [
     (["--stages", "3dgs,normals"], "--stages"),
+    (["--stages", "3dgs,gsplat"], "gsplat's trainer needs a CUDA device"),
     (["--warmup", "0"], "--warmup"),
     (["--warmup", "30", "--steps", "20", "--iterations", "40"], "exceeds the 3dgs stage's 40 iterations"),
 ])

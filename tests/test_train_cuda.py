@@ -14,6 +14,7 @@ from backend.edit.bake import bake_edit
 from backend.edit.bake_config import BakeConfig
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import plane_proxy
+from backend.eval import bench_step
 from backend.render import gsplat_available
 from backend.splats.ply import read_ply
 from backend.train.baseline import BaselineConfig, train_3dgs
@@ -93,3 +94,16 @@ def test_decompose_single_set_and_bake_on_cuda(box, tmp_path):
     assert np.abs(a1[inner] - target).mean() < 0.35 * np.abs(a0[inner] - target).mean()
     held = summary["held_out"]["outside_psnr_vs_original"]
     assert held is not None and held > 30.0, held
+
+
+def test_bench_step_times_gsplats_trainer_beside_ours(box, tmp_path):
+    out = tmp_path / "step.json"
+    assert bench_step.main([str(box), "--stages", "3dgs,gsplat", "--warmup", "5", "--steps", "40",
+                            "--iterations", "60", "--device", "cuda", "--backend", "gsplat", "--out", str(out)]) == 0
+    r = json.loads(out.read_text())["stages"]
+    ours, ref = r["3dgs"], r["gsplat"]
+    assert ref["gaussians"] == ours["gaussians"]  # same start, no densification before step 500
+    assert ref["resolution"] == ours["resolution"]
+    assert ref["loss_last"] < ref["loss_first"]  # it trains
+    assert ref["gpu_busy_ms"] > 0 and ref["host_reads_per_iteration"] >= 1  # simple_trainer reads its loss
+    assert ref["phases_ms"]["render"] > 0 and ref["phases_ms"]["optimizer"] > 0 and ref["peak_gpu_mib"] > 0

@@ -1,6 +1,6 @@
 """Where one training iteration's time goes, for vanilla 3DGS and each decomposition stage.
 
-``python -m backend.eval.bench_step WS [--stages 3dgs,albedo,shading,residual] [--warmup 20] [--steps 50]
+``python -m backend.eval.bench_step WS [--stages 3dgs,albedo,shading,residual[,gsplat]] [--warmup 20] [--steps 50]
 [--iterations 2000] [--downscale 1] [--max-gaussians 100000] [--backend auto] [--device auto] [--out FILE]``
 
 Each stage is built as ``bench_decompose`` builds it (the same configs, :func:`bench_decompose.configs`,
@@ -17,6 +17,10 @@ synchronise calls, and tensor reads such as ``float(loss)``): an iteration that 
 its GPU time is bound by the host's overhead. Last come the stage's peak resident memory (and GPU
 memory on CUDA) since its training started (:class:`backend.train.memory.PeakMemory`). The JSON
 (default ``<ws>/bench_step.json``) also holds each stage's ten most expensive operators.
+
+``--stages ...,gsplat`` adds a reference row on CUDA: gsplat's own trainer step (as its
+``simple_trainer`` runs it, :mod:`backend.eval.gsplat_reference`) from the 3DGS stage's initial
+Gaussians on its views, timed and profiled the same way.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from torch.profiler import ProfilerActivity, profile
 from backend.core.errors import IGSError
 from backend.eval.bench_cli import error, write_result
 from backend.eval.bench_decompose import configs
+from backend.eval.gsplat_reference import train_reference
 from backend.render import BACKENDS
 from backend.train.baseline import baseline_stage
 from backend.train.device import add_device_argument, resolve_device
@@ -45,11 +50,16 @@ from backend.train.intrinsic.config import STAGES, DecomposeConfig
 from backend.train.intrinsic.run import run_stage
 from backend.train.intrinsic.setup import prepare_setup
 from backend.train.loop import train
+from backend.train.memory import PeakMemory
 from backend.train.phases import PHASES, PREFIX, recording
 from backend.train.views import view_camera
 
 BASELINE = "3dgs"
+REFERENCE = "gsplat"
+"""gsplat's trainer step on the 3DGS stage's views and initial Gaussians (:mod:`backend.eval.gsplat_reference`);
+CUDA only, so named in ``--stages`` but not among the defaults."""
 ALL_STAGES = (BASELINE, *STAGES)
+CHOICES = (*ALL_STAGES, REFERENCE)
 SYNC_CALLS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize")
 READS = ("aten::_local_scalar_dense", "aten::nonzero")
 """Operators that read a device tensor on the host (``.item()``, ``float()``; boolean indexing)."""
@@ -138,6 +148,8 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
     if not ws.is_dir():
         raise IGSError(f"{ws}: no such workspace")
     vanilla, dec = configs(iterations, downscale, max_gaussians, backend, DecomposeConfig().spawn.points, device)
+    if REFERENCE in stages and resolve_device(vanilla.device).type != "cuda":
+        raise IGSError(f"--stages {REFERENCE}: gsplat's trainer needs a CUDA device (--device cuda)")
     results: dict[str, Any] = {}
     end = warmup + steps
     scratch = Path(tempfile.mkdtemp(prefix="bench_step_"))
@@ -153,6 +165,8 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
                 window.close()
             results[BASELINE] = _entry(window, len(result.gaussians), stage.train_views[0].camera, dev,
                                        result.peak_memory)
+        if REFERENCE in stages:
+            results[REFERENCE] = _reference(ws, vanilla, warmup, steps)
         later = [s for s in STAGES if s in stages]
         if later:
             setup = prepare_setup(ws, dec, layers_dir=scratch / "layers", ckpt_root=scratch / "checkpoints")
@@ -181,6 +195,21 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
                          "iterations": iterations, "downscale": downscale, "max_gaussians": max_gaussians,
                          "backend": backend, "device": device},
             "stages": results}
+
+
+def _reference(ws: Path, vanilla: Any, warmup: int, steps: int) -> dict[str, Any]:
+    """The reference row: gsplat's trainer from the 3DGS stage's initial Gaussians, on its views."""
+    stage, _, _ = baseline_stage(ws, vanilla)
+    dev = resolve_device(vanilla.device)
+    window = Window(warmup, steps, dev)
+    peak = PeakMemory.start(dev)
+    try:
+        out = train_reference(stage.gaussians, stage.train_views, stage.scene_extent, warmup + steps, dev,
+                              on_step=window)
+    finally:
+        window.close()
+    entry = _entry(window, out.pop("gaussians"), stage.train_views[0].camera, dev, peak.read())
+    return {**entry, **out}
 
 
 def _check_budget(name: str, iterations: int, end: int) -> None:
@@ -221,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("ws", help="a workspace with albedo maps (e.g. `igs synth WS --preset demo`); not modified")
     p.add_argument("--stages", default=",".join(ALL_STAGES),
-                   help=f"comma list of {', '.join(ALL_STAGES)} (default all)")
+                   help=f"comma list of {', '.join(CHOICES)} (default: all but {REFERENCE}, gsplat's own trainer "
+                        "on the 3DGS stage's views, which needs CUDA)")
     p.add_argument("--warmup", type=int, default=20, help="iterations before the profiled window (default 20)")
     p.add_argument("--steps", type=int, default=50, help="iterations profiled (default 50)")
     p.add_argument("--iterations", type=int, default=2000,
@@ -235,9 +265,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         stages = [s for s in args.stages.split(",") if s]
-        unknown = [s for s in stages if s not in ALL_STAGES]
+        unknown = [s for s in stages if s not in CHOICES]
         if not stages or unknown:
-            raise IGSError(f"--stages: each of {', '.join(ALL_STAGES)}, got {args.stages!r}")
+            raise IGSError(f"--stages: each of {', '.join(CHOICES)}, got {args.stages!r}")
         if args.warmup < 1 or args.steps < 1:
             raise IGSError(f"--warmup and --steps must be >= 1, got {args.warmup} and {args.steps}")
         if not args.downscale > 0:

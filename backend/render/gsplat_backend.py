@@ -22,7 +22,7 @@ from backend.render.projection import EPS2D
 from backend.render.types import Background, RenderOutput, Splats, over_background
 
 
-def _require_gsplat():
+def require_gsplat():
     if not torch.cuda.is_available():
         raise IGSError("backend 'gsplat' needs an NVIDIA GPU with CUDA; none is available here "
                        "(use backend='cpu' or 'auto')")
@@ -62,7 +62,7 @@ def render_splats(splats: Splats, camera: Camera, background: Background, near: 
 
     eps2d: the low-pass variance of every Gaussian (gsplat takes one per call); a (N,) tensor of
     different values is refused (``auto`` renders those with the reference backend instead)."""
-    gsplat = _require_gsplat()
+    gsplat = require_gsplat()
     means = splats.means
     if means.device.type != "cuda":
         raise IGSError(f"backend 'gsplat' needs the Gaussians on a CUDA device, they are on {means.device}")
