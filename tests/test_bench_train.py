@@ -76,6 +76,8 @@ def test_both_programs_time_the_same_project_alternately(workspace, tmp_path):
             s = row[prog]
             assert s["iterations_timed"] == 20 and len(s["round_medians_ms"]) == 2
             assert s["ms_per_iteration"] > 0 and s["peak_rss_mib"] >= s["training_rss_mib"] > 0
+            # launch to iteration 1: the interpreter and the loading, then a first step of at least 3 ms
+            assert 0.003 < s["startup_s"] < 60
         # the stand-in sleeps 3 ms a step: its median cannot be below that
         assert row["opensplat"]["ms_per_iteration"] >= 3.0
         assert row["ours_over_opensplat"] == pytest.approx(
