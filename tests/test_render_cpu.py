@@ -373,7 +373,7 @@ def test_auto_on_gsplat_hands_one_low_pass_to_gsplat_and_mixed_ones_to_the_refer
     sent = []
     monkeypatch.setattr(api, "resolve_backend", lambda backend, device: "gsplat")
     monkeypatch.setattr(gsplat_backend, "render_splats",
-                        lambda splats, camera, bg, near, far, ids, eps2d: sent.append(eps2d) or "gsplat")
+                        lambda splats, camera, bg, near, far, ids, eps2d, depth: sent.append(eps2d) or "gsplat")
     uniform = Splats(s.means, s.quats, s.scales, s.opacities, s.colors, eps2d=torch.full((40,), 0.1))
     assert render_layers([uniform], cam) == ["gsplat"] and sent == [pytest.approx(0.1)]
     mixed = Splats(s.means, s.quats, s.scales, s.opacities, s.colors,
@@ -383,6 +383,23 @@ def test_auto_on_gsplat_hands_one_low_pass_to_gsplat_and_mixed_ones_to_the_refer
     ref = render(s.means, s.quats, s.scales, s.opacities, s.colors, cam, backend="reference", eps2d=mixed.eps2d)
     torch.testing.assert_close(out.color, ref.color)
     assert len(sent) == 1
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+def test_without_depth_the_colour_alpha_and_gradients_are_the_same(backend):
+    s = random_splats(60, seed=5, special=False)
+    cam = make_camera()
+    outs, grads = [], []
+    for with_depth in (True, False):
+        colors = s.colors.detach().clone().requires_grad_(True)
+        out = render(s.means, s.quats, s.scales, s.opacities, colors, cam, backend=backend, with_depth=with_depth)
+        (out.color.square().sum() + out.alpha.sum()).backward()
+        outs.append(out)
+        grads.append(colors.grad)
+    assert outs[0].depth is not None and outs[1].depth is None
+    torch.testing.assert_close(outs[1].color, outs[0].color, rtol=0, atol=0)
+    torch.testing.assert_close(outs[1].alpha, outs[0].alpha, rtol=0, atol=0)
+    torch.testing.assert_close(grads[1], grads[0], rtol=1e-6, atol=1e-7)
 
 
 def test_polynomial_exp_matches_exp_over_the_blended_range():

@@ -45,24 +45,25 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 def render(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor, camera: Camera,
            *, sh_degree: int | None = None, log_scales: bool = False,
            background: Background = None, near: float = 0.01, far: float = 1e10,
-           backend: Backend = "auto", return_ids: bool = False,
+           backend: Backend = "auto", return_ids: bool = False, with_depth: bool = True,
            eps2d: Tensor | float | None = None, sh_rest: Tensor | None = None) -> RenderOutput:
     """Render one set of Gaussians for ``camera``.
 
     means: (N, 3); quats: (N, 4) wxyz; scales: (N, 3) (log-scales if ``log_scales``); opacities: (N,);
     colors: (N, C) features or (N, K, C) SH with ``sh_degree``; background: (C,), a scalar or None (0);
     eps2d: the screen-space low-pass, a scalar or (N,) (see :attr:`Splats.eps2d`); sh_rest: the SH
-    coefficients after the DC term when ``colors`` holds only that (see :attr:`Splats.sh_rest`).
+    coefficients after the DC term when ``colors`` holds only that (see :attr:`Splats.sh_rest`);
+    with_depth: blend the depth too (one more channel); without it ``depth`` is None.
     """
     splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales, eps2d, sh_rest)
     return render_layers([splats], camera, backgrounds=[background], near=near, far=far, backend=backend,
-                         return_ids=return_ids)[0]
+                         return_ids=return_ids, with_depth=with_depth)[0]
 
 
 def render_layers(layers: Sequence[Splats], camera: Camera, *,
                   backgrounds: Sequence[Background] | None = None,
                   near: float = 0.01, far: float = 1e10, backend: Backend = "auto",
-                  return_ids: bool = False) -> list[RenderOutput]:
+                  return_ids: bool = False, with_depth: bool = True) -> list[RenderOutput]:
     """Render several sets of Gaussians (e.g. albedo, shading, residual) for one camera in one pass.
 
     One projection and one depth sort of their union, one walk over the tiles, and separate
@@ -90,6 +91,6 @@ def render_layers(layers: Sequence[Splats], camera: Camera, *,
         if backend == "auto" and any(not isinstance(f, float) for f in filters):
             name = "reference"  # gsplat takes one low-pass per call; per-Gaussian values need ours
         else:
-            return [gsplat_backend.render_splats(s, camera, bg, near, far, return_ids, f)
+            return [gsplat_backend.render_splats(s, camera, bg, near, far, return_ids, f, with_depth)
                     for s, bg, f in zip(layers, backgrounds, filters)]
-    return render_fused(layers, camera, backgrounds, near, far, name, return_ids, filters)
+    return render_fused(layers, camera, backgrounds, near, far, name, return_ids, filters, with_depth)

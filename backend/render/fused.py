@@ -20,11 +20,12 @@ from backend.render.types import Background, RenderOutput, Splats, over_backgrou
 
 def render_fused(layers: Sequence[Splats], camera: Camera, backgrounds: Sequence[Background], near: float,
                  far: float, backend: Literal["reference", "cpu"], return_ids: bool,
-                 filters: Sequence[Tensor | float] | None = None) -> list[RenderOutput]:
+                 filters: Sequence[Tensor | float] | None = None, with_depth: bool = True) -> list[RenderOutput]:
     """Render ``layers`` (already checked) with the ``reference`` or ``cpu`` kernels.
 
     backgrounds: one per layer; filters: each layer's :meth:`Splats.low_pass` (None: computed here).
-    Each output equals a separate render of that set; ``ids`` index into each set.
+    Each output equals a separate render of that set; ``ids`` index into each set; ``depth`` is None
+    without ``with_depth``.
     """
     device, dtype = layers[0].means.device, layers[0].means.dtype
     cam = CameraTensors.of(camera, device, dtype)
@@ -45,8 +46,10 @@ def render_fused(layers: Sequence[Splats], camera: Camera, backgrounds: Sequence
     means2d = cat(parts)
 
     n_ch = max(s.num_channels for s in layers)
-    # The depth is one more blended channel of the same pass.
-    feats = torch.cat([cat([_colors(s, n_ch, cam, backend) for s in layers]), proj.depths[:, None]], dim=1)
+    # The depth is one more blended channel of the same pass (a quarter more blending for RGB).
+    feats = cat([_colors(s, n_ch, cam, backend) for s in layers])
+    if with_depth:
+        feats = torch.cat([feats, proj.depths[:, None]], dim=1)
     layer_ids = None
     if len(layers) > 1:
         layer_ids = torch.repeat_interleave(torch.arange(len(layers), device=device),
@@ -61,7 +64,7 @@ def render_fused(layers: Sequence[Splats], camera: Camera, backgrounds: Sequence
     for i, s in enumerate(layers):
         a = alpha[i]
         color = over_background(feat_img[i, ..., : s.num_channels], a, backgrounds[i], i)
-        depth = feat_img[i, ..., n_ch] / a.clamp_min(1e-10)
+        depth = feat_img[i, ..., n_ch] / a.clamp_min(1e-10) if with_depth else None
         layer_ids_img = None
         if return_ids:
             li = ids[i]

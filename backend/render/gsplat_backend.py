@@ -57,7 +57,7 @@ def camera_tensors(camera: Camera, device: torch.device | str) -> tuple[torch.Te
 
 
 def render_splats(splats: Splats, camera: Camera, background: Background, near: float, far: float,
-                  return_ids: bool, eps2d: float | torch.Tensor = EPS2D) -> RenderOutput:
+                  return_ids: bool, eps2d: float | torch.Tensor = EPS2D, with_depth: bool = True) -> RenderOutput:
     """Render one set of Gaussians with gsplat.
 
     eps2d: the low-pass variance of every Gaussian (gsplat takes one per call); a (N,) tensor of
@@ -77,9 +77,9 @@ def render_splats(splats: Splats, camera: Camera, background: Background, near: 
         means.to(dtype), splats.quats.to(dtype), scales.to(dtype), splats.opacities.to(dtype), colors,
         viewmats, Ks, int(camera.width), int(camera.height), near_plane=near, far_plane=far,
         eps2d=float(eps2d), sh_degree=splats.sh_degree, packed=False, tile_size=16, backgrounds=None,
-        render_mode="RGB+ED", rasterize_mode="classic")
+        render_mode="RGB+ED" if with_depth else "RGB", rasterize_mode="classic")
     n_ch = colors.shape[-1]
-    depth = render_colors[0, ..., n_ch]
+    depth = render_colors[0, ..., n_ch] if with_depth else None
     alpha = render_alphas[0, ..., 0]
     color = over_background(render_colors[0, ..., :n_ch], alpha, background, 0)
     node = meta["means2d"]  # (1, N, 2) in pixels; keep the graph node so its .grad fills in

@@ -101,8 +101,8 @@ class RenderOutput:
 
     color: Tensor
     """(H, W, C) blended colour with the background behind: sum_i w_i c_i + (1 - alpha) * background."""
-    depth: Tensor
-    """(H, W) expected camera z: sum_i w_i z_i / alpha (0 where alpha is 0)."""
+    depth: Tensor | None
+    """(H, W) expected camera z: sum_i w_i z_i / alpha (0 where alpha is 0); None when not asked for."""
     alpha: Tensor
     """(H, W) accumulated opacity, 1 - final transmittance."""
     ids: Tensor | None

@@ -12,13 +12,14 @@ cancel (a checkpoint is written, then :class:`Cancelled` propagates), and tqdm/J
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
 import random
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -171,7 +172,12 @@ class Stage:
 
     def render(self, view: View) -> RenderOutput:
         return render(**self.gaussians.render_args(), camera=view.camera, background=self.background,
-                      backend=self.config.backend)
+                      backend=self.config.backend, with_depth=self.wants_depth(view))
+
+    def wants_depth(self, view: View) -> bool:
+        """Whether :meth:`loss` reads the rendered depth for ``view``: only then is it blended (on RGB, one
+        more channel of four)."""
+        return self.config.lambda_depth > 0 and view.depth is not None
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         """(H, W, 3) model image of ``view`` from the rendered layer."""
@@ -406,10 +412,27 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     (the training benchmark timestamps iterations with it).
     Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
     """
-    with torch_threads():
+    with torch_threads(), denormals_flushed():
         if device is not None:
             stage.to(device)
         return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after, on_step=on_step)
+
+
+@contextlib.contextmanager
+def denormals_flushed() -> Iterator[None]:
+    """Flush denormal floats to zero on this thread inside the block, and stop on leaving it.
+
+    Adam's second moments of rows whose gradient stopped (pruned neighbours, inactive SH bands) decay
+    geometrically into denormals, which are ~20x slower on x86. The mode is the thread's: left on, it
+    changes other libraries' arithmetic after training returns (scipy's k-d tree build then recursed
+    without end on a capture's points and crashed the process).
+    """
+    np.finfo(np.float32), np.finfo(np.float64)  # cache numpy's limits first: it warns when computed under FTZ
+    torch.set_flush_denormal(True)
+    try:
+        yield
+    finally:
+        torch.set_flush_denormal(False)
 
 
 def _prepare_folder(ckpt_dir: Path, resume: bool) -> None:
@@ -451,10 +474,6 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
            on_step: Callable[[int], None] | None) -> TrainResult:
     cfg = stage.config
     stage.to(stage.device)  # a set assigned after the last move (initial or restored) follows the stage
-    # Adam's second moments of rows whose gradient stopped (pruned neighbours, inactive SH bands)
-    # decay geometrically into denormal floats, which are ~20x slower on x86: flush them to zero.
-    np.finfo(np.float32), np.finfo(np.float64)  # cache numpy's limits first: it warns when computed under FTZ
-    torch.set_flush_denormal(True)
     ckpt_dir = Path(ckpt_dir)
     _prepare_folder(ckpt_dir, resume)
     keep_freed_memory()

@@ -148,7 +148,7 @@ class SingleSetStage(Stage):
         center = torch.as_tensor(view.camera.center, dtype=torch.float32, device=self.device)
         features = g.features(center, freeze_albedo=self.albedo_frozen())
         return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, features,
-                      view.camera, log_scales=True, backend=self.config.backend)
+                      view.camera, log_scales=True, backend=self.config.backend, with_depth=self.wants_depth(view))
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         c = out.color
