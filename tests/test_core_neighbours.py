@@ -1,3 +1,7 @@
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -43,3 +47,18 @@ def test_a_point_that_is_not_finite_is_named():
     p[2, 1] = np.nan
     with pytest.raises(ValueError, match="1 of 4 points are not finite"):
         nearest(p, 2)
+
+
+def test_a_thread_that_flushes_denormals_still_gets_its_neighbours():
+    """960 points of the synthetic `test` capture, on which scipy's default k-d tree build recursed until
+    the stack overflowed once a training run had left denormal flushing on (a separate process: the
+    failure was a crash)."""
+    points = Path(__file__).parent / "data" / "ftz_kdtree_points.npy"
+    code = ("import sys, numpy as np, torch\n"
+            "from backend.core.neighbours import mean_sq_distance\n"
+            "torch.set_flush_denormal(True)\n"
+            f"print(repr(float(mean_sq_distance(np.load({str(points)!r}), 3).sum())))\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         cwd=Path(__file__).parents[1])
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert float(run.stdout) == float(mean_sq_distance(np.load(points), 3).sum())

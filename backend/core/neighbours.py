@@ -26,7 +26,9 @@ def nearest(points: np.ndarray, k: int, *, include_self: bool = False) -> tuple[
     if bad.any():
         raise ValueError(f"nearest neighbours: {int(bad.sum())} of {n} points are not finite")
     extra = 0 if include_self else 1
-    dist, idx = cKDTree(p).query(p, k=k + extra, workers=-1)
+    # Sliding-midpoint splits (balanced_tree=False): as fast here, and the default median splits recursed
+    # without end on a capture's points when the thread flushed denormals to zero (scipy 1.17).
+    dist, idx = cKDTree(p, balanced_tree=False).query(p, k=k + extra, workers=-1)
     dist, idx = dist.reshape(n, -1), idx.reshape(n, -1).astype(np.int64)  # k + extra == 1 drops an axis
     if include_self:
         return dist, idx
