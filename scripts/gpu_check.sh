@@ -38,7 +38,7 @@ export PYTHONPATH=$PWD:${PYTHONPATH:-}
 import platform, torch
 print("python", platform.python_version(), "torch", torch.__version__, "cuda", torch.version.cuda)
 print("device", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")
-for name in ("gsplat", "pycolmap", "plyfile", "numba", "cv2"):
+for name in ("gsplat", "pycolmap", "plyfile", "numba", "cv2", "scipy"):
     try:
         print(name, getattr(__import__(name), "__version__", "?"))
     except Exception as e:  # noqa: BLE001  (a report, not a program)

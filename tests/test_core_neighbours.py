@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from backend.core import neighbours
 from backend.core.neighbours import mean_sq_distance, nearest
 
 
@@ -62,3 +63,14 @@ def test_a_thread_that_flushes_denormals_still_gets_its_neighbours():
                          cwd=Path(__file__).parents[1])
     assert run.returncode == 0, run.stderr[-2000:]
     assert float(run.stdout) == float(mean_sq_distance(np.load(points), 3).sum())
+
+
+@pytest.mark.parametrize("include_self", [False, True])
+def test_without_scipy_the_distances_are_the_same(monkeypatch, include_self):
+    p = np.random.default_rng(2).normal(size=(700, 3))
+    want_d, want_i = nearest(p, 5, include_self=include_self)
+    monkeypatch.setitem(sys.modules, "scipy.spatial", None)  # an import of it now raises ImportError
+    monkeypatch.setattr(neighbours, "BRUTE_BLOCK", 700 * 64)  # several row blocks
+    got_d, got_i = nearest(p, 5, include_self=include_self)
+    np.testing.assert_allclose(got_d, want_d, rtol=1e-12)
+    np.testing.assert_array_equal(got_i, want_i)  # no ties among random points
