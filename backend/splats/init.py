@@ -26,7 +26,7 @@ class InitConfig:
     knn: int = 3
     """Neighbours used for the initial scale."""
     max_points: int = 200_000
-    """Cap on initial Gaussians (a random subset beyond it), so that training starts tractable."""
+    """Cap on initial Gaussians (a random subset beyond it), so that training stays tractable."""
     depth_points: int = 50_000
     """Points back-projected from depth maps when there is no SfM cloud."""
     volume_points: int = 20_000
