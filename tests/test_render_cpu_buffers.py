@@ -41,6 +41,16 @@ def test_pool_reuses_a_buffer_and_regrows_once_when_too_small():
     assert not np.shares_memory(e, f)  # lent buffers are never lent twice
 
 
+def test_the_smallest_fitting_buffer_is_taken_wherever_it_sits_among_the_free_ones():
+    pool = BufferPool(headroom=1.0)
+    big, small, mid = (pool.take("rows", n, np.float32) for n in (90_000, 30_000, 50_000))
+    pool.give_back("rows", big, small, mid)
+    got = pool.take("rows", 40_000, np.float32)  # the third free buffer (the first two do not fit best)
+    assert np.shares_memory(got, mid) and pool.allocations == 3
+    again = pool.take("rows", 25_000, np.float32)
+    assert np.shares_memory(again, small)
+
+
 def test_small_arrays_are_plain_allocations():
     pool = BufferPool()
     a = pool.take("x", 16, np.float32)

@@ -45,10 +45,10 @@ class BufferPool:
             return np.empty(shape, dtype)
         with self._lock:
             free = self._free.setdefault(name, [])
-            fits = [b for b in free if b.nbytes >= nbytes]
+            fits = [i for i, b in enumerate(free) if b.nbytes >= nbytes]
             if fits:
-                buf = min(fits, key=lambda b: b.nbytes)
-                free.remove(buf)
+                # by position: list.remove would compare the arrays with ==, element by element
+                buf = free.pop(min(fits, key=lambda i: free[i].nbytes))
             else:
                 free.clear()  # all too small for what this name now needs
                 buf = np.empty(int(nbytes * self.headroom), np.uint8)
