@@ -55,9 +55,11 @@ def orbit_cameras(n_views: int, width: int, height: int) -> list[Camera]:
 
 
 def make_workspace(root: Path, n_views: int = 12, width: int = 48, height: int = 36, n_points: int = 300,
-                   seed: int = 0) -> Workspace:
+                   seed: int = 0, n_per_face: int = 250) -> Workspace:
+    """The box (``n_per_face`` Gaussians on each of its five faces) seen from ``n_views`` orbiting
+    cameras, with ``n_points`` of its Gaussians, jittered, as the SfM points."""
     ws = Workspace(root)
-    scene = box_scene(seed=seed)
+    scene = box_scene(n_per_face=n_per_face, seed=seed)
     cams = orbit_cameras(n_views, width, height)
     with torch.no_grad():
         for cam in cams:
