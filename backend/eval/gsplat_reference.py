@@ -81,12 +81,10 @@ def train_reference(initial: GaussianSet, views: Sequence[View], scene_scale: fl
     gsplat = require_gsplat()
     from gsplat.strategy import DefaultStrategy
 
-    src = initial.params
-    params = torch.nn.ParameterDict({
-        "means": src["means"], "scales": src["log_scales"], "quats": src["quats"],
-        "opacities": src["opacity_logits"], "sh0": src["sh0"], "shN": src["shN"],
-    })
-    params = torch.nn.ParameterDict({k: torch.nn.Parameter(v.detach().clone()) for k, v in params.items()}).to(device)
+    names = {"means": "means", "scales": "log_scales", "quats": "quats", "opacities": "opacity_logits",
+             "sh0": "sh0", "shN": "shN"}  # simple_trainer's name -> ours
+    params = torch.nn.ParameterDict({k: torch.nn.Parameter(initial.params[ours].detach().clone())
+                                     for k, ours in names.items()}).to(device)
     lrs = {"means": cfg.means_lr * scene_scale, "scales": cfg.scales_lr, "quats": cfg.quats_lr,
            "opacities": cfg.opacities_lr, "sh0": cfg.sh0_lr, "shN": cfg.shN_lr}
     optimizers = {k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15, betas=(0.9, 0.999))

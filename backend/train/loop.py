@@ -177,7 +177,7 @@ class Stage:
     def wants_depth(self, view: View) -> bool:
         """Whether :meth:`loss` reads the rendered depth for ``view``: only then is it blended (on RGB, one
         more channel of four)."""
-        return self.config.lambda_depth > 0 and view.depth is not None
+        return depth_loss_applies(self.config, view)
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         """(H, W, 3) model image of ``view`` from the rendered layer."""
@@ -192,7 +192,7 @@ class Stage:
         cfg = self.config
         target = self.target(view)
         terms = {"photo": photometric(pred, target, cfg.lambda_dssim)}
-        if cfg.lambda_depth > 0 and view.depth is not None:
+        if depth_loss_applies(cfg, view):
             d = out.depth if cfg.depth_normalized else out.depth * out.alpha
             terms["depth"] = cfg.lambda_depth * depth_l1(d, view.depth)
         if cfg.lambda_scale > 0:
@@ -282,6 +282,12 @@ class ViewSampler:
 
 def config_dict(config: TrainConfig) -> dict[str, Any]:
     return json.loads(json.dumps(asdict(config)))
+
+
+def depth_loss_applies(cfg: TrainConfig, view: View) -> bool:
+    """Whether the depth term is on and ``view`` has a depth prior: the one test that both the loss and
+    the render's ``with_depth`` follow."""
+    return cfg.lambda_depth > 0 and view.depth is not None
 
 
 def evaluate(stage: Stage, views: Sequence[View]) -> dict[str, Any]:

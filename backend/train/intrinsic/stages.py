@@ -17,7 +17,7 @@ from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
 from backend.train.intrinsic.shading_priors import ShadingTerms, free_shading_loss, texture_edge_loss
-from backend.train.loop import Stage, TrainConfig, sum_terms
+from backend.train.loop import Stage, TrainConfig, depth_loss_applies, sum_terms
 from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
 from backend.train.views import View
 
@@ -34,7 +34,7 @@ def depth_term(cfg: TrainConfig, view: View, out: RenderOutput) -> torch.Tensor 
     sum(w z) is ``depth * alpha``, right for layers that cover the scene (albedo, shading). A sparse
     layer (residual) uses the expected depth where it is at least partly opaque.
     """
-    if cfg.lambda_depth <= 0 or view.depth is None:
+    if not depth_loss_applies(cfg, view):
         return None
     if cfg.depth_normalized:
         return cfg.lambda_depth * depth_l1(out.depth, view.depth, valid=out.alpha.detach() > 0.1)
