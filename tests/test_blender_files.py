@@ -99,6 +99,8 @@ def _ply_bytes(header_lines: list[str], data: bytes) -> bytes:
     ("nan", "NaN/inf values in 'means'"),
     ("no_vertex", "no 'vertex' element"),
     ("zero_quat", "zero rotation quaternion"),
+    ("tiny_quat", "zero rotation quaternion"),
+    ("huge_quat", "rotation quaternion too long to normalise"),
 ])
 def test_malformed_plys_are_rejected_with_the_file_and_reason(tmp_path, case, match):
     props = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
@@ -120,9 +122,10 @@ def test_malformed_plys_are_rejected_with_the_file_and_reason(tmp_path, case, ma
         raw = _ply_bytes(header, bad.tobytes())
     elif case == "no_vertex":
         raw = _ply_bytes(["format binary_little_endian 1.0", "element face 0", "property list uchar int vertex_indices"], b"")
-    else:
+    else:  # every component 0, below 1e-12, or one above 1e18 (its square would overflow in float32)
         bad = np.stack([row, row])
-        bad[0, -4:] = 0
+        bad[0, -4:] = {"zero_quat": 0, "tiny_quat": 1e-20, "huge_quat": 1}[case]
+        bad[0, -1] = 1e30 if case == "huge_quat" else bad[0, -1]
         raw = _ply_bytes(header, bad.tobytes())
     path = tmp_path / f"{case}.ply"
     path.write_bytes(raw)

@@ -704,6 +704,9 @@ BAD_PROXIES = {
     "missing_vertices": (lambda d: d.pop("vertices"), "missing key 'vertices'"),
     "bad_primitive": (_set("primitive", {"type": "plane", "center": [0, 0]}), "primitive 'plane' needs"),
     "opacity": (_set("opacity", 2.0), "'opacity' must be in"),
+    "huge_vertex": (lambda d: d["vertices"].__setitem__(1, [1e200, 0, 0]), "'vertices' has values beyond"),
+    "huge_matrix": (lambda d: d["matrix_world"][0].__setitem__(0, 1e200), "'matrix_world' has values beyond"),
+    "huge_index": (_set("faces", [[0, 1, 2], [0, 2, 1e30]]), "'faces' must hold integer indices"),
 }
 
 

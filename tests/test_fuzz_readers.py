@@ -17,8 +17,9 @@ import json
 import math
 import shutil
 import traceback
-from collections.abc import Callable
-from contextlib import redirect_stderr, redirect_stdout
+import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,7 +57,8 @@ class Tally:
     def run(self, label: str, fn: Callable[[], object]) -> None:
         self.cases += 1
         try:
-            fn()
+            with _no_numeric_warnings(label, self.tracebacks):
+                fn()
         except IGSError:
             self.clean += 1
         except Exception:  # noqa: BLE001 (any other exception is what the fuzzing looks for)
@@ -69,7 +71,7 @@ class Tally:
         self.cases += 1
         out, err = io.StringIO(), io.StringIO()
         try:
-            with redirect_stdout(out), redirect_stderr(err):
+            with redirect_stdout(out), redirect_stderr(err), _no_numeric_warnings(label, self.tracebacks):
                 code = main(argv)
         except BaseException:  # noqa: BLE001
             self.tracebacks.append(f"{label}: {argv}\n{traceback.format_exc(limit=6)}")
@@ -87,6 +89,20 @@ class Tally:
         print(f"\nfuzz {name}: {self.cases} cases, {self.valid} valid, {self.clean} clean errors, "
               f"{len(self.tracebacks)} tracebacks")
         assert not self.tracebacks, "\n\n".join(self.tracebacks[:5])
+
+
+@contextmanager
+def _no_numeric_warnings(label: str, problems: list[str]) -> Iterator[None]:
+    """Lists numpy's overflow and invalid-value warnings raised in this project's code: bad numbers
+    must be refused before arithmetic on them, not printed to the user as a warning (and then,
+    perhaps, accepted as inf or a wrapped integer)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        try:
+            yield
+        finally:  # also on the way out of a clean error: the user would see the warning above it
+            problems.extend(f"{label}: {w.category.__name__} at {w.filename}:{w.lineno}: {w.message}"
+                            for w in caught if issubclass(w.category, RuntimeWarning))
 
 
 # ------------------------------------------------------------------------------------- mutations

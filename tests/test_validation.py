@@ -4,6 +4,7 @@ is one clear error naming the file or option, before any work, never a traceback
 import json
 import re
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -87,11 +88,36 @@ def _set_frame(key, value):
     ("w fraction", _set_frame("w", 47.5), "'w' must be a whole number"),
     ("file_path a folder", _set_frame("file_path", "images"), "is a folder"),
     ("camera_model 5", _set_frame("camera_model", 5), "camera_model must be a string"),
+    ("translation 1e200", _set_frame("transform_matrix", [[1, 0, 0, 1e200], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
+     "transform_matrix has values beyond"),
 ])
 def test_transforms_json_values_are_checked(project, tmp_path, name, fn, words):
     path = _mutate_transforms(project, tmp_path, fn)
     with pytest.raises(IGSError, match=words.replace("(", r"\(")):
         read_transforms(path)
+
+
+@pytest.mark.parametrize("camera", [
+    {"matrix_world": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1e200], [0, 0, 0, 1]]},
+    {"R": [[1e300, 0, 0], [0, 1, 0], [0, 0, 1]], "t": [0, 0, 0]},
+])
+def test_render_cameras_beyond_the_pose_limit_are_refused_before_arithmetic(camera):
+    from backend.eval.render_views import camera_from_dict
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no overflow on the way to the error
+        with pytest.raises(IGSError, match=r"cam 3: .* has values beyond \+-1e\+12"):
+            camera_from_dict({"width": 32, "height": 24, "fx": 30.0, **camera}, "cam 3")
+
+
+def test_a_camera_path_beyond_the_pose_limit_is_refused(tmp_path):
+    from backend.eval.render_views import read_path
+    m = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1e250], [0, 0, 0, 1]]
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"w": 32, "h": 24, "fl_x": 30.0, "frames": [{"transform_matrix": m}]}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(IGSError, match=r"frame 0: 'transform_matrix' has values beyond"):
+            read_path(path)
 
 
 def test_a_null_principal_point_means_the_default(project, tmp_path):

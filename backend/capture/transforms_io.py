@@ -19,7 +19,7 @@ import numpy as np
 
 from backend.capture.undistort import Intrinsics
 from backend.core.atomic_io import write_bytes, write_json
-from backend.core.cameras import Camera
+from backend.core.cameras import Camera, check_pose_values
 from backend.core.errors import IGSError
 from backend.core.paths import inside
 
@@ -154,8 +154,9 @@ def _matrix(fr: dict, where: str) -> np.ndarray:
         raise IGSError(f"{where}: transform_matrix must be a 4x4 (or 3x4) matrix of numbers") from None
     if m.shape == (3, 4):
         m = np.vstack([m, [0, 0, 0, 1]])
-    if m.shape != (4, 4) or not np.isfinite(m).all():
+    if m.shape != (4, 4):
         raise IGSError(f"{where}: transform_matrix must be a finite 4x4 matrix")
+    check_pose_values(m, where, "transform_matrix")
     return m
 
 

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from backend.core.errors import IGSError
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -93,6 +95,18 @@ class Camera:
 
 # OpenCV/COLMAP camera axes (y down, looking +z) vs Blender's (y up, looking -z).
 CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
+POSE_LIMIT = 1e12
+"""The largest magnitude a value of a pose or a placed mesh read from a file may have: far beyond any
+scene's extent, and small enough that products of poses and points stay finite in float64."""
+
+
+def check_pose_values(values: np.ndarray, where: str, what: str) -> None:
+    """One IGSError naming ``where`` and ``what`` unless every value is finite and within
+    :data:`POSE_LIMIT`; checked before any arithmetic, so that bad numbers are refused, not overflowed."""
+    if not np.isfinite(values).all():
+        raise IGSError(f"{where}: {what} has NaN or infinite values")
+    if values.size and np.abs(values).max() > POSE_LIMIT:
+        raise IGSError(f"{where}: {what} has values beyond +-{POSE_LIMIT:g} (got {np.abs(values).max():g})")
 
 
 def blender_matrix_world(cam: Camera) -> np.ndarray:

@@ -72,6 +72,7 @@ import cv2
 import numpy as np
 
 from backend.core.atomic_io import write_image_file, write_json
+from backend.core.cameras import POSE_LIMIT, check_pose_values
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_linear
 
@@ -236,6 +237,7 @@ def validate_proxy(proxy: ProxyMesh, where: str) -> None:
         raise IGSError(f"{where}: 'vertices' must be a list of at least 3 [x, y, z], got shape {v.shape}")
     if not np.isfinite(v).all():
         raise IGSError(f"{where}: 'vertices' contain NaN or infinite values")
+    check_pose_values(v, where, "'vertices'")
     if f.ndim != 2 or f.shape[1] != 3 or len(f) < 1:
         raise IGSError(f"{where}: 'faces' must be a list of at least one triangle [i, j, k], got shape {f.shape}")
     if f.min() < 0 or f.max() >= len(v):
@@ -250,6 +252,7 @@ def validate_proxy(proxy: ProxyMesh, where: str) -> None:
         raise IGSError(f"{where}: 'uvs' contain NaN or infinite values")
     if m.shape != (4, 4) or not np.isfinite(m).all():
         raise IGSError(f"{where}: 'matrix_world' must be a finite 4x4 matrix")
+    check_pose_values(m, where, "'matrix_world'")
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
         raise IGSError(f"{where}: 'matrix_world' last row must be [0, 0, 0, 1] (an affine transform), got {m[3].tolist()}")
     lin = m[:3, :3]
@@ -320,7 +323,8 @@ def _json_array(data: dict, key: str, where: str, dtype, inner: int) -> np.ndarr
     if arr.ndim != 2 or arr.shape[1] != inner:
         raise IGSError(f"{where}: '{key}' must be a list of [{inner} numbers], got shape {arr.shape}")
     if dtype is np.int64:
-        if not np.isfinite(arr).all() or (arr != np.round(arr)).any():
+        # within POSE_LIMIT before the cast: a larger number is no index, and would wrap around in it
+        if not np.isfinite(arr).all() or (np.abs(arr) > POSE_LIMIT).any() or (arr != np.round(arr)).any():
             raise IGSError(f"{where}: '{key}' must hold integer indices")
         return arr.astype(np.int64)
     return arr

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from backend.core import events
-from backend.core.cameras import Camera, from_blender_matrix_world
+from backend.core.cameras import Camera, check_pose_values, from_blender_matrix_world
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
 from backend.core.paths import plain_name
@@ -86,10 +86,12 @@ def camera_from_dict(d: Any, where: str) -> Camera:
     try:
         if "matrix_world" in d:
             m = np.asarray(d["matrix_world"], dtype=np.float64).reshape(4, 4)
+            check_pose_values(m, where, "'matrix_world'")
             R, t = from_blender_matrix_world(m)
         elif "R" in d and "t" in d:
             R = np.asarray(d["R"], dtype=np.float64).reshape(3, 3)
             t = np.asarray(d["t"], dtype=np.float64).reshape(3)
+            check_pose_values(np.concatenate([R.ravel(), t]), where, "the pose ('R' and 't')")
         else:
             raise IGSError(f"{where}: needs 'matrix_world' (Blender) or 'R' and 't' (OpenCV world->camera)")
     except (TypeError, ValueError):
@@ -149,6 +151,7 @@ def read_path(path: str | Path) -> list[Camera]:
             raise IGSError(f"{where}: missing 'transform_matrix'") from None
         except (TypeError, ValueError):
             raise IGSError(f"{where}: 'transform_matrix' must be 4x4 numbers") from None
+        check_pose_values(c2w, where, "'transform_matrix'")
         R = (c2w[:3, :3] @ GL_TO_CV).T
         w, h = _num(merged, "w", where), _num(merged, "h", where)
         d = {"name": f"{i:04d}", "width": w, "height": h, "fx": _num(merged, "fl_x", where),
