@@ -19,6 +19,7 @@ import math
 import random
 import shutil
 import time
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -356,7 +357,11 @@ def load_checkpoint(ckpt_dir: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():
+            # torch warns about a pickle protocol other than its own before it reads on (or refuses
+            # the file, which is reported below): the user gets the one line, not the warning too.
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
         reason = _unpickler_reason(e)
         if "GLOBAL" in reason:  # a class or function reference: only a pickle that can run code needs one
