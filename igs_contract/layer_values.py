@@ -12,18 +12,17 @@ import numpy as np
 from .errors import ContractError
 from .layer_ply import FILTER, GROUPS, LayerLayout
 
-
 QUAT_RANGE = (1e-12, 1e18)
-"""The largest component a stored rotation quaternion may have: it is normalised in float32, whose
-squares vanish below about 1e-19 and overflow above about 1e19 (torch's normalise also divides by at
-least 1e-12)."""
+"""Where the largest component of a stored rotation quaternion must lie: it is normalised in float32,
+whose squares vanish below about 1e-19 and overflow above about 1e19 (and torch's normalise divides by
+at least 1e-12)."""
 
 
 def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout) -> dict[str, np.ndarray]:
     """float32 arrays of the vertex ``data`` (a structured array): ``means`` (N, 3), ``f_dc`` (N, 3),
     ``f_rest`` (N, 3(K-1)) channel-major as stored, ``opacity`` (N,), ``scales`` (N, 3), ``rot`` (N, 4)
-    and ``eps2d`` (N,) when the file has it. Non-finite values, zero (or too long) quaternions and negative low-pass
-    values are one ContractError naming the file and the first bad vertex."""
+    and ``eps2d`` (N,) when the file has it. Non-finite values, quaternions outside :data:`QUAT_RANGE`
+    and negative low-pass values are one ContractError naming the file and the first bad vertex."""
     n = len(data)
 
     def columns(names) -> np.ndarray:
@@ -46,14 +45,12 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
                                 f"(first at vertex {rows[0]})")
     # By the largest component, not the norm, whose square would overflow (or vanish) in float32.
     size = np.abs(arrays["rot"]).max(axis=1) if n else np.zeros(0, np.float32)
-    zero_q = size < QUAT_RANGE[0]
-    if zero_q.any():
-        raise ContractError(f"{path}: {int(zero_q.sum())} Gaussians have a zero rotation quaternion "
-                            f"(every component below {QUAT_RANGE[0]:g}; first at vertex {int(np.nonzero(zero_q)[0][0])})")
-    huge_q = size > QUAT_RANGE[1]
-    if huge_q.any():
-        raise ContractError(f"{path}: {int(huge_q.sum())} Gaussians have a rotation quaternion too long to normalise "
-                            f"(a component above {QUAT_RANGE[1]:g}; first at vertex {int(np.nonzero(huge_q)[0][0])})")
+    low, high = QUAT_RANGE
+    for bad, what in ((size < low, f"a zero rotation quaternion (every component below {low:g}"),
+                      (size > high, f"a rotation quaternion too long to normalise (a component above {high:g}")):
+        if bad.any():
+            raise ContractError(f"{path}: {int(bad.sum())} Gaussians have {what}; first at vertex "
+                                f"{int(np.nonzero(bad)[0][0])})")
     return arrays
 
 

@@ -20,8 +20,7 @@ from _train_scene import make_layered_workspace
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from backend.eval import bench_step
-from backend.train import losses
-from backend.train import loop
+from backend.train import loop, losses
 
 aten = torch.ops.aten
 READS = {aten._local_scalar_dense.default, aten.nonzero.default, aten.is_nonzero.default,
@@ -108,7 +107,7 @@ def test_a_read_in_the_loss_is_caught(box, monkeypatch):
 
     def reading(pred, target, lambda_dssim=0.2):
         loss = photometric(pred, target, lambda_dssim)
-        float(loss)
+        float(loss.detach())
         return loss
 
     monkeypatch.setattr(loop, "photometric", reading)
