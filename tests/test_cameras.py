@@ -78,3 +78,37 @@ def test_colmap_text_model_round_trip(tmp_path):
 def test_colmap_missing_model_is_a_clear_error(tmp_path):
     with pytest.raises(IGSError, match="no COLMAP model"):
         read_model(tmp_path)
+
+
+def _four_views(tmp_path):
+    """The round trip's model: f001 and f003 observe no point, so their 2D-point lines are empty."""
+    rng = np.random.default_rng(1)
+    cams = [Camera.look_at(f"f{i:03d}.png", [np.cos(i), 1, np.sin(i)], [0, 0, 0], [0, 1, 0], 64, 48, 60)
+            for i in range(4)]
+    write_model(tmp_path, cams, rng.uniform(-0.2, 0.2, (20, 3)), rng.integers(0, 256, (20, 3)),
+                [["f000.png", "f002.png"]] * 20)
+    return cams
+
+
+def test_a_model_read_without_tracks_has_the_same_cameras_and_points(tmp_path):
+    _four_views(tmp_path)
+    full, light = read_model(tmp_path), read_model(tmp_path, with_tracks=False)
+    assert light.tracks is None and full.tracks[0] == ["f000.png", "f002.png"]
+    assert [c.name for c in light.cameras] == [c.name for c in full.cameras]
+    np.testing.assert_array_equal(light.points, full.points)
+    np.testing.assert_array_equal(light.colors, full.colors)
+
+
+@pytest.mark.parametrize("image", ["f002.png", "f003.png"])
+def test_a_zero_quaternion_after_an_image_without_points_is_refused(tmp_path, image):
+    """images.txt pairs each image line with its 2D-point line, which is empty for an image that
+    observes nothing; the check must keep that pairing (pycolmap would make the pose the identity)."""
+    _four_views(tmp_path)
+    path = tmp_path / "images.txt"
+    lines = path.read_text().splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln.endswith(image) and not ln.startswith("#"))
+    parts = lines[i].split()
+    lines[i] = " ".join([parts[0], "0", "0", "0", "0", *parts[5:]])
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(IGSError, match=f"image '{image}' has the rotation quaternion"):
+        read_model(tmp_path)

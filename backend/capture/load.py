@@ -88,7 +88,7 @@ def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool =
     if not ws.sparse.is_dir():
         hint = " (a transforms.json is there: convert it with `igs import`)" if ws.transforms_json.exists() else ""
         raise IGSError(f"{ws.sparse}: missing COLMAP model folder{hint}")
-    model = read_model(ws.sparse)
+    model = read_model(ws.sparse, with_tracks=False)  # cameras and points only
 
     albedo_dir, _ = _prior_dir(ws, "albedo", meta)
     depth_dir, _ = _prior_dir(ws, "depth", meta)

@@ -8,7 +8,9 @@ the pipeline's space for compositing A * S + R).
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
@@ -24,6 +26,7 @@ from backend.core.workspace import Frame
 
 ColorSpace = Literal["srgb", "linear"]
 COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
+_LOAD_THREADS = min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
 @dataclass
@@ -107,8 +110,8 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
     photo; a stage may pass the albedo map instead).
     """
     check_space(space)
-    views = []
-    for frame, index in zip(frames, indices):
+
+    def load(frame: Frame, index: int) -> View:
         cam = view_camera(frame.camera, downscale)
         path: Path = image_of(frame) if image_of else frame.image
         img = resize_image(read_image(path), cam.width, cam.height)
@@ -121,5 +124,9 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
                 raise IGSError(f"{frame.depth}: depth map is {d.shape[1]}x{d.shape[0]} but the image is "
                                f"{frame.camera.width}x{frame.camera.height}")
             depth = torch.from_numpy(resize_depth(d, cam.width, cam.height))
-        views.append(View(index, cam, torch.from_numpy(np.ascontiguousarray(to_space(img, space))), depth))
-    return views
+        return View(index, cam, torch.from_numpy(np.ascontiguousarray(to_space(img, space))), depth)
+
+    # Decoding and resizing release the GIL: one thread per core. map() keeps the order and raises the
+    # first failing view's error in that order.
+    with ThreadPoolExecutor(max_workers=_LOAD_THREADS) as pool:
+        return list(pool.map(load, frames, indices))

@@ -1,0 +1,43 @@
+"""load_views: the views come back in the frames' order, decoded on several threads, and a bad image
+is one error naming the first bad view in that order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _train_scene import make_workspace
+
+from backend.capture.load import load_capture
+from backend.core.errors import IGSError
+from backend.core.imageio import read_image
+from backend.train.views import load_views
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    root = tmp_path_factory.mktemp("views") / "box"
+    make_workspace(root, n_views=12, width=32, height=24)
+    return load_capture(root)
+
+
+def test_views_keep_the_frames_order(capture):
+    frames = capture.frames
+    indices = list(range(100, 100 + len(frames)))
+    views = load_views(frames, indices)
+    assert [v.index for v in views] == indices
+    for view, frame in zip(views, frames):
+        assert view.camera.name == frame.name
+        np.testing.assert_array_equal(view.image.numpy(), read_image(frame.image))
+
+
+def test_the_first_bad_view_in_order_is_the_error(capture, tmp_path):
+    frames = capture.frames
+    saved = {i: frames[i].image.read_bytes() for i in (3, 7)}
+    try:
+        for i in saved:
+            frames[i].image.write_bytes(b"not a png")
+        with pytest.raises(IGSError, match=frames[3].image.name):
+            load_views(frames, range(len(frames)))
+    finally:
+        for i, data in saved.items():
+            frames[i].image.write_bytes(data)
