@@ -26,19 +26,14 @@ aten = torch.ops.aten
 READS = {aten._local_scalar_dense.default, aten.nonzero.default, aten.is_nonzero.default,
          aten.masked_select.default}
 REPO = Path(__file__).resolve().parents[1]
-ALLOWED = {
-    # The progress bar reads the loss when it shows it (every 0.25 s), not every iteration.
-    "backend/core/events.py",
-    # CPU fused Adam reads each parameter's step count; on CUDA the kernel reads it on the device.
-    "torch.optim",
-}
+# The progress bar reads the loss when it shows it (every 0.25 s), not every iteration. (Adam is fused:
+# one operator per step, which reads its step count inside the kernel, unseen here and on the device.)
+ALLOWED = ("backend/core/events.py",)
 
 
 def _site() -> str:
-    """The innermost frame of this project's backend (or ``torch.optim``) that led to the read."""
+    """The innermost frame of this project's backend that led to the read."""
     frames = traceback.extract_stack()
-    if any("torch/optim/" in f.filename for f in frames):
-        return "torch.optim"
     for f in reversed(frames):
         path = Path(f.filename).resolve()
         if path.is_relative_to(REPO / "backend"):
