@@ -2,6 +2,7 @@
 kill/resume and cancel equivalence, settings checks, metrics.json merging, initialisation fallbacks."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -87,6 +88,9 @@ def test_cancel_writes_a_checkpoint_then_resume_is_identical(box_ws, monkeypatch
     calls = {"n": 0}
 
     def cancel_at_17():
+        # the training bar's 17th check (loading the views has a bar of its own)
+        if sys._getframe(1).f_locals["self"].stage != "train_3dgs":
+            return
         calls["n"] += 1
         if calls["n"] == 17:
             raise Cancelled("cancelled by user")

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 import torch
 
+from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_depth, read_image, srgb_to_linear
@@ -126,7 +127,17 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
             depth = torch.from_numpy(resize_depth(d, cam.width, cam.height))
         return View(index, cam, torch.from_numpy(np.ascontiguousarray(to_space(img, space))), depth)
 
+    if not frames:
+        return []
     # Decoding and resizing release the GIL: one thread per core. map() keeps the order and raises the
-    # first failing view's error in that order.
-    with ThreadPoolExecutor(max_workers=_LOAD_THREADS) as pool:
-        return list(pool.map(load, frames, indices))
+    # first failing view's error in that order; a cancel (raised by the bar) drops the views not started.
+    pool = ThreadPoolExecutor(max_workers=_LOAD_THREADS)
+    views = []
+    try:
+        with events.stage("load views", len(frames), unit="view") as bar:
+            for view in pool.map(load, frames, indices):
+                views.append(view)
+                bar.update(1)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return views
