@@ -79,7 +79,7 @@ def test_a_cancel_stops_loading(capture, monkeypatch):
         return real(path)
 
     monkeypatch.setattr(views_module, "read_image", slow)
-    monkeypatch.setattr(views_module, "_LOAD_THREADS", 1)
+    monkeypatch.setattr(views_module, "get_threads", lambda: 1)
     events.request_cancel()
     try:
         with pytest.raises(Cancelled):

@@ -8,7 +8,6 @@ the pipeline's space for compositing A * S + R).
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -24,10 +23,11 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_depth, read_image, srgb_to_linear
 from backend.core.workspace import Frame
+from backend.render.threads import get_threads
 
 ColorSpace = Literal["srgb", "linear"]
 COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
-_LOAD_THREADS = min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+MAX_LOAD_THREADS = 8
 
 
 @dataclass
@@ -129,9 +129,9 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
 
     if not frames:
         return []
-    # Decoding and resizing release the GIL: one thread per core. map() keeps the order and raises the
+    # Decoding and resizing release the GIL: one thread per core the renderer may use (at most 8). map() keeps the order and raises the
     # first failing view's error in that order; a cancel (raised by the bar) drops the views not started.
-    pool = ThreadPoolExecutor(max_workers=_LOAD_THREADS)
+    pool = ThreadPoolExecutor(max_workers=min(MAX_LOAD_THREADS, get_threads()))
     views = []
     try:
         with events.stage("load views", len(frames), unit="view") as bar:
