@@ -3,27 +3,47 @@
 #   ./dev.sh demo   set up .venv from the project's own files, then run the main job on the synthetic demo
 #   ./dev.sh test   set up .venv if needed, then run the test suite
 #   ./dev.sh test-blender   the add-on in a real Blender 5.2 window (root; builds a cached Debian root)
+#   ./dev.sh test-py311     the backend suite (a chosen subset) on Python 3.11 with bpy 5.0.1, in .venv-py311
 # Other verbs: setup (only create/update .venv), lint, igs ARGS... (run the CLI inside .venv).
 set -euo pipefail
 cd "$(dirname "$0")"
 
 VENV=${IGS_VENV:-.venv}
-# The Python for a new .venv: $PYTHON, else the first that runs of 3.11 (the only one with the bpy
-# module), 3.13, 3.14. pyproject.toml's requires-python decides what is allowed (checked in setup).
+# The Python for a new .venv: $PYTHON, else the first that runs of 3.13 (Blender 5.1-5.3's Python,
+# with the bpy 5.3 module), 3.11 (Blender 4.2-5.0's, with bpy 5.0.1), 3.14 (no bpy module).
+# pyproject.toml's requires-python decides what is allowed (checked in setup).
+find_python() {  # $1 = minor version such as 3.13; prints a runnable interpreter or nothing
+  local cand=python$1 root v
+  # `command -v` alone is not enough: pyenv shims exist for versions that are not selected.
+  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys' >/dev/null 2>&1; then
+    command -v "$cand"; return
+  fi
+  # Installed through pyenv but not the selected version: take the newest such install directly.
+  if command -v pyenv >/dev/null 2>&1; then
+    root=$(pyenv root 2>/dev/null) || return 0
+    for v in $(pyenv versions --bare 2>/dev/null | grep -E "^$1\.[0-9]+$" | sort -t. -k3 -n -r); do
+      if [ -x "$root/versions/$v/bin/$cand" ] && "$root/versions/$v/bin/$cand" -c 'import sys' >/dev/null 2>&1; then
+        echo "$root/versions/$v/bin/$cand"; return
+      fi
+    done
+  fi
+}
 PY=${PYTHON:-}
-if [ -z "$PY" ]; then
-  for cand in python3.11 python3.13 python3.14; do
-    # `command -v` alone is not enough: pyenv shims exist for versions that are not installed.
-    if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys' >/dev/null 2>&1; then
-      PY=$cand; break
-    fi
+if [ -z "$PY" ] && [ ! -x "$VENV/bin/python" ]; then
+  for minor in 3.13 3.11 3.14; do
+    PY=$(find_python "$minor")
+    [ -n "$PY" ] && break
   done
 fi
-[ -n "$PY" ] || { echo "dev.sh: none of python3.11, python3.13, python3.14 runs here; set PYTHON=/path/to/python (3.11 preferred: only it has the bpy module)" >&2; exit 2; }
+[ -n "$PY" ] || PY=$VENV/bin/python
+[ -x "$PY" ] || command -v "$PY" >/dev/null 2>&1 || { echo "dev.sh: none of python3.13, python3.11, python3.14 runs here (pyenv installs included); set PYTHON=/path/to/python (3.13 preferred: Blender 5.3's Python, with the bpy module)" >&2; exit 2; }
 PY_MINOR=$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null) \
   || { echo "dev.sh: PYTHON=$PY does not run" >&2; exit 2; }
-[ "$PY_MINOR" = 3.11 ] || [ -x "$VENV/bin/python" ] \
-  || echo "dev.sh: using Python $PY_MINOR ($PY): no bpy module for it, so the Blender background tests will skip (set PYTHON=python3.11 to run them)" >&2
+case "$PY_MINOR" in
+  3.11|3.13) ;;
+  *) [ -x "$VENV/bin/python" ] \
+       || echo "dev.sh: using Python $PY_MINOR ($PY): no bpy module for it, so the Blender background tests will skip (set PYTHON=python3.13 to run them)" >&2 ;;
+esac
 # Optional: where torch alone comes from, e.g. https://download.pytorch.org/whl/cpu for the 192 MB
 # CPU-only build (default: the configured index, PyPI, whose Linux torch is the ~2.7 GB CUDA build).
 TORCH_INDEX=${IGS_TORCH_INDEX:-}
@@ -40,7 +60,7 @@ setup() {
     "$PY" igs_blender/check_env.py --pyproject pyproject.toml --python-only || exit 2
     "$PY" -m venv "$VENV"
   fi
-  echo "== setting up $VENV with Python $("$VENV/bin/python" -c 'import sys; print(sys.version.split()[0])') (first run downloads 0.5-3 GB: torch, pycolmap, opencv, numba, and bpy on 3.11) =="
+  echo "== setting up $VENV with Python $("$VENV/bin/python" -c 'import sys; print(sys.version.split()[0])') (first run downloads 1-5 GB: torch, bpy, pycolmap, opencv, numba) =="
   "$VENV/bin/python" -m pip install -q --upgrade pip
   # torch first and on its own (its pin as it applies to this Python), so that the rest cannot
   # pull another build; then the project with the pins pip picks by their python_version markers.
@@ -49,6 +69,20 @@ setup() {
   "$VENV/bin/python" -m pip install -q ${TORCH_INDEX:+--index-url "$TORCH_INDEX"} "$torch"
   "$VENV/bin/python" -m pip install -q -e ".[dev]"
   echo "$want" > "$stamp"
+}
+
+versions() {
+  # One line at the start of each run: what this environment is (the README's figures name it).
+  "$VENV/bin/python" - <<'PYEOF'
+import importlib.metadata as md, sys
+def v(name):
+    try:
+        return md.version(name)
+    except md.PackageNotFoundError:
+        return "none"
+print(f"== {sys.executable}: Python {sys.version.split()[0]}, torch {v('torch')}, numpy {v('numpy')}, "
+      f"bpy {v('bpy')}, pycolmap {v('pycolmap')} ==", flush=True)
+PYEOF
 }
 
 npm_tools() {
@@ -68,8 +102,16 @@ cmd=${1:-}
 [ $# -gt 0 ] && shift
 case "$cmd" in
   setup) setup ;;
-  demo)  setup; exec "$VENV/bin/igs" demo "$@" ;;
-  test)  setup; npm_tools; exec "$VENV/bin/python" -m pytest -q "$@" ;;
+  demo)  setup; versions; exec "$VENV/bin/igs" demo "$@" ;;
+  test)  setup; versions; npm_tools; exec "$VENV/bin/python" -m pytest -q "$@" ;;
+  test-py311)
+    # The backend suite once more on Python 3.11 (Blender 4.2-5.0's backend environments: bpy 5.0.1,
+    # numpy 1.26), in its own .venv-py311. CI runs it after the main suite; the test list is
+    # tests/py311_tests.txt (the reason for the choice is at its top).
+    py311=${PYTHON311:-$(find_python 3.11)}
+    [ -n "$py311" ] || { echo "dev.sh: test-py311 needs Python 3.11 (python3.11 on PATH or through pyenv, or PYTHON311=...)" >&2; exit 2; }
+    mapfile -t subset < <(grep -vE '^\s*(#|$)' tests/py311_tests.txt)
+    IGS_VENV=${IGS_VENV_311:-.venv-py311} PYTHON=$py311 exec "$0" test "${subset[@]}" "$@" ;;
   test-blender)
     # The add-on in a real Blender 5.2 window (Debian's, in a cached sid root, under Xvfb): needs root.
     setup
@@ -79,5 +121,5 @@ case "$cmd" in
     exec "$VENV/bin/python" -m pytest -q -p no:cacheprovider tests_blender "$@" ;;
   lint)  setup; exec "$VENV/bin/ruff" check . ;;
   igs)   setup; exec "$VENV/bin/igs" "$@" ;;
-  *) echo "usage: ./dev.sh demo|test|test-blender|setup|lint|igs ARGS..." >&2; exit 2 ;;
+  *) echo "usage: ./dev.sh demo|test|test-blender|test-py311|setup|lint|igs ARGS..." >&2; exit 2 ;;
 esac
