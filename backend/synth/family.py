@@ -1,6 +1,6 @@
 """A procedural family of synthetic scenes: ``igs synth --scene-seed K`` builds scene K.
 
-Every default of the project was first tuned on the one room of :mod:`synth_scene`; tuning on a few
+Every default of the project was first tuned on the one room of :mod:`room`; tuning on a few
 family scenes instead cannot memorise one layout. Scene K varies, from K alone:
 
 - the room: its size, which wall is open to the world (fully, or above a low parapet), an optional
@@ -30,7 +30,7 @@ The three edits (``gt_edit/<edit>``, all on planes, so :class:`PlaneSurface`):
 
 :func:`family_layout` draws the layout (pure numpy; the camera path needs only it) and
 :func:`build_family_scene` builds it in bpy. Textures come from a second random stream, in a fixed
-order, through :mod:`synth_textures` (which the Blender-binary worker forwards to the backend).
+order, through :mod:`textures` (which the Blender-binary worker forwards to the backend).
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from backend.capture import synth_textures as tex
-from backend.capture.synth_scene import Builder, EditSpec, PlaneSurface, SynthScene
 from backend.core.cameras import Camera
+from backend.synth import textures as tex
+from backend.synth.room import Builder, EditSpec, PlaneSurface, SynthScene
 
 FAMILY_VERSION = 1
 """Bumped whenever the same scene seed would build a different scene."""
@@ -174,7 +174,7 @@ class WallItem:
 class Picture:
     canvas: WallItem
     texture: str
-    """synth_textures function of the canvas: "painting" or "mondrian"."""
+    """The textures function of the canvas: "painting" or "mondrian"."""
     frame_width: float
     frame_depth: float
     """How far the frame stands out of the wall, metres (the canvas is at CANVAS_OFFSET)."""

@@ -17,7 +17,7 @@ is exactly ``A_edit * S + R`` with the original shading ``S`` and residual ``R``
 albedo edit of the intrinsic layers produces. Each region also writes a shader AOV
 ``mask_<edit>`` (1 on the region, for camera rays only), which gives exact per-pixel coverage.
 
-Everything here talks to bpy; :mod:`backend.capture.synth` renders and writes the workspace.
+Everything here talks to bpy; :mod:`backend.synth.run` renders and writes the workspace.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from backend.capture import synth_textures as tex
 from backend.core.cameras import Camera
+from backend.synth import textures as tex
 
 # Room extents in metres: x in [-3, 3], y in [-2.5, 2.5], floor at z = 0, ceiling at z = 2.8.
 ROOM_HALF_X, ROOM_HALF_Y, ROOM_HEIGHT = 3.0, 2.5, 2.8

@@ -1,10 +1,10 @@
 """``igs synth``: render the synthetic room with Cycles (CPU) into a workspace with exact ground truth.
 
-With ``--scene-seed K`` the scene is K of the procedural family (:mod:`backend.capture.synth_family`)
-instead of the room (:mod:`backend.capture.synth_scene`); everything below applies to both.
+With ``--scene-seed K`` the scene is K of the procedural family (:mod:`backend.synth.family`)
+instead of the room (:mod:`backend.synth.room`); everything below applies to both.
 
 Blender is either the bpy module in this process or, for a Python without one, a Blender binary
-driven as one worker process (:mod:`backend.capture.synth_blender`); both write the same EXR.
+driven as one worker process (:mod:`backend.synth.blender`); both write the same EXR.
 
 One Cycles render per view writes every pass into an uncompressed multi-layer EXR; from it:
 
@@ -27,7 +27,7 @@ Denoising, adaptive sampling, light clamping and the view transform are all off/
 
 Edits (``gt_edit/<edit>/images``, ``albedo``, ``shading`` and ``residual``) only differ where camera rays
 hit the edit region
-(see :mod:`backend.capture.synth_scene`), so each edited view renders just the bounding box of its
+(see :mod:`backend.synth.room`), so each edited view renders just the bounding box of its
 mask with a render border and takes every other pixel from the original view: Cycles' sampling
 depends on the pixel, not on the border, so this is bit-identical to a full render.
 """
@@ -48,10 +48,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from backend.capture import synth_blender, synth_family, synth_scene
 from backend.capture.colmap_io import write_model
-from backend.capture.exr_layers import passes, read_multilayer_exr
-from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
 from backend.core import events
 from backend.core.atomic_io import atomic_path, write_json
 from backend.core.cameras import Camera
@@ -65,6 +62,10 @@ from backend.core.imageio import (
     write_image,
 )
 from backend.core.workspace import Workspace
+from backend.synth import family, room
+from backend.synth.blender import BlenderWorker, choose_blender
+from backend.synth.blender_cycles import CyclesParams, CyclesView
+from backend.synth.exr_layers import passes, read_multilayer_exr
 
 SETTINGS_FILE = "gt/synth_settings.json"
 SCENE_SEED_MAX = 2**32 - 1  # numpy's seeds are 32-bit
@@ -130,7 +131,7 @@ class SynthSettings:
     loop_views: int = 0
     """Views of a full loop of the camera path (0: ``views``); see :class:`SynthPreset`."""
     scene_seed: int | None = None
-    """Family scene (:mod:`backend.capture.synth_family`); None: the room of :mod:`synth_scene`."""
+    """Family scene (:mod:`backend.synth.family`); None: the room of :mod:`backend.synth.room`."""
 
     @staticmethod
     def from_preset(preset: str, seed: int = 0, views: int | None = None, samples: int | None = None,
@@ -164,10 +165,10 @@ class SynthSettings:
         """The capture's cameras: the first ``views`` of a loop of ``loop_views`` (or ``views``) positions."""
         loop = max(self.loop_views, self.views)
         if self.scene_seed is None:
-            path = synth_scene.camera_path(loop, self.width, self.height, self.seed, self.fov_x_deg)
+            path = room.camera_path(loop, self.width, self.height, self.seed, self.fov_x_deg)
         else:
-            layout = synth_family.family_layout(self.scene_seed)
-            path = synth_family.camera_path(layout, loop, self.width, self.height, self.seed, self.fov_x_deg)
+            layout = family.family_layout(self.scene_seed)
+            path = family.camera_path(layout, loop, self.width, self.height, self.seed, self.fov_x_deg)
         return path[:self.views]
 
 
@@ -176,8 +177,8 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
                renderer: str = "auto", blender: str | None = None, scene_seed: int | None = None) -> dict[str, Any]:
     """Render (or finish rendering) a synthetic capture into ``ws_path``; logs and returns a summary.
 
-    ``scene_seed`` None renders the room of :mod:`backend.capture.synth_scene` (``seed`` varies its
-    details); K >= 0 renders scene K of the procedural family (:mod:`backend.capture.synth_family`).
+    ``scene_seed`` None renders the room of :mod:`backend.synth.room` (``seed`` varies its
+    details); K >= 0 renders scene K of the procedural family (:mod:`backend.synth.family`).
     ``seed`` is always the camera path's phase and Cycles' sampling seed.
 
     The summary (also written to ``gt/synth_summary.json``) holds the views, size, samples, seconds
@@ -185,7 +186,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
 
     ``renderer``: "module" renders in this process with the bpy module, "binary" runs the Blender
     binary ``blender`` (default ``$IGS_BLENDER``) as one worker process
-    (:mod:`backend.capture.synth_blender`), "auto" the module when this Python has one, else the binary.
+    (:mod:`backend.synth.blender`), "auto" the module when this Python has one, else the binary.
 
     Re-running with the same settings resumes: views and edits whose files all exist are skipped.
     Different settings on a partly or fully written workspace raise :class:`IGSError` unless
@@ -194,7 +195,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     t_start = time.perf_counter()
     cpu_start = _cpu_seconds()
     settings = SynthSettings.from_preset(preset, seed, views, samples, scene_seed)
-    binary = synth_blender.choose_blender(renderer, blender)
+    binary = choose_blender(renderer, blender)
     ws = Workspace(Path(ws_path))
     _prepare_workspace(ws, settings, force)
     threads = threads or os.cpu_count() or 1
@@ -210,7 +211,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
             render: ViewRenderer = Renderer(scene, settings, threads)
             blender_version = bpy.app.version_string
         else:
-            worker = stack.enter_context(synth_blender.BlenderWorker(binary))
+            worker = stack.enter_context(BlenderWorker(binary))
             scene = worker.build_scene(settings.seed, settings.scene_seed)
             render = worker.renderer(cycles_params(settings, threads))
             blender_version = worker.version
@@ -253,11 +254,11 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     return summary
 
 
-def build_scene(settings: SynthSettings) -> synth_scene.SynthScene:
+def build_scene(settings: SynthSettings) -> room.SynthScene:
     """Build the settings' scene with the bpy module: the room for ``seed``, or family scene ``scene_seed``."""
     if settings.scene_seed is None:
-        return synth_scene.build_scene(settings.seed)
-    return synth_family.build_family_scene(settings.scene_seed)
+        return room.build_scene(settings.seed)
+    return family.build_family_scene(settings.scene_seed)
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -316,7 +317,7 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
     write_json(settings_path, settings.as_dict())
 
 
-def _view_files(ws: Workspace, scene: synth_scene.SynthScene, name: str) -> list[Path]:
+def _view_files(ws: Workspace, scene: room.SynthScene, name: str) -> list[Path]:
     stem = Path(name).stem
     files = [ws.images / name, ws.gt_pass("albedo") / name, ws.gt_pass("shading") / f"{stem}.exr",
              ws.gt_pass("residual") / f"{stem}.exr", ws.gt_pass("depth") / f"{stem}.npy",
@@ -331,7 +332,7 @@ def _edit_files(ws: Workspace, edit: str, name: str) -> list[Path]:
             ws.gt_edit / edit / "shading" / f"{stem}.exr", ws.gt_edit / edit / "residual" / f"{stem}.exr"]
 
 
-def _count_files(ws: Workspace, scene: synth_scene.SynthScene) -> dict[str, int]:
+def _count_files(ws: Workspace, scene: room.SynthScene) -> dict[str, int]:
     def count(folder: Path) -> int:
         return sum(1 for p in folder.iterdir() if not p.name.startswith(".")) if folder.exists() else 0
 
@@ -345,7 +346,7 @@ def _count_files(ws: Workspace, scene: synth_scene.SynthScene) -> dict[str, int]
 
 
 def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Camera],
-                        scene: synth_scene.SynthScene, summary: dict[str, Any], blender: str, renderer: str) -> None:
+                        scene: room.SynthScene, summary: dict[str, Any], blender: str, renderer: str) -> None:
     # Keys written by later stages (the decomposition's "layers") survive a resumed synth.
     kept = {k: v for k, v in ws.read_capture_json().items() if k not in SYNTH_KEYS} if ws.capture_json.exists() else {}
     ws.write_capture_json(kept | {
@@ -370,7 +371,7 @@ def _write_capture_json(ws: Workspace, settings: SynthSettings, cameras: list[Ca
 
 
 class ViewRenderer(Protocol):
-    """What the render loops need: :class:`Renderer` or :class:`synth_blender.BinaryRenderer`."""
+    """What the render loops need: :class:`Renderer` or :class:`backend.synth.blender.BinaryRenderer`."""
 
     def render(self, cam: Camera, exr: Path, border: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]: ...
 
@@ -381,14 +382,14 @@ def cycles_params(settings: SynthSettings, threads: int) -> CyclesParams:
 
 class Renderer:
     """Cycles in this process (the bpy module), set up once for a built scene; renders one camera into a
-    dict of passes. :class:`backend.capture.synth_blender.BinaryRenderer` does the same in a Blender binary.
+    dict of passes. :class:`backend.synth.blender.BinaryRenderer` does the same in a Blender binary.
 
     Pass names are Blender's ("Combined", "Diffuse Color", "Depth", "Position", ...) plus one
     ``mask_<edit>`` AOV per edit; each value is (H, W, C) float32, row 0 at the top.
     """
 
-    def __init__(self, scene: synth_scene.SynthScene, settings: SynthSettings, threads: int):
-        self.view = CyclesView(cycles_params(settings, threads), [synth_scene.mask_aov(e.name) for e in scene.edits])
+    def __init__(self, scene: room.SynthScene, settings: SynthSettings, threads: int):
+        self.view = CyclesView(cycles_params(settings, threads), [room.mask_aov(e.name) for e in scene.edits])
 
     def render(self, cam: Camera, exr: Path, border: tuple[int, int, int, int] | None = None) -> dict[str, np.ndarray]:
         """Render ``cam`` (optionally only pixels x0 <= x < x1, y0 <= y < y1) and return its passes."""
@@ -435,7 +436,7 @@ def _blender_output_captured():
         Path(name).unlink(missing_ok=True)
 
 
-def _render_views(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRenderer, cameras: list[Camera],
+def _render_views(ws: Workspace, scene: room.SynthScene, renderer: ViewRenderer, cameras: list[Camera],
                   settings: SynthSettings, tmp: Path) -> int:
     todo = [i for i, c in enumerate(cameras) if not all(p.exists() for p in _view_files(ws, scene, c.name))]
     scene.set_edit(None)
@@ -460,7 +461,7 @@ def _residual(P: dict[str, np.ndarray]) -> np.ndarray:
     return r
 
 
-def _write_view(ws: Workspace, scene: synth_scene.SynthScene, cam: Camera, P: dict[str, np.ndarray],
+def _write_view(ws: Workspace, scene: room.SynthScene, cam: Camera, P: dict[str, np.ndarray],
                 settings: SynthSettings, index: int) -> None:
     name, stem = cam.name, Path(cam.name).stem
     combined = P["Combined"][..., :3]
@@ -470,7 +471,7 @@ def _write_view(ws: Workspace, scene: synth_scene.SynthScene, cam: Camera, P: di
     depth = np.where(np.isfinite(depth) & (depth < 1e9), depth, 0.0).astype(np.float32)  # background: 0
 
     for e in scene.edits:
-        cover = P[synth_scene.mask_aov(e.name)][..., 0]
+        cover = P[room.mask_aov(e.name)][..., 0]
         write_image(ws.gt_edit / e.name / "mask" / name, np.repeat((cover > 0)[..., None], 3, axis=2).astype(np.float32))
     write_image(ws.gt_pass("albedo") / name, linear_to_srgb(albedo), bits=16)
     write_exr(ws.gt_pass("shading") / f"{stem}.exr", shading)
@@ -503,13 +504,13 @@ def _sample_points(position: np.ndarray, depth: np.ndarray, k: int, seed: int, i
 # edits
 
 
-def _write_edit_definitions(ws: Workspace, scene: synth_scene.SynthScene) -> None:
+def _write_edit_definitions(ws: Workspace, scene: room.SynthScene) -> None:
     for e in scene.edits:
         if e.texture is not None:
             write_image(ws.gt_edit / e.name / "texture.png", e.texture.astype(np.float32) / 255.0)
 
 
-def _render_edits(ws: Workspace, scene: synth_scene.SynthScene, renderer: ViewRenderer, cameras: list[Camera],
+def _render_edits(ws: Workspace, scene: room.SynthScene, renderer: ViewRenderer, cameras: list[Camera],
                   tmp: Path) -> int:
     jobs = [(e.name, i) for e in scene.edits for i, c in enumerate(cameras)
             if not all(p.exists() for p in _edit_files(ws, e.name, c.name))]
@@ -625,7 +626,7 @@ def _largest_rectangle(mask: np.ndarray) -> list[int]:
     return best[1]
 
 
-def _write_edit_json(ws: Workspace, edit: synth_scene.EditSpec, edit_view: str, rect: list[int]) -> None:
+def _write_edit_json(ws: Workspace, edit: room.EditSpec, edit_view: str, rect: list[int]) -> None:
     write_json(ws.gt_edit / edit.name / "edit.json", {
         "name": edit.name,
         "kind": edit.kind,
