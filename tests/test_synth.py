@@ -23,8 +23,11 @@ from backend.core.errors import Cancelled, IGSError
 from backend.core.imageio import read_exr, read_image
 from backend.synth import textures
 from backend.synth.exr_layers import passes, read_multilayer_exr
-from backend.synth.room import build_scene, camera_path, mask_aov
-from backend.synth.run import Renderer, SynthSettings, synthesize
+from backend.synth.module_renderer import Renderer
+from backend.synth.room import build_scene, camera_path
+from backend.synth.run import synthesize
+from backend.synth.scene import mask_aov
+from backend.synth.settings import SynthSettings
 from tests._synth_edits import edited_views, frame_names, identity_tolerance, read_raw, to_linear
 
 pytest.importorskip("bpy")

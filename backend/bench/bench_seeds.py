@@ -56,7 +56,8 @@ from backend.edit.fit import FitConfig
 from backend.edit.surface_points import GROW_ON
 from backend.eval.layer_metrics import headline_metrics
 from backend.render import BACKENDS
-from backend.synth.run import PRESETS, synthesize
+from backend.synth.run import synthesize
+from backend.synth.settings import PRESETS
 from backend.train.device import add_device_argument
 from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.run import METRICS_KEY, decompose

@@ -7,7 +7,8 @@ import argparse
 from backend.commands import options as opt
 from backend.core import events
 from backend.synth.blender import RENDERERS
-from backend.synth.run import PRESETS, synthesize
+from backend.synth.run import synthesize
+from backend.synth.settings import PRESETS
 
 
 def register(sub: argparse._SubParsersAction) -> None:

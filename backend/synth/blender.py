@@ -36,9 +36,10 @@ from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.synth import blender_protocol as wire
-from backend.synth import room, textures
+from backend.synth import textures
 from backend.synth.blender_cycles import CyclesParams
 from backend.synth.exr_layers import passes, read_multilayer_exr
+from backend.synth.scene import SynthScene
 
 RENDERERS = ("auto", "module", "binary")
 WORKER = Path(__file__).with_name("blender_worker.py")
@@ -239,7 +240,7 @@ class BlenderWorker:
 
 
 @dataclass
-class BlenderScene(room.SynthScene):
+class BlenderScene(SynthScene):
     """The room as the worker built it: edits and description came over the socket; ``set_edit`` goes back."""
 
     worker: BlenderWorker | None = field(default=None, repr=False)
@@ -250,7 +251,7 @@ class BlenderScene(room.SynthScene):
 
 
 class BinaryRenderer:
-    """:class:`backend.synth.run.Renderer`'s interface over a :class:`BlenderWorker`."""
+    """:class:`backend.synth.module_renderer.Renderer`'s interface over a :class:`BlenderWorker`."""
 
     def __init__(self, worker: BlenderWorker):
         self.worker = worker

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from backend.synth.blender_cycles import CyclesView
-    from backend.synth.room import SynthScene
+    from backend.synth.scene import SynthScene
 
 BACKEND_ROOT = Path(__file__).resolve().parents[2]
 TEXTURES_MODULE = "backend.synth.textures"
@@ -108,15 +108,17 @@ class Worker:
 
     def handle(self, msg: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
         from backend.synth import blender_protocol as wire
-        from backend.synth import family, room
+        from backend.synth import room
         from backend.synth.blender_cycles import CyclesParams, CyclesView
+        from backend.synth.family.build import build_family_scene
+        from backend.synth.scene import mask_aov
 
         cmd = msg.get("cmd")
         if cmd == "build":
             if msg.get("scene_seed") is None:
                 self.scene = room.build_scene(int(msg["seed"]))
             else:
-                self.scene = family.build_family_scene(int(msg["scene_seed"]))
+                self.scene = build_family_scene(int(msg["scene_seed"]))
             items, arrays = wire.edits_to_wire(self.scene.edits)
             return {"ok": True, "description": self.scene.description, "edits": items}, arrays
         if cmd == "set_edit":
@@ -124,7 +126,7 @@ class Worker:
             return {"ok": True}, {}
         if cmd == "setup":
             scene = self._need(self.scene, "build")
-            self.view = CyclesView(CyclesParams(**msg["params"]), [room.mask_aov(e.name) for e in scene.edits])
+            self.view = CyclesView(CyclesParams(**msg["params"]), [mask_aov(e.name) for e in scene.edits])
             return {"ok": True}, {}
         if cmd == "render":
             import numpy as np
