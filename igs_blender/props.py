@@ -62,7 +62,7 @@ MODEL_PRIORS = {"MARIGOLD": "marigold", "DA_SMALL": "depth-anything", "DA_BASE":
                 "DA_LARGE": "depth-anything:large"}
 MODEL_NAMES = {"MARIGOLD": "Marigold IID", "DA_SMALL": "Depth Anything V2 Small", "DA_BASE": "Depth Anything V2 Base",
                "DA_LARGE": "Depth Anything V2 Large"}
-# Seconds per 1280x720 frame on a 2-core CPU, measured with `python -m backend.eval.bench_prior_models`
+# Seconds per 1280x720 frame on a 2-core CPU, measured with `python -m backend.bench.bench_prior_models`
 # (the real architectures with random weights; Marigold at its default 4 steps): for the estimate.
 CPU_SECONDS_PER_FRAME = {"MARIGOLD": 71.5, "DA_SMALL": 1.8, "DA_BASE": 5.1, "DA_LARGE": 15.7}
 _ONCE = "downloaded once into the Hugging Face cache, then runs once per frame (slow on the CPU)"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds OpenSplat's CPU-only binary for the side-by-side training benchmark
-# (python -m backend.eval.bench_train --opensplat BUILD/opensplat), against this project's own
+# (python -m backend.bench.bench_train --opensplat BUILD/opensplat), against this project's own
 # torch (the pip wheel's libtorch) and Debian's OpenCV (apt-get install cmake g++ libopencv-dev).
 #   scripts/build_opensplat.sh SRC BUILD
 # SRC is a checkout of https://github.com/pierotofy/OpenSplat. OpenSplat's CMake downloads

@@ -66,7 +66,7 @@ print("workspace", root, views, "views", w, "x", h)
 EOF
 
 step "3. bench_step on $DEVICE ($BACKEND), warm-up $WARMUP, $STEPS profiled, a $ITERATIONS-iteration schedule"
-timeout 330 "$PY" -m backend.eval.bench_step "$WS" --device "$DEVICE" --backend "$BACKEND" --stages "$STAGES" \
+timeout 330 "$PY" -m backend.bench.bench_step "$WS" --device "$DEVICE" --backend "$BACKEND" --stages "$STAGES" \
   --warmup "$WARMUP" --steps "$STEPS" --iterations "$ITERATIONS" --out "$OUT/bench_step.json"
 if [ "$DEVICE" != cpu ]; then
   step "4. the CUDA tests"

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from backend.bench import bench_edit
+from backend.bench.edit_region import RegionPSNR, ring_masks
 from backend.core.errors import IGSError
-from backend.eval import bench_edit
-from backend.eval.edit_region import RegionPSNR, ring_masks
 
 OLD, NEW = 0.2, 0.8  # the surface's texture before and after the recolour
 

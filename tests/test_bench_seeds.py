@@ -11,10 +11,10 @@ from dataclasses import replace
 import pytest
 from _synth_capture import needs_synth_renderer
 
+from backend.bench import bench_seeds
+from backend.bench.bench_seeds import SeedSettings
+from backend.bench.seed_stats import aggregate, spread, spread_cells
 from backend.core.errors import IGSError
-from backend.eval import bench_seeds
-from backend.eval.bench_seeds import SeedSettings
-from backend.eval.seed_stats import aggregate, spread, spread_cells
 
 
 def test_spread_is_mean_sample_std_min_and_max():

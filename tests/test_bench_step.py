@@ -11,8 +11,8 @@ import pytest
 import torch
 from _train_scene import make_layered_workspace
 
+from backend.bench import bench_step
 from backend.core import events
-from backend.eval import bench_step
 from backend.train import phases
 
 

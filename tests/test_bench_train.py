@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from _train_scene import make_workspace
 
-from backend.eval import bench_train, bench_train_ours
+from backend.bench import bench_train, bench_train_ours
 from backend.train.loop import load_checkpoint
 
 # Checks the project the way OpenSplat's nerfstudio reader needs it, records what it found, then prints

@@ -29,7 +29,7 @@ ARGS = ["--albedo-iterations", "50", "--shading-iterations", "24", "--residual-i
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     needs_synth_renderer()
-    synth = pytest.importorskip("backend.capture.synth")
+    synth = pytest.importorskip("backend.synth.run")
     ws = tmp_path_factory.mktemp("decompose") / "test_ws"
     synth.synthesize(ws, preset="test", seed=0)
     return ws

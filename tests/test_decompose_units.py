@@ -174,7 +174,7 @@ def test_contact_sheet_lays_out_labelled_cells(tmp_path):
 
 
 def test_bench_targets_without_the_single_set_report_its_target_as_not_measured():
-    from backend.eval.bench_decompose import table, targets
+    from backend.bench.bench_decompose import table, targets
 
     def method(albedo, full, ratio):
         return {"layers": {"albedo": {"psnr": albedo}, "shading": {"psnr": 23.0}, "full": {"psnr": full}},
@@ -210,8 +210,8 @@ def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_qua
 def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
     import pytest
 
+    from backend.bench.bench_decompose import configs, scaled_iterations, targets
     from backend.core.errors import IGSError
-    from backend.eval.bench_decompose import configs, scaled_iterations, targets
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
     half = scaled_iterations(dec, 0.3)

@@ -161,7 +161,7 @@ def test_cameras_around_and_between_the_capture():
 
 
 def test_bench_prints_the_table_and_writes_json(layered, tmp_path, capsys):
-    from backend.eval.bench_distil import main as bench
+    from backend.bench.bench_distil import main as bench
     ws = _copy(layered, tmp_path / "ws")
     assert bench([str(ws), "--iterations", "60", "--orbit-frames", "4", "--device", "cpu"]) == 0
     out = capsys.readouterr().out

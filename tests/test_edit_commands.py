@@ -255,9 +255,9 @@ def test_render_and_layer_evaluation_hold_torch_at_one_thread(ws, tmp_path, monk
 def test_edit_scales_scores_a_baked_albedo_at_several_distances(ws, tmp_path, capsys):
     """The edit_scales benchmark on a ground truth made from the box's own albedo: the box itself scores
     high at 1x, a recoloured box low, and bad inputs are named."""
+    from backend.bench import edit_scales
     from backend.capture.load import load_capture
     from backend.core.imageio import write_image, write_linear_as_srgb
-    from backend.eval import edit_scales
 
     face = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],
                        color=[0.5, 0.5, 0.5], name="face")
@@ -375,8 +375,8 @@ def test_recolouring_a_whole_textured_region_replaces_the_texture_to_its_border(
     """A proxy that matches a textured region exactly (the middle 2 x 2 checker cells of the +x face,
     edge on cell edges): the new colour reaches the border ring with no checker left at the edges,
     and nothing bleeds past it onto the cells around."""
+    from backend.bench.edit_region import ring_masks
     from backend.capture.load import load_capture
-    from backend.eval.edit_region import ring_masks
     target = np.array([0.95, 0.9, 0.2])
     proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0],
                         color=target, name="whole_face")

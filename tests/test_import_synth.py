@@ -17,9 +17,9 @@ from backend.capture.colmap_io import read_model
 from backend.capture.importer import ImportConfig, import_capture
 from backend.capture.pose_eval import compare_cameras
 from backend.capture.sfm import SfMConfig
-from backend.capture.synth import synthesize
 from backend.capture.video import FrameSelection
 from backend.commands.cli import main
+from backend.synth.run import synthesize
 
 # One thread: COLMAP's multi-threaded mapper is not repeatable. 2 px: see SfMConfig.max_reproj_error.
 SFM = SfMConfig(num_threads=1, max_reproj_error=2.0)

@@ -137,8 +137,8 @@ def test_a_model_with_one_camera_per_image_still_reads(scene, tmp_path):
 
 
 def test_bench_import_measures_a_known_pose_import_through_the_command(scene, tmp_path, capsys):
-    from backend.eval.bench_import import STAGES
-    from backend.eval.bench_import import main as bench_main
+    from backend.bench.bench_import import STAGES
+    from backend.bench.bench_import import main as bench_main
 
     src, _ = scene
     out = tmp_path / "bench.json"

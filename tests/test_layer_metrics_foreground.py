@@ -205,7 +205,7 @@ def test_headline_metrics_flattens_an_entry_and_skips_what_is_not_a_number():
 
 
 def test_bench_table_prints_the_foreground_columns_and_the_leakage():
-    from backend.eval.bench_decompose import table, targets
+    from backend.bench.bench_decompose import table, targets
 
     layers = {"albedo": {"psnr": 31.0, "ssim": 0.9, "lpips": "n/a"}, "shading": {"psnr": 13.0, "ssim": 0.5},
               "full": {"psnr": 27.0, "ssim": 0.8}}

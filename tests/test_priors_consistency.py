@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from _synth_capture import needs_synth_renderer
 
-from backend.capture.synth import synthesize
+from backend.bench.bench_priors import flicker_gains, measure, write_flickered
 from backend.commands.cli import main as igs_main
 from backend.core.imageio import read_image, srgb_to_linear
-from backend.eval.bench_priors import flicker_gains, measure, write_flickered
 from backend.priors.apply import PriorsConfig, compute_priors
 from backend.priors.consistency import TrackSamples, fit_gains
+from backend.synth.run import synthesize
 
 
 @pytest.fixture(scope="module")

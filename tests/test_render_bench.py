@@ -2,8 +2,8 @@
 
 import json
 
-from backend.eval import bench_render
-from backend.eval.bench_scene import room_camera, room_layers
+from backend.bench import bench_render
+from backend.bench.bench_scene import room_camera, room_layers
 
 
 def test_bench_render_writes_table_and_json(tmp_path, capsys):

@@ -15,16 +15,19 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.capture import synth_textures
 from backend.capture.colmap_io import read_model
-from backend.capture.exr_layers import passes, read_multilayer_exr
 from backend.capture.load import load_capture
-from backend.capture.synth import Renderer, SynthSettings, synthesize
-from backend.capture.synth_scene import build_scene, camera_path, mask_aov
 from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import Cancelled, IGSError
 from backend.core.imageio import read_exr, read_image
+from backend.synth import textures
+from backend.synth.exr_layers import passes, read_multilayer_exr
+from backend.synth.module_renderer import Renderer
+from backend.synth.room import build_scene, camera_path
+from backend.synth.run import synthesize
+from backend.synth.scene import mask_aov
+from backend.synth.settings import SynthSettings
 from tests._synth_edits import edited_views, frame_names, identity_tolerance, read_raw, to_linear
 
 pytest.importorskip("bpy")
@@ -265,8 +268,8 @@ def test_other_seeds_change_the_scene_and_camera_path():
     a = camera_path(8, 64, 48, seed=0)
     b = camera_path(8, 64, 48, seed=1)
     assert not np.allclose(a[0].center, b[0].center)
-    tex0 = synth_textures.poster(np.random.default_rng(0))
-    tex1 = synth_textures.poster(np.random.default_rng(1))
+    tex0 = textures.poster(np.random.default_rng(0))
+    tex1 = textures.poster(np.random.default_rng(1))
     assert tex0.shape == (256, 256, 3) and not np.array_equal(tex0, tex1)
 
 
@@ -330,9 +333,9 @@ def test_multilayer_exr_reader_reads_uncompressed_exrs(tmp_path):
 
 
 def test_blur_ceiling_falls_with_the_blur(capture, tmp_path):
-    """backend.eval.blur_ceiling on the test capture: unblurred, the ground truth composes back to the
+    """backend.bench.blur_ceiling on the test capture: unblurred, the ground truth composes back to the
     edited image closely; a wider blur costs more; a missing edit is named."""
-    from backend.eval import blur_ceiling
+    from backend.bench import blur_ceiling
 
     ws, _ = capture
     out = tmp_path / "blur.json"

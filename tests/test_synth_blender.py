@@ -20,10 +20,10 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.capture import synth_blender
-from backend.capture.synth import synthesize
 from backend.core.errors import IGSError
 from backend.core.imageio import read_exr
+from backend.synth import blender
+from backend.synth.run import synthesize
 
 pytest.importorskip("bpy")
 
@@ -62,10 +62,10 @@ def fake_blender(folder: Path, prelude: str = "") -> Path:
 def _render_replaced_by(body: str) -> str:
     """A stand-in prelude that replaces the worker's ``CyclesView.render(self, cam, exr, border)`` by ``body``."""
     return (f"sys.path.insert(0, {str(REPO)!r})\n"
-            "from backend.capture import synth_blender_cycles\n"
+            "from backend.synth import blender_cycles\n"
             "def render(self, cam, exr, border=None):\n"
             + textwrap.indent(body, "    ") + "\n"
-            "synth_blender_cycles.CyclesView.render = render\n")
+            "blender_cycles.CyclesView.render = render\n")
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -205,23 +205,23 @@ def test_auto_without_bpy_uses_the_binary_or_says_what_to_pass(tmp_path):
 
 def test_choose_blender_options(tmp_path, monkeypatch):
     monkeypatch.delenv("IGS_BLENDER", raising=False)
-    assert synth_blender.choose_blender("auto", None) is None  # this Python has bpy: the module
-    assert synth_blender.choose_blender("auto", "/nonexistent/blender") is None  # auto prefers the module
+    assert blender.choose_blender("auto", None) is None  # this Python has bpy: the module
+    assert blender.choose_blender("auto", "/nonexistent/blender") is None  # auto prefers the module
     binary = fake_blender(tmp_path)
-    assert synth_blender.choose_blender("binary", str(binary)) == binary
+    assert blender.choose_blender("binary", str(binary)) == binary
     monkeypatch.setenv("IGS_BLENDER", str(binary))
-    assert synth_blender.choose_blender("binary", None) == binary
+    assert blender.choose_blender("binary", None) == binary
     with pytest.raises(IGSError, match="--blender /nonexistent/blender: not an executable"):
-        synth_blender.choose_blender("binary", "/nonexistent/blender")
+        blender.choose_blender("binary", "/nonexistent/blender")
     monkeypatch.delenv("IGS_BLENDER")
     with pytest.raises(IGSError, match="--renderer binary: pass --blender"):
-        synth_blender.choose_blender("binary", None)
+        blender.choose_blender("binary", None)
     with pytest.raises(IGSError, match="--renderer: unknown"):
-        synth_blender.choose_blender("gpu", None)
+        blender.choose_blender("gpu", None)
     monkeypatch.setitem(sys.modules, "bpy", None)  # now `import bpy` fails, as in Python 3.13/3.14
     with pytest.raises(IGSError, match="--renderer module: this Python .* has no bpy module"):
-        synth_blender.choose_blender("module", str(binary))
-    assert synth_blender.choose_blender("auto", str(binary)) == binary
+        blender.choose_blender("module", str(binary))
+    assert blender.choose_blender("auto", str(binary)) == binary
 
 
 def _gone(pid: int) -> bool:

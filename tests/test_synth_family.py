@@ -15,11 +15,13 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.capture import synth_family
-from backend.capture.synth import HOLD_EVERY, SynthSettings, synthesize
-from backend.capture.synth_family import EDITS, EYE_RADIUS, Rect, family_layout
 from backend.core.errors import IGSError
 from backend.core.imageio import read_exr, read_image
+from backend.synth.family.draws import SKIES
+from backend.synth.family.layout import camera_path, family_layout
+from backend.synth.family.parts import EDITS, EYE_RADIUS, FAMILY_VERSION, WALL_NAMES, Rect
+from backend.synth.run import synthesize
+from backend.synth.settings import HOLD_EVERY, SynthSettings
 from tests._synth_edits import edited_views, frame_names, identity_tolerance, read_raw, to_linear
 
 pytest.importorskip("bpy")
@@ -98,9 +100,9 @@ def test_layouts_vary_with_the_seed_and_cameras_see_every_edit():
     """Over 40 seeds every wall is opened and sizes, skies and textures vary; in every layout each edit's
     centre is in front of several training cameras of the `test` path (occlusion aside)."""
     layouts = [family_layout(k) for k in range(40)]
-    assert {L.open_wall for L in layouts} == set(synth_family.WALL_NAMES)
+    assert {L.open_wall for L in layouts} == set(WALL_NAMES)
     assert len({(L.half_x, L.half_y, L.height) for L in layouts}) == 40
-    assert {L.sky for L in layouts} == set(synth_family.SKIES)
+    assert {L.sky for L in layouts} == set(SKIES)
     assert {L.floor_texture for L in layouts} == {"wood", "tiles"} and {L.picture.texture for L in layouts} == {"painting", "mondrian"}
     assert any(L.skylight for L in layouts) and any(L.skylight is None for L in layouts)
     assert any(L.parapet for L in layouts) and any(not L.parapet for L in layouts)
@@ -109,7 +111,7 @@ def test_layouts_vary_with_the_seed_and_cameras_see_every_edit():
         centres = {"canvas_recolor": walls[L.picture.canvas.wall].point(L.picture.canvas.s, L.picture.canvas.z),
                    "dark_recolor": walls[L.panel.item.wall].point(L.panel.item.s, L.panel.item.z),
                    "decal": np.array([*L.decal.center, 0.0])}
-        cams = synth_family.camera_path(L, 16, 64, 48, seed=0)
+        cams = camera_path(L, 16, 64, 48, seed=0)
         for name, p in centres.items():
             seen = 0
             for i, cam in enumerate(cams):
@@ -125,7 +127,7 @@ def test_layouts_vary_with_the_seed_and_cameras_see_every_edit():
 def test_scene_descriptions_differ(captures):
     a, b = (json.loads((captures[k] / "gt" / "scene.json").read_text()) for k in SEEDS)
     for k, d in zip(SEEDS, (a, b)):
-        assert d["family"]["scene_seed"] == k and d["family"]["version"] == synth_family.FAMILY_VERSION
+        assert d["family"]["scene_seed"] == k and d["family"]["version"] == FAMILY_VERSION
         assert set(d["edits"]) == set(EDITS)
         assert {"SUN", "AREA", "POINT"} <= {light["type"] for light in d["built_lights"]}
     assert a["room"] != b["room"]

@@ -8,13 +8,13 @@ import shutil
 import numpy as np
 import pytest
 
+from backend.bench import bench_step
 from backend.commands.cli import main
 from backend.edit.albedo_render import render_albedo
 from backend.edit.bake import bake_edit
 from backend.edit.bake_config import BakeConfig
 from backend.edit.mesh_raster import rasterize_proxy
 from backend.edit.proxy import plane_proxy
-from backend.eval import bench_step
 from backend.render import gsplat_available
 from backend.splats.ply import read_ply
 from backend.train.baseline import BaselineConfig, train_3dgs

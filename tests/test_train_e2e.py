@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     needs_synth_renderer()
-    synth = pytest.importorskip("backend.capture.synth")
+    synth = pytest.importorskip("backend.synth.run")
     ws = tmp_path_factory.mktemp("e2e") / "test_ws"
     synth.synthesize(ws, preset="test", seed=0)
     return ws

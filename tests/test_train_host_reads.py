@@ -19,7 +19,7 @@ import torch
 from _train_scene import make_layered_workspace
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from backend.eval import bench_step
+from backend.bench import bench_step
 from backend.train import loop, losses
 
 aten = torch.ops.aten

@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-from blender_session import DISPLAY, REPO, Mounts, build_root, copy_sources, in_root, why_not
+from blender_session import DISPLAY, REPO, Mounts, build_root, copy_driver, copy_sources, in_root, why_not
 
 RUN = "/root/igs-bench"
 
@@ -111,7 +111,7 @@ def main() -> int:
     copy_sources(run / "pkg" / "intrinsic_splats")
     copy_workspace(ws, run / "ws", root)
     shutil.copytree(refs, run / "refs")
-    shutil.copy2(REPO / "tests_blender" / "viewport_bench_driver.py", run / "driver.py")
+    copy_driver("viewport_bench_driver.py", run)
     config = {"pkg": f"{RUN}/pkg", "workspace": f"{RUN}/ws", "refs": f"{RUN}/refs", "views": views,
               "edit_view": edit_view, "counts": [int(c) for c in args.counts.split(",")], "frames": args.frames,
               "out": f"{RUN}/out"}

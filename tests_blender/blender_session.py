@@ -2,7 +2,8 @@
 
 ``scripts/blender_root.sh`` builds the root once (cached outside the repository); :func:`in_root`
 runs a shell script inside it with a clean environment, :class:`Mounts` gives it /proc and
-/dev/shm while a session runs, and :func:`copy_sources` copies the files git would ship.
+/dev/shm while a session runs, :func:`copy_sources` copies the files git would ship and
+:func:`copy_driver` the script Blender runs, with the module it imports.
 """
 
 from __future__ import annotations
@@ -62,6 +63,12 @@ def build_root() -> Path:
     if res.returncode != 0:
         raise RuntimeError(f"building the Blender root failed:\n{res.stderr[-3000:]}")
     return Path(res.stdout.strip().splitlines()[-1])
+
+
+def copy_driver(driver: str, run: Path) -> None:
+    """``tests_blender/<driver>`` as ``run/driver.py``, with ``window_driver.py`` (which it imports) beside it."""
+    shutil.copy2(REPO / "tests_blender" / driver, run / "driver.py")
+    shutil.copy2(REPO / "tests_blender" / "window_driver.py", run / "window_driver.py")
 
 
 def copy_sources(dst: Path) -> None:

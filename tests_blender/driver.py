@@ -16,7 +16,6 @@ Standard library and bpy only (this is Blender's Python).
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -25,43 +24,21 @@ from pathlib import Path
 
 import bpy
 
-CONFIG = json.loads(Path(os.environ["IGS_DRIVER_CONFIG"]).read_text())
-OUT = Path(CONFIG["out"])
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # window_driver.py, copied beside this file
+from window_driver import Session, main_window, view3d  # noqa: E402
+
 MOD = "bl_ext.user_default.intrinsic_splats"
-RESULTS: dict = {"blender": bpy.app.version_string, "python": None, "steps": [], "done": False}
+SESSION = Session("IGS_DRIVER_CONFIG", "results.json",
+                  {"blender": bpy.app.version_string, "python": None, "steps": [], "done": False})
+CONFIG, OUT, RESULTS = SESSION.config, SESSION.out, SESSION.results
+save_results, shot = SESSION.save, SESSION.shot
 
 
 # -- plumbing ---------------------------------------------------------------------------------------
 
 
-def save_results() -> None:
-    tmp = OUT / "results.json.tmp"
-    tmp.write_text(json.dumps(RESULTS, indent=1, default=str))
-    tmp.replace(OUT / "results.json")
-
-
-def shot(name: str) -> str:
-    """Screenshot of the whole X screen (every Blender window) as OUT/NAME.png."""
-    path = OUT / f"{name}.png"
-    subprocess.run(["import", "-window", "root", str(path)], check=False, timeout=60,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return path.name
-
-
 def xdo(*args: str) -> None:
     subprocess.run(["xdotool", *args], check=True, timeout=30)
-
-
-def main_window():
-    # Preferences and render windows have temporary screens; the main window is the one that does not.
-    return next(w for w in bpy.context.window_manager.windows if not w.screen.is_temporary)
-
-
-def view3d(area_type: str = "VIEW_3D"):
-    win = main_window()
-    area = next(a for a in win.screen.areas if a.type == area_type)
-    region = next(r for r in area.regions if r.type == "WINDOW")
-    return win, area, region
 
 
 def override(area_type: str = "VIEW_3D"):
@@ -506,27 +483,5 @@ def camera_pixel_to_screen(u: float, v: float) -> tuple[int, int]:
     return int(round(region.x + p.x)), int(round(win.height - (region.y + p.y)))
 
 
-_FLOW = None
-
-
-def tick():
-    global _FLOW
-    try:
-        if _FLOW is None:
-            _FLOW = flow()
-        return next(_FLOW)
-    except StopIteration:
-        pass
-    except Exception:
-        RESULTS["fatal"] = traceback.format_exc()[-4000:]
-        save_results()
-    try:
-        shot("99-final")
-    finally:
-        bpy.ops.wm.quit_blender()
-    return None
-
-
-OUT.mkdir(parents=True, exist_ok=True)
 save_results()
-bpy.app.timers.register(tick, first_interval=3.0)
+SESSION.run(flow, first_interval=3.0, last=lambda: shot("99-final"))

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from blender_session import DISPLAY, REPO, ROOT_SCRIPT, Mounts, copy_sources, in_root, why_not
+from blender_session import DISPLAY, REPO, ROOT_SCRIPT, Mounts, copy_driver, copy_sources, in_root, why_not
 
 ARTIFACTS = REPO / "artifacts" / "blender-window"
 RUN = "/root/igs-run"  # inside the root; wiped at every session
@@ -52,7 +52,7 @@ def session(root: Path) -> dict:
     (run / "out").mkdir(parents=True)
     (run / "dist").mkdir()
     copy_sources(run / "src")
-    shutil.copy2(REPO / "tests_blender" / "driver.py", run / "driver.py")
+    copy_driver("driver.py", run)
     with Mounts(root):
         build = in_root(root, f"cd {RUN}/src && blender --command extension validate . && "
                               f"blender --command extension build --source-dir . --output-dir {RUN}/dist", 600)

@@ -15,37 +15,24 @@ and takes the screenshots the README shows. Standard library, numpy and bpy only
 
 from __future__ import annotations
 
-import json
-import os
 import subprocess
 import sys
 import time
-import traceback
 from pathlib import Path
 
 import bpy
 import numpy as np
 from mathutils import Matrix
 
-CONFIG = json.loads(Path(os.environ["IGS_BENCH_CONFIG"]).read_text())
-OUT = Path(CONFIG["out"])
-RESULT: dict = {"blender": bpy.app.version_string, "gpu": None, "agreement": [], "fps": [], "sort": [],
-                "composite": None, "done": False}
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # window_driver.py, copied beside this file
+from window_driver import Session, view3d  # noqa: E402
+
+SESSION = Session("IGS_BENCH_CONFIG", "viewport.json",
+                  {"blender": bpy.app.version_string, "gpu": None, "agreement": [], "fps": [], "sort": [],
+                   "composite": None, "done": False})
+CONFIG, OUT, RESULT = SESSION.config, SESSION.out, SESSION.results
+save, shot = SESSION.save, SESSION.shot
 sys.path.insert(0, CONFIG["pkg"])
-
-
-def save() -> None:
-    (OUT / "viewport.json").write_text(json.dumps(RESULT, indent=1))
-
-
-def shot(name: str) -> None:
-    subprocess.run(["import", "-window", "root", str(OUT / f"{name}.png")], check=False, timeout=60)
-
-
-def view3d():
-    win = bpy.context.window_manager.windows[0]
-    area = next(a for a in win.screen.areas if a.type == "VIEW_3D")
-    return win, area, next(r for r in area.regions if r.type == "WINDOW")
 
 
 def frames(n: int, orbit_deg: float = 0.0) -> float:
@@ -214,23 +201,4 @@ def flow():
     save()
 
 
-_FLOW = None
-
-
-def tick():
-    global _FLOW
-    try:
-        if _FLOW is None:
-            _FLOW = flow()
-        return next(_FLOW)
-    except StopIteration:
-        pass
-    except Exception:
-        RESULT["fatal"] = traceback.format_exc()[-4000:]
-        save()
-    bpy.ops.wm.quit_blender()
-    return None
-
-
-OUT.mkdir(parents=True, exist_ok=True)
-bpy.app.timers.register(tick, first_interval=2.0)
+SESSION.run(flow, first_interval=2.0)

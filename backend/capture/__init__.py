@@ -1,1 +1,1 @@
-"""Captures: synthetic Cycles scenes, imports (video, photos, COLMAP), the workspace on disk."""
+"""Captures: imports (video, photos, COLMAP, transforms.json), SfM, undistortion, loading a workspace."""

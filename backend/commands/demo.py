@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 from backend.capture.load import capture_summary, load_capture
-from backend.capture.synth import synthesize
 from backend.commands import decompose as decompose_command
 from backend.commands import edit as edit_command
 from backend.commands import options as opt
@@ -28,6 +27,7 @@ from backend.edit.fit_workflow import fit_proxy
 from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.render_views import capture_orbit
 from backend.eval.render_workspace import RenderConfig, render_workspace
+from backend.synth.run import synthesize
 from backend.train.intrinsic.run import decompose
 
 DEFAULT_WORKSPACE = Path("workspaces") / "demo"

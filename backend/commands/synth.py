@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from backend.capture.synth import PRESETS, synthesize
-from backend.capture.synth_blender import RENDERERS
 from backend.commands import options as opt
 from backend.core import events
+from backend.synth.blender import RENDERERS
+from backend.synth.run import synthesize
+from backend.synth.settings import PRESETS
 
 
 def register(sub: argparse._SubParsersAction) -> None:

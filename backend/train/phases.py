@@ -3,7 +3,7 @@
 The loop marks its phases (render, loss, backward, densification statistics, optimizer step,
 densification) with :func:`phase`. Outside :func:`recording` that is a shared no-op context; inside
 it, each phase is a ``torch.profiler.record_function`` range named ``igs.<phase>``, so a profile
-splits an iteration's host time by phase (``backend.eval.bench_step``). A range costs about 4.5 us
+splits an iteration's host time by phase (``backend.bench.bench_step``). A range costs about 4.5 us
 even with no profiler running, hence the switch.
 """
 

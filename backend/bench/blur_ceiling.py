@@ -1,9 +1,9 @@
-"""What a splat's blur costs an edit: ``python -m backend.eval.blur_ceiling <ws> [--sigmas 0,0.32,0.55] [--ring 2]``.
+"""What a splat's blur costs an edit: ``python -m backend.bench.blur_ceiling <ws> [--sigmas 0,0.32,0.55] [--ring 2]``.
 
 For each ``gt_edit`` edit of a synthetic capture, the Cycles edited albedo is blurred by a Gaussian of
 standard deviation sigma (pixels), composited with the true shading and residual
 (``A_blur * S + R``) and compared with the edited ground-truth image inside the edit's mask on the
-held-out views, as :mod:`backend.eval.bench_edit` scores a bake. Every splat is blurred by at least
+held-out views, as :mod:`backend.bench.bench_edit` scores a bake. Every splat is blurred by at least
 sqrt(eps2d) pixels (0.55 px for 3DGS's 0.3 px² low-pass, 0.32 px for 0.1 px²), so this is the
 ceiling a bake at that low-pass can approach. As in ``bench_edit``, each number is also given on the
 region's interior, its inner border ring and the outer bleed ring (``<sigma>_interior``, ``_border``,
@@ -21,11 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from backend.core.atomic_io import write_json
-from backend.core.errors import IGSError
-from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
-from backend.eval.bench_cli import error, number_list
-from backend.eval.edit_region import (
+from backend.bench.bench_cli import error, number_list
+from backend.bench.edit_region import (
     RING,
     RegionPSNR,
     edit_views,
@@ -33,6 +30,9 @@ from backend.eval.edit_region import (
     ring_masks,
     true_lighting,
 )
+from backend.core.atomic_io import write_json
+from backend.core.errors import IGSError
+from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
 from backend.train.intrinsic.composite import compose
 
 
@@ -75,7 +75,7 @@ def table(results: dict[str, dict[str, float]], sigmas: list[float]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.blur_ceiling", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.blur_ceiling", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace")
     ap.add_argument("--edits", default=None,
                     help="comma list of gt_edit edits (default: every <ws>/gt_edit/*/edit.json, sorted)")

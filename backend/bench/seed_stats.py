@@ -1,4 +1,4 @@
-"""Numbers over several scene seeds (:mod:`backend.eval.bench_seeds`): the spread of one metric, the
+"""Numbers over several scene seeds (:mod:`backend.bench.bench_seeds`): the spread of one metric, the
 aggregate of per-seed headline dicts, and the tables that print them.
 
 Spread is the sample standard deviation (n - 1 in the denominator: the seeds are a sample of the

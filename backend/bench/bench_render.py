@@ -1,10 +1,10 @@
-"""Rasterizer benchmark: ``python -m backend.eval.bench_render [--out bench_render.json]``.
+"""Rasterizer benchmark: ``python -m backend.bench.bench_render [--out bench_render.json]``.
 
 Measures, in one run (ratios hold on a shared machine, absolute times less so):
 
 1. forward and forward+backward milliseconds of ``reference`` vs ``cpu`` (and ``gsplat`` on CUDA)
    at each image size and Gaussian count, on the procedural room of
-   :mod:`backend.eval.bench_scene` (not uniform noise);
+   :mod:`backend.bench.bench_scene` (not uniform noise);
 2. the three intrinsic layers rendered fused (one pass) vs three separate renders vs one render of
    the same total number of Gaussians;
 3. where the ``cpu`` backend's time goes (projection, sort, binning, kernels, reduction) and the
@@ -30,10 +30,10 @@ from pathlib import Path
 import numba
 import torch
 
+from backend.bench.bench_cli import error, write_result
+from backend.bench.bench_scene import room_camera, room_gaussians, room_layers
 from backend.core import events
 from backend.core.errors import IGSError
-from backend.eval.bench_cli import error, write_result
-from backend.eval.bench_scene import room_camera, room_gaussians, room_layers
 from backend.render import Backend, Splats, gsplat_available, render, render_layers
 from backend.render import cpu as cpu_backend
 from backend.render import threads as render_threads
@@ -362,7 +362,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def main(argv: list[str] | None = None) -> int:
     d = BenchConfig()
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_render", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.bench_render", description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=Path("bench_render.json"), help="JSON output path")
     ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in d.sizes), help="e.g. 160x120,320x240")
     ap.add_argument("--counts", default=",".join(str(n) for n in d.counts), help="e.g. 10000,50000,200000")

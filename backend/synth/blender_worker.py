@@ -1,15 +1,15 @@
 """The worker that ``igs synth --renderer binary`` runs inside a Blender binary.
 
-    blender --background --factory-startup --python-exit-code 1 --python synth_blender_worker.py -- --fd N
+    blender --background --factory-startup --python-exit-code 1 --python blender_worker.py -- --fd N
 
 It runs in Blender's own Python (3.13/3.14 in Blender 5.1+, with Blender's numpy), so it imports only
 the standard library, numpy, bpy/mathutils and backend modules that need nothing else. File
 descriptor N is one end of a socket pair; the backend holds the other (see
-:mod:`backend.capture.synth_blender`). Requests and replies (:mod:`synth_blender_protocol` framing):
+:mod:`backend.synth.blender`). Requests and replies (:mod:`blender_protocol` framing):
 
 - on start the worker sends ``{"hello": {"blender", "python", "numpy"}}``;
 - ``{"cmd": "build", "seed", "scene_seed"}`` -> ``{"ok", "description", "edits"}`` + decal textures: builds
-  the room for ``seed``, or family scene ``scene_seed`` (:mod:`synth_family`) when that is not null;
+  the room for ``seed``, or family scene ``scene_seed`` (:mod:`family`) when that is not null;
 - ``{"cmd": "setup", "params"}`` -> ``{"ok"}``: sets Cycles up (:class:`CyclesParams` fields);
 - ``{"cmd": "set_edit", "name"}`` -> ``{"ok"}``: shows one edit (or none) to camera rays;
 - ``{"cmd": "render", "camera", "border"}`` -> ``{"ok", "layer"}`` + ``exr`` (the file's bytes);
@@ -17,7 +17,7 @@ descriptor N is one end of a socket pair; the backend holds the other (see
 
 A request that fails is answered ``{"error"}`` (its traceback goes to Blender's log). While it builds the room the worker asks
 the backend for every texture (``{"cmd": "texture", "name", "rng", "args", "kwargs"}`` ->
-``{"rng"}`` + ``image``): :mod:`synth_textures` needs OpenCV, which Blender lacks, and the backend
+``{"rng"}`` + ``image``): :mod:`textures` needs OpenCV, which Blender lacks, and the backend
 computes each one from the worker's generator state and hands back the state after it, so the
 seeded scene is the same as with the bpy module. The EXR's bytes travel over the socket rather than
 as a path, so a Blender that sees another file system (a container, a chroot) works too.
@@ -37,18 +37,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from backend.capture.synth_blender_cycles import CyclesView
-    from backend.capture.synth_scene import SynthScene
+    from backend.synth.blender_cycles import CyclesView
+    from backend.synth.scene import SynthScene
 
 BACKEND_ROOT = Path(__file__).resolve().parents[2]
-TEXTURES_MODULE = "backend.capture.synth_textures"
+TEXTURES_MODULE = "backend.synth.textures"
 
 
 class RemoteTextures(types.ModuleType):
-    """Stands in for :mod:`backend.capture.synth_textures`: each ``name(rng, ...)`` is drawn by the backend."""
+    """Stands in for :mod:`backend.synth.textures`: each ``name(rng, ...)`` is drawn by the backend."""
 
     def __init__(self, sock: socket.socket):
-        super().__init__(TEXTURES_MODULE, "synth_textures, drawn by the backend (it needs OpenCV)")
+        super().__init__(TEXTURES_MODULE, "textures, drawn by the backend (it needs OpenCV)")
         self._sock = sock
 
     def __getattr__(self, name: str):
@@ -57,7 +57,7 @@ class RemoteTextures(types.ModuleType):
         return functools.partial(self._draw, name)
 
     def _draw(self, name: str, rng, *args: Any, **kwargs: Any):
-        from backend.capture.synth_blender_protocol import recv, send
+        from backend.synth.blender_protocol import recv, send
 
         send(self._sock, {"cmd": "texture", "name": name, "rng": rng.bit_generator.state,
                           "args": list(args), "kwargs": kwargs})
@@ -71,7 +71,7 @@ class RemoteTextures(types.ModuleType):
 class Worker:
     """Serves one backend until it says quit or goes away.
 
-    Backend modules are imported inside the methods: synth_scene may be imported only once the
+    Backend modules are imported inside the methods: room may be imported only once the
     texture stand-in is in :data:`sys.modules` (see :func:`main`).
     """
 
@@ -89,7 +89,7 @@ class Worker:
                           "numpy": np.__version__}}
 
     def serve(self) -> None:
-        from backend.capture.synth_blender_protocol import ChannelClosed, recv, send
+        from backend.synth.blender_protocol import ChannelClosed, recv, send
 
         send(self.sock, self.hello())
         while True:
@@ -107,16 +107,18 @@ class Worker:
             send(self.sock, reply, arrays)
 
     def handle(self, msg: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-        from backend.capture import synth_blender_protocol as wire
-        from backend.capture import synth_family, synth_scene
-        from backend.capture.synth_blender_cycles import CyclesParams, CyclesView
+        from backend.synth import blender_protocol as wire
+        from backend.synth import room
+        from backend.synth.blender_cycles import CyclesParams, CyclesView
+        from backend.synth.family.build import build_family_scene
+        from backend.synth.scene import mask_aov
 
         cmd = msg.get("cmd")
         if cmd == "build":
             if msg.get("scene_seed") is None:
-                self.scene = synth_scene.build_scene(int(msg["seed"]))
+                self.scene = room.build_scene(int(msg["seed"]))
             else:
-                self.scene = synth_family.build_family_scene(int(msg["scene_seed"]))
+                self.scene = build_family_scene(int(msg["scene_seed"]))
             items, arrays = wire.edits_to_wire(self.scene.edits)
             return {"ok": True, "description": self.scene.description, "edits": items}, arrays
         if cmd == "set_edit":
@@ -124,7 +126,7 @@ class Worker:
             return {"ok": True}, {}
         if cmd == "setup":
             scene = self._need(self.scene, "build")
-            self.view = CyclesView(CyclesParams(**msg["params"]), [synth_scene.mask_aov(e.name) for e in scene.edits])
+            self.view = CyclesView(CyclesParams(**msg["params"]), [mask_aov(e.name) for e in scene.edits])
             return {"ok": True}, {}
         if cmd == "render":
             import numpy as np
@@ -147,12 +149,12 @@ class Worker:
 
 def main(argv: list[str]) -> None:
     """``argv``: Blender's command line; the worker's own arguments follow ``--``."""
-    parser = argparse.ArgumentParser(prog="synth_blender_worker")
+    parser = argparse.ArgumentParser(prog="blender_worker")
     parser.add_argument("--fd", type=int, required=True, help="this end of the socket pair")
     args = parser.parse_args(argv[argv.index("--") + 1:] if "--" in argv else [])
     sock = socket.socket(fileno=args.fd)
     sys.path.insert(0, str(BACKEND_ROOT))
-    sys.modules[TEXTURES_MODULE] = RemoteTextures(sock)  # before anything imports synth_scene
+    sys.modules[TEXTURES_MODULE] = RemoteTextures(sock)  # before anything imports room
     tmp = Path(tempfile.mkdtemp(prefix="igs_synth_worker_"))
     try:
         Worker(sock, tmp).serve()

@@ -3,10 +3,10 @@
 bpy (Blender as a Python module) exists only for the Python of the Blender release it was built
 from (5.0.1: Python 3.11); Blender 5.1+ runs Python 3.13/3.14. So ``--renderer binary`` runs
 
-    BLENDER --background --factory-startup --python-exit-code 1 --python synth_blender_worker.py -- --fd N
+    BLENDER --background --factory-startup --python-exit-code 1 --python blender_worker.py -- --fd N
 
 once for the whole capture. The worker builds the room once and renders every requested view into a
-multi-layer EXR whose bytes come back over a socket pair (:mod:`synth_blender_protocol`); the
+multi-layer EXR whose bytes come back over a socket pair (:mod:`blender_protocol`); the
 backend reads it with :func:`read_multilayer_exr` exactly as for the in-process module. Blender's own
 output goes to a log file, never to our stdout (which carries the JSON-lines events); its tail is in
 the error when Blender fails. The worker dies with us: a parent-death signal on Linux, the socket's
@@ -32,16 +32,17 @@ from typing import Any
 
 import numpy as np
 
-from backend.capture import synth_blender_protocol as wire
-from backend.capture import synth_scene, synth_textures
-from backend.capture.exr_layers import passes, read_multilayer_exr
-from backend.capture.synth_blender_cycles import CyclesParams
 from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
+from backend.synth import blender_protocol as wire
+from backend.synth import textures
+from backend.synth.blender_cycles import CyclesParams
+from backend.synth.exr_layers import passes, read_multilayer_exr
+from backend.synth.scene import SynthScene
 
 RENDERERS = ("auto", "module", "binary")
-WORKER = Path(__file__).with_name("synth_blender_worker.py")
+WORKER = Path(__file__).with_name("blender_worker.py")
 NO_RENDERER = ("no bpy module in this Python and no Blender binary: pass --blender /path/to/blender "
                "(the add-on passes the running Blender)")
 START_TIMEOUT_S = 300.0
@@ -223,12 +224,12 @@ class BlenderWorker:
         return "\n".join(lines[-LOG_TAIL_LINES:]) or "(no output)"
 
     def _draw_texture(self, msg: dict[str, Any]) -> None:
-        """Draw ``synth_textures.<name>`` from the worker's generator state; reply the image and the state after."""
+        """Draw ``textures.<name>`` from the worker's generator state; reply the image and the state after."""
         assert self.sock is not None
         name = str(msg.get("name", ""))
-        fn = getattr(synth_textures, name, None)
+        fn = getattr(textures, name, None)
         if name.startswith("_") or not callable(fn):
-            wire.send(self.sock, {"error": f"synth_textures has no texture '{name}'"})
+            wire.send(self.sock, {"error": f"backend.synth.textures has no texture '{name}'"})
             return
         state = msg["rng"]
         bits = getattr(np.random, state["bit_generator"])()
@@ -239,7 +240,7 @@ class BlenderWorker:
 
 
 @dataclass
-class BlenderScene(synth_scene.SynthScene):
+class BlenderScene(SynthScene):
     """The room as the worker built it: edits and description came over the socket; ``set_edit`` goes back."""
 
     worker: BlenderWorker | None = field(default=None, repr=False)
@@ -250,7 +251,7 @@ class BlenderScene(synth_scene.SynthScene):
 
 
 class BinaryRenderer:
-    """:class:`backend.capture.synth.Renderer`'s interface over a :class:`BlenderWorker`."""
+    """:class:`backend.synth.module_renderer.Renderer`'s interface over a :class:`BlenderWorker`."""
 
     def __init__(self, worker: BlenderWorker):
         self.worker = worker

@@ -2,8 +2,7 @@
 
 Both ends import this module: the backend (any Python) and the worker inside a Blender binary's own
 Python, so it needs only the standard library, numpy and backend modules that need nothing else
-(:mod:`~backend.capture.synth_scene` only as far as its dataclasses; the worker stands in for the
-textures module, which needs OpenCV, before it imports this one). A message
+(:mod:`~backend.synth.scene`, the edits' dataclasses). A message
 is a 4-byte little-endian length, a JSON object, then the raw bytes of the arrays that the object
 lists under ``_arrays`` (name, dtype, shape). No pickle: the two ends run different Python and
 numpy versions (3.11 / 1.26 here, 3.14 / 2.4 in Blender 5.2).
@@ -22,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from backend.capture import synth_scene
 from backend.core.cameras import Camera
+from backend.synth.scene import CylinderSurface, EditSpec, PlaneSurface
 
 _LENGTH = struct.Struct("<I")
 POLL_S = 0.2
@@ -81,10 +80,10 @@ def camera_from_wire(d: dict[str, Any]) -> Camera:
                   float(d["cx"]), float(d["cy"]), np.array(d["R"], dtype=np.float64), np.array(d["t"], dtype=np.float64))
 
 
-_SURFACES = {"plane": synth_scene.PlaneSurface, "cylinder": synth_scene.CylinderSurface}
+_SURFACES = {"plane": PlaneSurface, "cylinder": CylinderSurface}
 
 
-def edits_to_wire(edits: list[synth_scene.EditSpec]) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+def edits_to_wire(edits: list[EditSpec]) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
     """The edit specs as JSON plus their decal textures as arrays (``texture/<name>``)."""
     items, arrays = [], {}
     for e in edits:
@@ -96,12 +95,12 @@ def edits_to_wire(edits: list[synth_scene.EditSpec]) -> tuple[list[dict[str, Any
     return items, arrays
 
 
-def edits_from_wire(items: list[dict[str, Any]], arrays: dict[str, np.ndarray]) -> list[synth_scene.EditSpec]:
+def edits_from_wire(items: list[dict[str, Any]], arrays: dict[str, np.ndarray]) -> list[EditSpec]:
     edits = []
     for d in items:
         fields = dict(d["surface"])
         cls = _SURFACES[fields.pop("type")]
         surface = cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
-        edits.append(synth_scene.EditSpec(d["name"], d["kind"], surface, texture=arrays.get(f"texture/{d['name']}"),
+        edits.append(EditSpec(d["name"], d["kind"], surface, texture=arrays.get(f"texture/{d['name']}"),
                                           color=None if d["color"] is None else tuple(d["color"])))
     return edits

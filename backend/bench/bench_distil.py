@@ -1,4 +1,4 @@
-"""Distillation benchmark: ``python -m backend.eval.bench_distil <ws> [--edits ,wall_decal]``.
+"""Distillation benchmark: ``python -m backend.bench.bench_distil <ws> [--edits ,wall_decal]``.
 
 For the layers as decomposed (the empty name) and each edit listed, in one run:
 
@@ -30,11 +30,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from backend.bench.bench_cli import error, write_result
+from backend.bench.edit_region import RegionPSNR, edit_views
 from backend.capture.load import load_capture
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.eval.bench_cli import error, write_result
-from backend.eval.edit_region import RegionPSNR, edit_views
 from backend.eval.render_views import capture_orbit, capture_up, turntable
 from backend.render import Backend, render
 from backend.render.threads import torch_threads
@@ -161,7 +161,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_distil", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.bench_distil", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace")
     ap.add_argument("--edits", default=",", help="comma list of edits; an empty item is the layers without an edit "
                     "(default ',': only that; ',wall_decal': both)")

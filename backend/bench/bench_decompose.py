@@ -1,4 +1,4 @@
-"""Decomposition benchmark: ``python -m backend.eval.bench_decompose [--ws PATH] [--out bench_decompose.json]``.
+"""Decomposition benchmark: ``python -m backend.bench.bench_decompose [--ws PATH] [--out bench_decompose.json]``.
 
 Runs, in one process on one workspace (ratios hold on a shared machine, absolute times less so):
 
@@ -35,12 +35,12 @@ from typing import Any
 
 import torch
 
+from backend.bench.bench_cli import error, write_result
 from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.errors import IGSError
 from backend.core.workspace import split_frames
 from backend.eval.baseline import record_train_3dgs
-from backend.eval.bench_cli import error, write_result
 from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.foreground import FOREGROUND_ALBEDO_LUMINANCE
 from backend.eval.layer_metrics import radiance_foreground
@@ -289,7 +289,7 @@ def _foreground_lines(m: dict[str, Any]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m backend.eval.bench_decompose", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m backend.bench.bench_decompose", description=__doc__.split("\n\n")[0])
     p.add_argument("--ws", default=DEFAULT_WS,
                    help="a workspace with ground-truth albedo (e.g. one made by `igs synth <ws> --preset demo`); "
                         "its layers/, metrics.json and report*.png are overwritten")

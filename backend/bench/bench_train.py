@@ -1,4 +1,4 @@
-"""CPU training, ours against OpenSplat's ``--cpu``: ``python -m backend.eval.bench_train WS``.
+"""CPU training, ours against OpenSplat's ``--cpu``: ``python -m backend.bench.bench_train WS``.
 
 Both programs train vanilla 3DGS on the same capture, at the same resolution and from the same
 initial points, with densification off so the Gaussian count stays fixed:
@@ -9,7 +9,7 @@ initial points, with densification off so the Gaussian count stays fixed:
 2. For each ``--copies K``, the workspace's points are repeated K times with a jitter of half their
    nearest-neighbour spacing (``points.ply``), which both programs start from.
 3. Each (copies, program) pair runs ``--rounds`` times, the two programs alternating, each in its own
-   process: ours is :mod:`backend.eval.bench_train_ours`, OpenSplat is the ``--opensplat`` binary
+   process: ours is :mod:`backend.bench.bench_train_ours`, OpenSplat is the ``--opensplat`` binary
    (``scripts/build_opensplat.sh`` builds one). Both print a line per iteration; the harness
    timestamps those lines, and samples the process's page faults and CPU time from ``/proc`` at the
    end of the warm-up and at the last iteration.
@@ -42,12 +42,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from backend.bench.bench_cli import error, number_list, write_result
 from backend.capture.load import load_capture
 from backend.capture.transforms_io import write_ply_points, write_transforms
 from backend.core.errors import IGSError
 from backend.core.imageio import read_image, write_image
 from backend.core.neighbours import nearest
-from backend.eval.bench_cli import error, number_list, write_result
 from backend.train.memory import proc_status_kib
 from backend.train.views import resize_image, view_camera
 
@@ -175,7 +175,7 @@ def _ours_cmd(workspace: Path, points: Path, settings: Settings, scratch: Path) 
     spec.write_text(json.dumps({"workspace": str(workspace), "downscale": settings.downscale, "points": str(points),
                                 "iterations": settings.warmup + settings.iterations,
                                 "sh_up_every": max(1, settings.warmup // 4), "checkpoints": str(scratch / "ckpt")}))
-    return [sys.executable, "-m", "backend.eval.bench_train_ours", str(spec)]
+    return [sys.executable, "-m", "backend.bench.bench_train_ours", str(spec)]
 
 
 def _opensplat_cmd(binary: Path, project: Path, settings: Settings, scratch: Path) -> list[str]:

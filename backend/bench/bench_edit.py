@@ -1,4 +1,4 @@
-"""Edit benchmark (issue 7 part 4, issue 10 part 4): ``python -m backend.eval.bench_edit <ws>``.
+"""Edit benchmark (issue 7 part 4, issue 10 part 4): ``python -m backend.bench.bench_edit <ws>``.
 
 Needs a synthetic workspace with ``gt_edit/<edit>/`` and a trained albedo layer ``<ws>/layers/albedo.ply``.
 For each edit (``--edits``; default: every ``gt_edit/*/edit.json``, sorted): the proxy's geometry is
@@ -54,6 +54,16 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
+from backend.bench.bench_cli import error
+from backend.bench.edit_region import (
+    RING,
+    RING_PARTS,
+    RegionPSNR,
+    edit_views,
+    resolve_edits,
+    ring_masks,
+    true_lighting,
+)
 from backend.capture.load import load_capture
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
@@ -67,16 +77,6 @@ from backend.edit.proxy import ProxyMesh, cylinder_proxy, plane_proxy
 from backend.edit.surface_points import GROW_ON, fit_grown
 from backend.edit.sweep import sweep_fitted
 from backend.edit.workspace_edits import load_albedo
-from backend.eval.bench_cli import error
-from backend.eval.edit_region import (
-    RING,
-    RING_PARTS,
-    RegionPSNR,
-    edit_views,
-    resolve_edits,
-    ring_masks,
-    true_lighting,
-)
 from backend.eval.layer_metrics import render_frame
 from backend.render import Backend
 from backend.splats.gaussians import GaussianSet
@@ -422,7 +422,7 @@ def table(results: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_edit", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.bench_edit", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace")
     ap.add_argument("--edits", default=None,
                     help="comma list of gt_edit edits (default: every <ws>/gt_edit/*/edit.json, sorted)")

@@ -1,26 +1,26 @@
-"""Multi-seed benchmark: ``python -m backend.eval.bench_seeds --scene-seeds 100,101,102 --root DIR``.
+"""Multi-seed benchmark: ``python -m backend.bench.bench_seeds --scene-seeds 100,101,102 --root DIR``.
 
 One scene tells how the method does on that scene; a family of procedural scenes (``igs synth
 --scene-seed K``) tells how much of that is the scene. For each scene seed K, in ``<root>/seed_<K>``:
 
-1. ``synth``: the synthetic capture of scene K (:func:`backend.capture.synth.synthesize`; it resumes
+1. ``synth``: the synthetic capture of scene K (:func:`backend.synth.run.synthesize`; it resumes
    when already rendered). A synthetic capture carries ground-truth albedo and depth priors, which
    the decomposition reads directly, so there is no priors step. The label ``room`` stands for the
    fixed room of ``igs synth`` without ``--scene-seed``.
 2. ``bench_decompose``: vanilla 3DGS against the three-set decomposition
-   (:func:`backend.eval.bench_decompose.run`, fresh; the single-set baseline only with
+   (:func:`backend.bench.bench_decompose.run`, fresh; the single-set baseline only with
    ``--single-set``); written to ``<ws>/bench_decompose.json``.
 3. ``albedo_layer``: bench_edit bakes into ``<ws>/layers/albedo.ply``, which the three-set run of step
    2 writes; it is reused, and the albedo stage is trained (same settings) only when step 2 did not
    write that file.
-4. ``bench_edit``: every ``gt_edit`` edit fitted, baked and scored (:func:`backend.eval.bench_edit.run`,
+4. ``bench_edit``: every ``gt_edit`` edit fitted, baked and scored (:func:`backend.bench.bench_edit.run`,
    an edit that fails is recorded and the next one runs); written to ``<ws>/bench_edit.json``.
 
 The headline numbers of each seed (the decomposition's as
 :func:`backend.eval.layer_metrics.headline_metrics` flattens its metrics.json entry, plus 3DGS's; the
 multi-view bake's PSNR in each edit's region and rings, and its lead over the single-view bake),
 their aggregate over the seeds (mean, sample standard deviation, min and max:
-:mod:`backend.eval.seed_stats`), the settings, date, machine and the seconds of each step go to
+:mod:`backend.bench.seed_stats`), the settings, date, machine and the seconds of each step go to
 ``--out`` (default ``<root>/bench_seeds.json``), rewritten after every seed. Run again, a seed whose
 entry there has the same settings is not rerun (``--force`` reruns it); one whose capture and
 decomposition settings are the same, and whose layers are still the files it trained, reruns only
@@ -43,7 +43,10 @@ from typing import Any, TypeVar
 
 import torch
 
-from backend.capture.synth import PRESETS, synthesize
+from backend.bench import bench_decompose, bench_edit
+from backend.bench.bench_cli import error
+from backend.bench.bench_edit import PROXY_SOURCES, ProxySource
+from backend.bench.seed_stats import aggregate, cell, markdown, spread_cells
 from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
@@ -51,12 +54,10 @@ from backend.core.workspace import Workspace
 from backend.edit.bake_config import BakeConfig
 from backend.edit.fit import FitConfig
 from backend.edit.surface_points import GROW_ON
-from backend.eval import bench_decompose, bench_edit
-from backend.eval.bench_cli import error
-from backend.eval.bench_edit import PROXY_SOURCES, ProxySource
 from backend.eval.layer_metrics import headline_metrics
-from backend.eval.seed_stats import aggregate, cell, markdown, spread_cells
 from backend.render import BACKENDS
+from backend.synth.run import synthesize
+from backend.synth.settings import PRESETS
 from backend.train.device import add_device_argument
 from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.run import METRICS_KEY, decompose
@@ -459,7 +460,7 @@ def aggregate_table(agg: dict[str, Any]) -> str:
 
 def parser() -> argparse.ArgumentParser:
     d = SeedSettings()
-    p = argparse.ArgumentParser(prog="python -m backend.eval.bench_seeds", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m backend.bench.bench_seeds", description=__doc__.split("\n\n")[0])
     p.add_argument("--scene-seeds", required=True,
                    help=f"comma list of scene seeds (igs synth --scene-seed), or '{ROOM}' for the fixed room")
     p.add_argument("--root", required=True, help="folder of the seeds' workspaces (<root>/seed_<K>)")

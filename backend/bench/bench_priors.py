@@ -1,4 +1,4 @@
-"""Albedo consistency benchmark: ``python -m backend.eval.bench_priors WS [--flicker 0.15] [--seed 0] [--out FILE]``.
+"""Albedo consistency benchmark: ``python -m backend.bench.bench_priors WS [--flicker 0.15] [--seed 0] [--out FILE]``.
 
 WS is a synthetic workspace with ground-truth albedo (``igs synth WS --preset test``): ``images/``,
 ``sparse/0`` with tracks and ``gt/albedo``. The benchmark measures how much the albedo prior of a
@@ -28,12 +28,12 @@ from typing import Any
 
 import numpy as np
 
+from backend.bench.bench_cli import error, write_result
 from backend.capture.colmap_io import read_model
 from backend.capture.load import load_capture
 from backend.core.atomic_io import write_image_file
 from backend.core.errors import IGSError
 from backend.core.imageio import read_image, srgb_to_linear
-from backend.eval.bench_cli import error, write_result
 from backend.priors.apply import PriorsConfig, albedo_track_samples, compute_priors
 from backend.priors.consistency import apply_gain, spread
 
@@ -99,7 +99,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_priors", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.bench_priors", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace", help="a synthetic workspace with gt/albedo and sparse/0 (igs synth --preset test)")
     ap.add_argument("--flicker", type=float, default=0.15, help="simulated per-frame gain range, ± (default 0.15)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the simulated gains (default 0)")

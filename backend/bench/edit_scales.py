@@ -1,4 +1,4 @@
-"""Baked edits seen from further away: ``python -m backend.eval.edit_scales <ws> <edit> ALBEDO.ply...``.
+"""Baked edits seen from further away: ``python -m backend.bench.edit_scales <ws> <edit> ALBEDO.ply...``.
 
 A smaller screen-space low-pass makes an edit's Gaussians sharper but could make them alias when the
 camera moves away and they shrink below a pixel. For each baked albedo PLY this renders the held-out
@@ -17,12 +17,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from backend.bench.bench_cli import error, number_list
+from backend.bench.edit_region import RegionPSNR, edit_views
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_image, srgb_to_linear
 from backend.edit.albedo_render import render_albedo
-from backend.eval.bench_cli import error, number_list
-from backend.eval.edit_region import RegionPSNR, edit_views
 from backend.render import Backend
 from backend.splats.ply import read_ply
 from backend.train.views import view_camera
@@ -54,7 +54,7 @@ def region_psnr(ws: Path, edit: str, plys: list[Path], downscales: list[int], ba
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.edit_scales", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.edit_scales", description=__doc__.split("\n\n")[0])
     ap.add_argument("workspace")
     ap.add_argument("edit", help="gt_edit edit name (e.g. wall_decal)")
     ap.add_argument("plys", nargs="+", help="baked albedo PLYs (e.g. <ws>/edits/NAME/albedo.ply)")

@@ -1,6 +1,6 @@
 """Where one training iteration's time goes, for vanilla 3DGS and each decomposition stage.
 
-``python -m backend.eval.bench_step WS [--stages 3dgs,albedo,shading,residual[,gsplat]] [--warmup 20] [--steps 50]
+``python -m backend.bench.bench_step WS [--stages 3dgs,albedo,shading,residual[,gsplat]] [--warmup 20] [--steps 50]
 [--iterations 2000] [--downscale 1] [--max-gaussians 100000] [--backend auto] [--device auto] [--out FILE]``
 
 Each stage is built as ``bench_decompose`` builds it (the same configs, :func:`bench_decompose.configs`,
@@ -19,7 +19,7 @@ memory on CUDA) since its training started (:class:`backend.train.memory.PeakMem
 (default ``<ws>/bench_step.json``) also holds each stage's ten most expensive operators.
 
 ``--stages ...,gsplat`` adds a reference row on CUDA: gsplat's own trainer step (as its
-``simple_trainer`` runs it, :mod:`backend.eval.gsplat_reference`) from the 3DGS stage's initial
+``simple_trainer`` runs it, :mod:`backend.bench.gsplat_reference`) from the 3DGS stage's initial
 Gaussians on its views, timed and profiled the same way.
 """
 
@@ -39,10 +39,10 @@ import torch
 from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
+from backend.bench.bench_cli import error, write_result
+from backend.bench.bench_decompose import configs
+from backend.bench.gsplat_reference import train_reference
 from backend.core.errors import IGSError
-from backend.eval.bench_cli import error, write_result
-from backend.eval.bench_decompose import configs
-from backend.eval.gsplat_reference import train_reference
 from backend.render import BACKENDS
 from backend.train.baseline import baseline_stage
 from backend.train.device import add_device_argument, resolve_device
@@ -56,7 +56,7 @@ from backend.train.views import view_camera
 
 BASELINE = "3dgs"
 REFERENCE = "gsplat"
-"""gsplat's trainer step on the 3DGS stage's views and initial Gaussians (:mod:`backend.eval.gsplat_reference`);
+"""gsplat's trainer step on the 3DGS stage's views and initial Gaussians (:mod:`backend.bench.gsplat_reference`);
 CUDA only, so named in ``--stages`` but not among the defaults."""
 ALL_STAGES = (BASELINE, *STAGES)
 CHOICES = (*ALL_STAGES, REFERENCE)
@@ -246,7 +246,7 @@ def table(r: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    prog = "python -m backend.eval.bench_step"
+    prog = "python -m backend.bench.bench_step"
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("ws", help="a workspace with albedo maps (e.g. `igs synth WS --preset demo`); not modified")
     p.add_argument("--stages", default=",".join(ALL_STAGES),

@@ -1,4 +1,4 @@
-"""CPU time per frame of the model priors: ``python -m backend.eval.bench_prior_models [--out FILE]``.
+"""CPU time per frame of the model priors: ``python -m backend.bench.bench_prior_models [--out FILE]``.
 
 Weights cannot be downloaded on the machines this project is tested on, and inference time does not
 depend on weight values, so the benchmark builds the *real architectures* with random weights:
@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from backend.bench.bench_cli import error, number_list, write_result
 from backend.core.errors import IGSError
-from backend.eval.bench_cli import error, number_list, write_result
 
 # DINOv2 backbone (hidden, layers, heads, out_indices) and DPT head (neck sizes, fusion) of each checkpoint.
 DAV2 = {
@@ -234,7 +234,7 @@ def parse_frames(text: str) -> list[tuple[int, int]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_prior_models", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.bench_prior_models", description=__doc__.split("\n\n")[0])
     ap.add_argument("--depth", default="small,base,large", help="Depth Anything V2 sizes, or 'none' (default all)")
     ap.add_argument("--frames", default="1280x720,640x480", help="depth frame sizes (default 1280x720,640x480)")
     ap.add_argument("--runs", type=int, default=3, help="timed depth runs per frame after a warm-up (median; default 3)")

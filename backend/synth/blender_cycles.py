@@ -2,9 +2,9 @@
 
 This is the part of a synthetic render that talks to Blender. It runs in the backend's process when
 that has the bpy module (``--renderer module``) and inside a Blender binary's own Python otherwise
-(:mod:`backend.capture.synth_blender_worker`), so it imports only numpy, bpy/mathutils and
+(:mod:`backend.synth.blender_worker`), so it imports only numpy, bpy/mathutils and
 :mod:`backend.core.cameras`. Both renderers then read the EXR with
-:func:`backend.capture.exr_layers.read_multilayer_exr`.
+:func:`backend.synth.exr_layers.read_multilayer_exr`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Known-pose import benchmark: ``python -m backend.eval.bench_import CAPTURE [--views 16,32] [--out FILE]``.
+"""Known-pose import benchmark: ``python -m backend.bench.bench_import CAPTURE [--views 16,32] [--out FILE]``.
 
 CAPTURE is a rendered capture with ground-truth cameras (``images/`` and ``sparse/0``, as ``igs synth
 --preset sfm`` writes). For each view count N the benchmark takes the capture's first N views (the
@@ -27,10 +27,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from backend.bench.bench_cli import error, number_list, write_result
 from backend.capture.colmap_io import read_model
 from backend.capture.transforms_io import write_transforms
 from backend.core.errors import IGSError
-from backend.eval.bench_cli import error, number_list, write_result
 from igs_contract.events import EVENT, LOG, PROGRESS, STAGE
 
 STAGES = ("triangulate: features and matches", "triangulate: tracks", "undistort")
@@ -123,7 +123,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m backend.eval.bench_import", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m backend.bench.bench_import", description=__doc__.split("\n\n")[0])
     ap.add_argument("capture", help="a capture with images/ and ground-truth sparse/0 (igs synth --preset sfm)")
     ap.add_argument("--views", default="16,32", help="comma list of view counts (default 16,32)")
     ap.add_argument("--threads", type=int, default=-1, help="CPU threads for COLMAP (-1: all)")

@@ -1,6 +1,6 @@
-"""The side of ``bench_train`` that trains with this project: ``python -m backend.eval.bench_train_ours SPEC``.
+"""The side of ``bench_train`` that trains with this project: ``python -m backend.bench.bench_train_ours SPEC``.
 
-Run as its own process by :mod:`backend.eval.bench_train`, so that its peak memory, page faults and
+Run as its own process by :mod:`backend.bench.bench_train`, so that its peak memory, page faults and
 CPU time are its own. ``SPEC`` is a JSON file with ``workspace``, ``downscale``, ``points`` (a PLY of
 the initial points, the one OpenSplat reads too), ``iterations``, ``sh_up_every`` and ``checkpoints``
 (a scratch folder). It trains vanilla 3DGS (:func:`backend.train.baseline.baseline_stage`) on every
@@ -48,7 +48,7 @@ def run(spec: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
-        print("usage: python -m backend.eval.bench_train_ours SPEC.json", file=sys.stderr)
+        print("usage: python -m backend.bench.bench_train_ours SPEC.json", file=sys.stderr)
         return 2
     try:
         run(json.loads(Path(argv[0]).read_text()))

@@ -3,7 +3,7 @@
 Blender writes every render pass of a view layer into one EXR (one part per pass, channels
 named ``ViewLayer.DiffCol.R``). OpenCV reads only plain RGB(A) EXRs, and no OpenEXR binding
 ships with the pinned packages, so this module parses the file itself. It only accepts what
-:mod:`backend.capture.synth` asks Blender for: scanline parts, no compression, HALF/FLOAT/UINT
+:mod:`backend.synth.run` asks Blender for: scanline parts, no compression, HALF/FLOAT/UINT
 channels. The layout follows the OpenEXR file-format specification.
 """
 
