@@ -309,12 +309,22 @@ def save_srgb_png(image: bpy.types.Image, path: Path) -> None:
     tmp = bpy.data.images.new(".IGS bake texture", w, h, alpha=True, float_buffer=image.is_float)
     try:
         if image.is_float:
-            tmp.colorspace_settings.name = "sRGB"  # float pixels are scene-linear: encode them (16-bit)
+            # Float pixels are scene-linear: encode them here (16-bit PNG) and save them untouched
+            # ("Non-Color"). Blender's own encoding on save changed meaning in 5.3 (an "sRGB" float image
+            # is written as it is there), so it is not relied on.
+            tmp.colorspace_settings.name = "Non-Color"
+            pixels[:, :3] = srgb_encode(pixels[:, :3])
         tmp.pixels.foreach_set(pixels.ravel())  # byte pixels are already the image's sRGB bytes
         tmp.file_format = "PNG"
         tmp.save(filepath=str(path))
     finally:
         bpy.data.images.remove(tmp)
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function of linear values, clipped to [0, 1] first (a PNG holds no more)."""
+    x = np.clip(linear, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
 
 
 def write_proxy_json(path: str | os.PathLike, data: dict[str, Any]) -> Path:

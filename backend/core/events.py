@@ -117,7 +117,7 @@ class Progress:
         self.step = initial
         self._t0 = time.perf_counter()
         self._initial = initial
-        self._last_emit = 0.0
+        self._last_emit: float | None = None  # the first update always shows (perf_counter's zero is arbitrary)
         self._every = every_s
         self.bar = tqdm(total=total, initial=initial, desc=stage, unit=unit, file=sys.stderr,
                         dynamic_ncols=True, leave=True, disable=None if not _state["json"] else False)
@@ -129,7 +129,7 @@ class Progress:
         self.step += n
         self.bar.update(n)
         now = time.perf_counter()
-        if now - self._last_emit >= self._every or self.step >= self.total:
+        if self._last_emit is None or now - self._last_emit >= self._every or self.step >= self.total:
             self._last_emit = now
             metrics = {k: _scalar(v) for k, v in metrics.items()}
             if metrics:
