@@ -6,6 +6,7 @@ import argparse
 
 from backend.capture.synth import PRESETS, synthesize
 from backend.capture.synth_blender import RENDERERS
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.core import events
 
@@ -37,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "`import bpy` works, else the binary")
     p.add_argument("--blender", default=None, metavar="PATH",
                    help="the Blender binary for --renderer binary/auto (default: $IGS_BLENDER)")
+    locking.writes(p, locking.workspace_arg, create=True)
     p.set_defaults(func=run)
 
 
