@@ -444,8 +444,10 @@ class BackendJob:
             return f"{label} cancelled: " + (self.state.cancelled or "the workspace keeps the last checkpoint")
         rc = self.returncode
         where = f" (log: {self.log_path})" if self.log_path else ""
-        if rc == EXIT_BUSY and self.state.error:  # another command is writing to the workspace
-            return f"{label} not started: {self.state.error}"
+        if rc == EXIT_BUSY:  # another command is writing to the workspace: the backend's line, as it is
+            line = self.state.error or self._last_stderr_line().partition(": error: ")[2]
+            if line:
+                return f"{label} not started: {line}"
         if self.state.error:
             msg = self.state.error
             if msg.startswith("internal error"):

@@ -196,8 +196,7 @@ def _acquire(root: Path, command: str, wait: bool) -> int:
         old = parse_holder(_read_fd(fd))
         if old is not None and old.pid != os.getpid():
             events.log(f"notice: {path}: taking over the lock of `igs {old.command}` (PID {old.pid}, since "
-                       f"{old.since_text()}), which no longer runs; run `igs info {root}` if it was killed "
-                       "while writing")
+                       f"{old.since_text()}), which no longer runs")
         _write_record(fd, Holder(command, os.getpid(), time.time(), this_host()))
     except OSError as e:
         _release_fd(path, fd)

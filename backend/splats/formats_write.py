@@ -36,12 +36,15 @@ EXPORT_FORMATS: tuple[ExportFormat, ...] = ("ply", "compressed-ply", "spz", "spl
 SPZ_COLOR = 0.15 * 255  # SPZ stores a DC coefficient as the byte 127.5 + 38.25 * f_dc
 SPZ_FRACTIONAL_BITS = 12  # SPZ positions are signed 24-bit fixed point with this many fractional bits
 SPZ_POSITION = (-(2 ** 23) / 2 ** SPZ_FRACTIONAL_BITS, (2 ** 23 - 1) / 2 ** SPZ_FRACTIONAL_BITS)
+CHUNK_SPAN = (-1e38, 1e38)  # a compressed PLY chunk's max - min must not overflow float32 (3.4e38)
 SPLAT_LOG_SCALE = (-87.0, 88.0)  # .splat stores exp(log scale) in float32: normal, finite, not 0
 LIMITS: dict[ExportFormat, dict[str, tuple[float, float]]] = {
     "ply": {},
-    # chunked PLY: colours and positions are normalised per chunk of 256 (no clip); SH bytes are
-    # 128 + 32 * f_rest; the chunk bounds of the log scales are clamped to [-20, 20]
-    "compressed-ply": {"sh": (-4.0, 127 / 32), "log_scale": (-20.0, 20.0)},
+    # chunked PLY: colours and positions are normalised per chunk of 256, whose float32 range (max - min)
+    # must stay finite; SH bytes are 128 + 32 * f_rest; the chunk bounds of the log scales are clamped
+    # to [-20, 20]
+    "compressed-ply": {"sh": (-4.0, 127 / 32), "log_scale": (-20.0, 20.0), "means": CHUNK_SPAN,
+                       "dc": CHUNK_SPAN},
     "spz": {"dc": (0.5 - C0 * 127.5 / SPZ_COLOR, 0.5 + C0 * 127.5 / SPZ_COLOR), "sh": (-1.0, 127 / 128),
             "log_scale": (-10.0, 255 / 16 - 10), "means": SPZ_POSITION},
     "splat": {"dc": (0.0, 1.0), "log_scale": SPLAT_LOG_SCALE},
@@ -104,8 +107,8 @@ def clip_arrays(a: SplatArrays, fmt: ExportFormat) -> SplatArrays:
     def clip(v: np.ndarray, quantity: str, from_stored=lambda x: x) -> np.ndarray:
         if quantity not in limits or v.size == 0:
             return v
-        lo, hi = limits[quantity]
-        return np.clip(v, from_stored(lo), from_stored(hi)).astype(np.float32)
+        lo, hi = limits[quantity]  # in float64: a bound may lie beyond float32 (DC 1e38 is f_dc 3.5e38)
+        return np.clip(v.astype(np.float64), from_stored(lo), from_stored(hi)).astype(np.float32)
 
     return SplatArrays(clip(a.means, "means"), clip(a.log_scales, "log_scale"), a.quats, a.opacity_logits,
                        clip(a.f_dc, "dc", from_stored=lambda c: (c - 0.5) / C0), clip(a.f_rest, "sh"), a.eps2d)
