@@ -116,10 +116,10 @@ def out_path(args: argparse.Namespace) -> tuple[ExportConfig, Path, str, dict[st
         config = replace(config, format=format_of(Path(args.out)))
     src_path, name, record = source_of(args)
     out = Path(args.out) if args.out else default_out(args, src_path, name, config.format)
-    check_extension(out, config.format)
+    check_output(out, "--out")
     if out.is_dir():
         raise IGSError(f"--out {out}: is a folder; name the file to write")
-    check_output(out, "--out")
+    check_extension(out, config.format)
     if os.path.realpath(out) == os.path.realpath(src_path):
         raise IGSError(f"{out}: --out is the file being exported; choose another name")
     return config, src_path, name, record, out

@@ -147,7 +147,10 @@ def export_splats(src: SplatFile, out: str | Path, config: ExportConfig = Export
             info = manifest.build(part, format=config.format, kind=kind, space="srgb", encoding=ENCODINGS[kind],
                                   sh_degree=degree, count=len(a), writer=f"igs {__version__}", name=out.name,
                                   source={**(source or {}), "file": str(src.path.resolve())})
-            manifest_part.write_text(manifest.to_json(info), encoding="utf-8")
+            try:
+                manifest_part.write_text(manifest.to_json(info), encoding="utf-8")
+            except OSError as e:  # a failed write names no file: say it was the manifest's
+                raise OSError(e.errno, e.strerror, str(manifest_part)) from e
         bar.update()
     events.output(config.format, out)
     return {"out": str(out), "format": config.format, "kind": kind, "space": "srgb", "count": len(a),
