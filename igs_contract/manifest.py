@@ -128,7 +128,7 @@ def read(path: str | os.PathLike) -> Manifest:
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise ManifestError(f"{path}: not a readable manifest ({e})") from e
     if not isinstance(data, dict):
         raise ManifestError(f"{path}: a manifest must be a JSON object")
@@ -142,11 +142,14 @@ def read(path: str | os.PathLike) -> Manifest:
     for key in ("sh_degree", "count", "size"):
         if data[key] < 0:
             raise ManifestError(f"{path}: field {key!r} must not be negative, got {data[key]!r}")
-    source = data.get("source", {})
+    source, writer, schema = data.get("source", {}), data.get("writer", ""), data.get("schema", SCHEMA)
     if not isinstance(source, dict):
         raise ManifestError(f"{path}: field 'source' must be an object")
-    return Manifest(**{k: data[k] for k in _TYPES}, source=source, writer=str(data.get("writer", "")),
-                    schema=int(data.get("schema", SCHEMA)))
+    if not isinstance(writer, str):
+        raise ManifestError(f"{path}: field 'writer' must be str, got {writer!r}")
+    if not isinstance(schema, int) or isinstance(schema, bool) or schema != SCHEMA:
+        raise ManifestError(f"{path}: field 'schema' must be {SCHEMA}, got {schema!r}")
+    return Manifest(**{k: data[k] for k in _TYPES}, source=source, writer=writer, schema=schema)
 
 
 def split_name(name: str) -> tuple[str, str]:

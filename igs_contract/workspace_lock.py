@@ -27,6 +27,8 @@ from pathlib import Path
 
 LOCK_NAME = ".igs.lock"
 """The lock file inside a workspace folder."""
+MAX_SINCE = 1e11
+"""Start times past this (the year 5138) are no record's: the file is not a lock record."""
 
 
 @dataclass(frozen=True)
@@ -47,7 +49,10 @@ class Holder:
 
     def since_text(self) -> str:
         """``since`` as local time: ``14:03:12`` today, else ``2025-11-27 14:03:12``."""
-        t = time.localtime(self.since)
+        try:
+            t = time.localtime(self.since)
+        except (OverflowError, OSError, ValueError):
+            return "an unknown time"
         today = time.localtime()
         same_day = (t.tm_year, t.tm_yday) == (today.tm_year, today.tm_yday)
         return time.strftime("%H:%M:%S" if same_day else "%Y-%m-%d %H:%M:%S", t)
@@ -66,10 +71,11 @@ def parse_holder(text: str) -> Holder | None:
     if not isinstance(data, dict):
         return None
     command, pid, since, host = data.get("command"), data.get("pid"), data.get("since"), data.get("host", "")
-    if not isinstance(command, str) or not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0 \
-            or not isinstance(since, (int, float)) or isinstance(since, bool) or not isinstance(host, str):
+    if not isinstance(command, str) or not isinstance(pid, int) or isinstance(pid, bool) or not 0 < pid < 2**31 \
+            or not isinstance(since, (int, float)) or isinstance(since, bool) or not 0 <= since < MAX_SINCE \
+            or not isinstance(host, str):
         return None
-    return Holder(command, pid, float(since), host)
+    return Holder(" ".join(command.split())[:200], pid, float(since), " ".join(host.split())[:200])
 
 
 def read_holder(workspace: str | os.PathLike) -> Holder | None:

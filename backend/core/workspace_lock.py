@@ -195,12 +195,16 @@ def _acquire(root: Path, command: str, wait: bool) -> int:
     try:
         old = parse_holder(_read_fd(fd))
         if old is not None and old.pid != os.getpid():
+            gone = "which no longer runs" if not pid_alive(old.pid) else "which no longer holds it"
             events.log(f"notice: {path}: taking over the lock of `igs {old.command}` (PID {old.pid}, since "
-                       f"{old.since_text()}), which no longer runs")
+                       f"{old.since_text()}), {gone}")
         _write_record(fd, Holder(command, os.getpid(), time.time(), this_host()))
     except OSError as e:
         _release_fd(path, fd)
         raise os_error(path, e, "could not write the workspace lock") from e
+    except BaseException:
+        _release_fd(path, fd)
+        raise
     return fd
 
 
