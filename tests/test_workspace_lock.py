@@ -89,25 +89,28 @@ def test_readers_are_not_blocked(layered, tmp_path, capsys):
 
 
 def test_two_decompositions_at_once_cannot_mix_their_checkpoints(tmp_path):
-    """Issue #50, reproducer 1: a second `igs decompose` with other settings, a second after the first."""
+    """Issue #50, reproducer 1: a second `igs decompose` with other settings while the first runs."""
     ws = make_layered_workspace(tmp_path / "wl", n_per_face=30)
-    first_cmd = [sys.executable, "-m", "backend", "decompose", str(ws), "--iterations", "40", "--checkpoint-every", "10",
-                 "--stage", "albedo"]
-    first = subprocess.Popen(first_cmd, cwd=REPO, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    base = [sys.executable, "-m", "backend", "decompose", str(ws), "--checkpoint-every", "10", "--stage", "albedo"]
+    first = subprocess.Popen(base + ["--iterations", "4000"], cwd=REPO, env=ENV, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE)
+    ckpt = ws / "checkpoints" / "decompose_albedo" / "checkpoint.pt"
     t0 = time.time()
-    while workspace_lock.read_holder(ws) is None and first.poll() is None and time.time() - t0 < 120:
+    while not ckpt.exists() and first.poll() is None and time.time() - t0 < 300:  # mid-run, checkpoints written
         time.sleep(0.05)
     assert first.poll() is None, first.stderr.read().decode()
-    second = subprocess.run([sys.executable, "-m", "backend", "decompose", str(ws), "--iterations", "20", "--seed", "7",
-                             "--checkpoint-every", "10", "--stage", "albedo"],
-                            cwd=REPO, env=ENV, capture_output=True, text=True)
+    second = subprocess.run(base + ["--iterations", "20", "--seed", "7"], cwd=REPO, env=ENV, capture_output=True,
+                            text=True)
+    assert first.poll() is None, "the first run ended before the second was refused: make it longer"
     assert second.returncode == EXIT_BUSY, second.stderr
-    assert len(errors(second.stderr)) == 1 and f"PID {first.pid}" in second.stderr
-    assert first.wait(timeout=300) == 0, first.stderr.read().decode()
-    # the first run's checkpoint is its own: running it again finds its stage finished
-    again = subprocess.run(first_cmd, cwd=REPO, env=ENV, capture_output=True, text=True)
-    assert again.returncode == 0, again.stderr
-    assert "other settings" not in again.stderr
+    assert len(errors(second.stderr)) == 1 and f"in use by `igs decompose` (PID {first.pid}" in second.stderr
+    first.send_signal(signal.SIGINT)
+    assert first.wait(timeout=300) == EXIT_CANCELLED
+    # the checkpoint is the first run's own: the second's settings are still "other settings"
+    again = subprocess.run(base + ["--iterations", "20", "--seed", "7"], cwd=REPO, env=ENV, capture_output=True,
+                           text=True)
+    assert again.returncode == 2 and "other settings (iterations: 4000 -> 20, seed: 0 -> 7)" in again.stderr, \
+        again.stderr
     assert not (ws / workspace_lock.LOCK_NAME).exists()
 
 
