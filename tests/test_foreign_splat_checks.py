@@ -60,8 +60,8 @@ def test_an_spz_with_no_gaussians_is_one_error(tmp_path, capfd):
 @pytest.mark.parametrize("scale, words", [
     (np.frombuffer(b"\x01\x00\x80\x7f", "<f4")[0], "NaN or infinite values in their scales"),  # a signalling NaN
     (np.float32("inf"), "NaN or infinite values in their scales"),
-    (-0.5, "a zero or negative value"),
-    (0.0, "a zero or negative value"),
+    (-0.5, "a zero or negative scale"),
+    (0.0, "a zero or negative scale"),
 ])
 def test_dot_splat_scales_must_be_finite_and_positive(tmp_path, capfd, scale, words):
     rec = splat_records()
@@ -76,7 +76,7 @@ def test_all_zero_rotations_are_refused_on_the_first_read(tmp_path, capfd):
     rec["rot"] = 128  # (128 - 128) / 128 = 0 for every component
     path = tmp_path / "a.splat"
     rec.tofile(path)
-    refused(["convert", path, tmp_path / "o.ply"], capfd, "4 of 4 Gaussians have a zero quaternion")
+    refused(["convert", path, tmp_path / "o.ply"], capfd, "4 of 4 Gaussians have a zero rotation quaternion")
     assert not (tmp_path / "o.ply").exists()
 
 

@@ -167,16 +167,21 @@ def _busy_message(root: Path, holder: Holder | None) -> str:
     return line
 
 
-def _acquire(root: Path, command: str, wait: bool) -> int:
-    path = lock_path(root)
+def _take(path: Path) -> int | None:
+    """:func:`_try_take`, its OSError one error naming the lock file (a read-only or full disk)."""
     try:
-        fd = _try_take(path)
+        return _try_take(path)
     except OSError as e:
         raise os_error(path, e, "could not take the workspace lock") from e
+
+
+def _acquire(root: Path, command: str, wait: bool) -> int:
+    path = lock_path(root)
+    fd = _take(path)
     t_end = time.monotonic() + BUSY_GRACE_S
     while fd is None and time.monotonic() < t_end:  # a reader repairing for a moment is not a writer
         time.sleep(0.05)
-        fd = _try_take(path)
+        fd = _take(path)
     if fd is None:
         holder = current_holder(root)
         message = _busy_message(root, holder)
@@ -187,7 +192,7 @@ def _acquire(root: Path, command: str, wait: bool) -> int:
         while fd is None:
             if signals.cancel_event.wait(WAIT_POLL_S):
                 raise Cancelled("cancelled while waiting for the workspace lock")
-            fd = _try_take(path)
+            fd = _take(path)
             now = time.monotonic()
             if fd is None and now - last >= WAIT_NOTICE_S:
                 last = now

@@ -146,13 +146,12 @@ def _identity(path: Path, comments: list[str], kind: str | None, space: str | No
         raise IGSError(str(e)) from None
     if from_comments is not None:
         found = Identity(*from_comments, "file")
-    elif kind is not None and space is not None:
-        found = Identity(kind, space, "unknown")  # both given: no manifest is consulted
     else:
         ident = manifest.identify(path)
         own = manifest.manifest_path(path)
+        told = kind is not None and space is not None  # then no manifest is needed
         for p, why in ident.unreadable:
-            if p == own:  # the file's own manifest says what it is: guessing instead would be silent garbage
+            if p == own and not told:  # the file's own manifest says what it is: a guess would be garbage
                 raise IGSError(f"{why}; fix or delete it, or say what the file holds with "
                               "`igs convert --kind K --space S`")
             events.log(f"warning: {why}; skipped")
@@ -274,10 +273,10 @@ def _read_dot_splat(path: Path) -> SplatArrays:
     if size == 0 or size % SPLAT_RECORD.itemsize:
         raise IGSError(f"{path}: {size} bytes is not a whole number of {SPLAT_RECORD.itemsize}-byte .splat records")
     rec = np.fromfile(path, dtype=SPLAT_RECORD)
-    _check_rows(path, "positions", ~np.isfinite(rec["pos"]).all(axis=1), "NaN or infinite values")
+    _check_rows(path, ~np.isfinite(rec["pos"]).all(axis=1), "NaN or infinite values in their positions")
     scale = rec["scale"]
-    _check_rows(path, "scales", ~np.isfinite(scale).all(axis=1), "NaN or infinite values")
-    _check_rows(path, "scales", (scale <= 0).any(axis=1), "a zero or negative value (a .splat stores linear scales, "
+    _check_rows(path, ~np.isfinite(scale).all(axis=1), "NaN or infinite values in their scales")
+    _check_rows(path, (scale <= 0).any(axis=1), "a zero or negative scale (a .splat stores the scales themselves, "
                 "which must be > 0)")
     rgba = rec["rgba"].astype(np.float64) / 255
     alpha = np.clip(rgba[:, 3], 0.5 / 255, 1 - 0.5 / 255)  # 0 and 255 are exact ends, not infinite logits
@@ -314,12 +313,11 @@ _NAMES = {"means": "positions", "log_scales": "log scales", "quats": "rotations"
           "f_dc": "colours", "f_rest": "higher SH coefficients"}
 
 
-def _check_rows(path: Path, what: str, bad: np.ndarray, problem: str) -> None:
-    """One error naming the file, how many Gaussians have ``problem`` in ``what`` and the first one."""
+def _check_rows(path: Path, bad: np.ndarray, problem: str) -> None:
+    """One error naming the file, how many Gaussians (``bad``: (N,) bool) have ``problem``, and the first."""
     if bad.any():
         rows = np.flatnonzero(bad)
-        raise IGSError(f"{path}: {len(rows)} of {len(bad)} Gaussians have {problem} in their {what} "
-                       f"(first: Gaussian {rows[0]})")
+        raise IGSError(f"{path}: {len(rows)} of {len(bad)} Gaussians have {problem} (first: Gaussian {rows[0]})")
 
 
 def _check_values(path: Path, a: SplatArrays) -> None:
@@ -328,8 +326,8 @@ def _check_values(path: Path, a: SplatArrays) -> None:
     anything computes with it."""
     for name, label in _NAMES.items():
         v = getattr(a, name).reshape(len(a), -1)
-        _check_rows(path, label, ~np.isfinite(v).all(axis=1), "NaN or infinite values")
+        _check_rows(path, ~np.isfinite(v).all(axis=1), f"NaN or infinite values in their {label}")
     size = np.abs(a.quats).max(axis=1)
     low, high = layer_values.QUAT_RANGE
-    _check_rows(path, "rotations", size < low, f"a zero quaternion (every component below {low:g})")
-    _check_rows(path, "rotations", size > high, f"a quaternion too long to normalise (a component above {high:g})")
+    _check_rows(path, size < low, f"a zero rotation quaternion (every component below {low:g})")
+    _check_rows(path, size > high, f"a rotation quaternion too long to normalise (a component above {high:g})")
