@@ -23,7 +23,7 @@ from typing import Any
 
 from ..igs_contract import events
 from ..igs_contract.events import parse_event
-from ..igs_contract.exit_codes import EXIT_CANCELLED, EXIT_OK, EXIT_USER
+from ..igs_contract.exit_codes import EXIT_BUSY, EXIT_CANCELLED, EXIT_OK, EXIT_USER
 
 
 class BackendError(Exception):
@@ -444,6 +444,10 @@ class BackendJob:
             return f"{label} cancelled: " + (self.state.cancelled or "the workspace keeps the last checkpoint")
         rc = self.returncode
         where = f" (log: {self.log_path})" if self.log_path else ""
+        if rc == EXIT_BUSY:  # another command is writing to the workspace: the backend's line, as it is
+            line = self.state.error or self._last_stderr_line().partition(": error: ")[2]
+            if line:
+                return f"{label} not started: {line}"
         if self.state.error:
             msg = self.state.error
             if msg.startswith("internal error"):

@@ -156,10 +156,9 @@ def file_identity(path: str | os.PathLike) -> Identity:
         raise UserError(f"{path}: file not found")
     try:
         if path.suffix.lower() in PLY_SUFFIXES:
-            comments = ply_header.read_header(path).comments
-            kind = layer_ply.comment_value(comments, layer_ply.LAYER_COMMENT)
-            if kind is not None:
-                return Identity("file", kind, layer_ply.comment_value(comments, layer_ply.SPACE_COMMENT) or "linear")
+            from_comments = layer_ply.comment_identity(path, ply_header.read_header(path).comments)
+            if from_comments is not None:
+                return Identity("file", *from_comments)
         found = manifest.identify(path)
     except ContractError as e:
         raise UserError(str(e)) from None

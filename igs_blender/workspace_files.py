@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from ..igs_contract import workspace_lock
 from .errors import UserError
 
 EDIT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
@@ -35,6 +36,19 @@ def existing_workspace(path: str) -> Path:
     if not (ws / "capture.json").is_file():
         raise UserError(f"{ws} is not a workspace (no capture.json): import a capture into it first")
     return ws
+
+
+def busy_line(path: str) -> str | None:
+    """The backend's line naming the command that is writing to the workspace at ``path`` (holding its
+    lock, :mod:`igs_contract.workspace_lock`), or None when none is (or no workspace is set)."""
+    if not path or not path.strip():
+        return None
+    try:
+        ws = resolve(path)
+    except (UserError, OSError, ValueError):
+        return None
+    holder = workspace_lock.active_holder(ws)
+    return workspace_lock.busy_line(ws, holder) if holder is not None else None
 
 
 def check_edit_name(name: str) -> str:

@@ -7,6 +7,8 @@
   its one validator; ``layer_values`` checks the values read (numpy, which both sides have).
 - ``camera_json``: the cameras.json the add-on writes for ``igs render --cameras`` and the
   workspace's transforms.json the add-on reads its cameras from.
+- ``workspace_lock``: the lock file a writing command holds in a workspace, and the line naming
+  its holder that both sides show.
 
 The backend imports this package as ``igs_contract`` (the add-on runs it with the extension folder
 first on PYTHONPATH); the add-on imports it relatively, as part of the extension. Nothing here

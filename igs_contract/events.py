@@ -14,8 +14,9 @@ JSON object with a string ``event`` (:func:`parse_event`), and events and fields
 - ``result``     ``command`` (str), ``data`` (object): the command's summary (without ``--events``
   the command prints it as JSON instead).
 - ``done``       ``command`` (str), ``seconds`` (float): the command finished (exit code 0).
-- ``error``      ``message`` (str): the command failed; one message naming the cause (exit code 2,
-  or 1 with a message starting "internal error").
+- ``error``      ``message`` (str): the command failed; one message naming the cause (exit code 2;
+  75 when another command is writing to the workspace, the message naming it; or 1 with a message
+  starting "internal error").
 - ``cancelled``  ``message`` (str): stopped on request (exit code 130); the workspace keeps its last
   checkpoint.
 - ``env``        the environment report of the add-on's ``check_env.py`` (its docstring lists the fields).

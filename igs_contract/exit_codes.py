@@ -6,5 +6,9 @@ EXIT_INTERNAL = 1
 """A bug: the traceback is on stderr, the ``error`` event's message starts with "internal error"."""
 EXIT_USER = 2
 """Bad input, bad options or a machine that refused (full disk): one message naming the cause."""
+EXIT_BUSY = 75
+"""Another command is writing to the workspace (it holds the workspace's lock,
+:mod:`igs_contract.workspace_lock`); nothing was done. The ``error`` event's message names the holder.
+75 is sysexits' EX_TEMPFAIL: the same command succeeds later."""
 EXIT_CANCELLED = 130
 """Stopped on request (128 + SIGINT); the workspace keeps its last checkpoint."""

@@ -82,6 +82,21 @@ def comment_value(comments: list[str], key: str) -> str | None:
     return None
 
 
+def comment_identity(path: str | os.PathLike, comments: list[str]) -> tuple[str, str] | None:
+    """(kind, space) from a splat file's ``igs_layer`` / ``igs_space`` comments (space default
+    ``linear``), or None without an ``igs_layer`` comment; an unknown kind or space is a
+    ContractError naming the file."""
+    kind = comment_value(comments, LAYER_COMMENT)
+    if kind is None:
+        return None
+    space = comment_value(comments, SPACE_COMMENT) or "linear"
+    if kind not in KINDS:
+        raise ContractError(f"{path}: unknown layer kind '{kind}' in 'comment {LAYER_COMMENT}'")
+    if space not in SPACES:
+        raise ContractError(f"{path}: unknown colour space '{space}' in 'comment {SPACE_COMMENT}'")
+    return kind, space
+
+
 def header_bytes(count: int, names: list[str], comments: list[str]) -> bytes:
     """The header of a binary little-endian layer PLY of ``count`` vertices with float ``names``."""
     lines = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments),

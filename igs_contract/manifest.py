@@ -17,7 +17,7 @@ without its extension, and without a tool's suffix such as ``.compressed``), ``<
 for every splat extension and ``<stem>.igs.json``; the first whose hash matches wins, else the first
 that exists. Failing those, any ``*.igs.json`` in the folder whose hash matches (a renamed file).
 
-Standard library only (no numpy, nothing else of ours), so the Blender add-on imports it as
+Standard library only (no numpy; of ours only the contract's ``layer_ply`` names), so the Blender add-on imports it as
 ``from ..igs_contract import manifest`` and the backend as ``from igs_contract import manifest``.
 Writing is the caller's job (atomically: ``to_json`` gives the text).
 """
@@ -30,6 +30,8 @@ import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
+
+from .layer_ply import KINDS, SPACES
 
 SUFFIX = ".igs.json"
 SCHEMA = 1
@@ -83,6 +85,8 @@ class Identity:
     """The manifest used (None when ``unknown``)."""
     path: Path | None
     """The manifest file used (None when ``unknown``)."""
+    unreadable: tuple[tuple[Path, str], ...] = ()
+    """Candidate manifests that could not be read, skipped: (file, why), in the order tried."""
 
 
 def manifest_path(file: str | os.PathLike) -> Path:
@@ -101,10 +105,11 @@ def sha256_file(file: str | os.PathLike, chunk: int = 1 << 20) -> str:
 
 
 def build(file: str | os.PathLike, *, format: str, kind: str, space: str, encoding: str, sh_degree: int,
-          count: int, source: dict[str, Any] | None = None, writer: str = "") -> Manifest:
-    """The manifest of the finished ``file`` (hashes it now: call it after the file is in place)."""
+          count: int, source: dict[str, Any] | None = None, writer: str = "", name: str | None = None) -> Manifest:
+    """The manifest of the finished ``file`` (hashes it now: call it once the file is complete).
+    ``name``: the name the file will have, when ``file`` is still its temporary."""
     file = Path(file)
-    return Manifest(file=file.name, format=format, kind=kind, space=space, encoding=encoding,
+    return Manifest(file=name or file.name, format=format, kind=kind, space=space, encoding=encoding,
                     sh_degree=int(sh_degree), count=int(count), sha256=sha256_file(file),
                     size=file.stat().st_size, source=dict(source or {}), writer=writer)
 
@@ -123,7 +128,7 @@ def read(path: str | os.PathLike) -> Manifest:
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise ManifestError(f"{path}: not a readable manifest ({e})") from e
     if not isinstance(data, dict):
         raise ManifestError(f"{path}: a manifest must be a JSON object")
@@ -131,11 +136,20 @@ def read(path: str | os.PathLike) -> Manifest:
         value = data.get(key)
         if not isinstance(value, typ) or isinstance(value, bool):
             raise ManifestError(f"{path}: field {key!r} must be {typ.__name__}, got {value!r}")
-    source = data.get("source", {})
+    for key, allowed in (("kind", KINDS), ("space", SPACES)):
+        if data[key] not in allowed:
+            raise ManifestError(f"{path}: field {key!r} must be one of {', '.join(allowed)}, got {data[key]!r}")
+    for key in ("sh_degree", "count", "size"):
+        if data[key] < 0:
+            raise ManifestError(f"{path}: field {key!r} must not be negative, got {data[key]!r}")
+    source, writer, schema = data.get("source", {}), data.get("writer", ""), data.get("schema", SCHEMA)
     if not isinstance(source, dict):
         raise ManifestError(f"{path}: field 'source' must be an object")
-    return Manifest(**{k: data[k] for k in _TYPES}, source=source, writer=str(data.get("writer", "")),
-                    schema=int(data.get("schema", SCHEMA)))
+    if not isinstance(writer, str):
+        raise ManifestError(f"{path}: field 'writer' must be str, got {writer!r}")
+    if not isinstance(schema, int) or isinstance(schema, bool) or schema != SCHEMA:
+        raise ManifestError(f"{path}: field 'schema' must be {SCHEMA}, got {schema!r}")
+    return Manifest(**{k: data[k] for k in _TYPES}, source=source, writer=writer, schema=schema)
 
 
 def split_name(name: str) -> tuple[str, str]:
@@ -184,26 +198,29 @@ def identify(file: str | os.PathLike) -> Identity:
     """What the manifests beside ``file`` say it is (see the module docstring for the order).
 
     Does not look at the file's own header: a PLY with ``igs_*`` comments is identified by them
-    first (identity ``"file"`` for the callers). Unreadable manifests are skipped.
+    first (identity ``"file"`` for the callers). Unreadable manifests are skipped and listed in
+    ``Identity.unreadable``; the caller decides whether that is an error (the backend: for the
+    file's own ``<file>.igs.json``) or a warning.
     """
     file = Path(file)
     digest = sha256_file(file)
     named: list[tuple[Path, Manifest]] = []
+    unreadable: list[tuple[Path, str]] = []
     for p in candidates(file):
         try:
             named.append((p, read(p)))
-        except ManifestError:
-            continue
+        except ManifestError as e:
+            unreadable.append((p, str(e)))
     for p, m in named:
         if m.sha256 == digest:
-            return Identity("manifest", m, p)
+            return Identity("manifest", m, p, tuple(unreadable))
     if named:
-        return Identity("manifest-changed", named[0][1], named[0][0])
+        return Identity("manifest-changed", named[0][1], named[0][0], tuple(unreadable))
     for p in sorted(file.parent.glob("*" + SUFFIX)):  # a renamed file: any manifest of its content
         try:
             m = read(p)
         except ManifestError:
-            continue
+            continue  # another file's manifest: not this file's business
         if m.sha256 == digest:
-            return Identity("manifest", m, p)
-    return Identity("unknown", None, None)
+            return Identity("manifest", m, p, tuple(unreadable))
+    return Identity("unknown", None, None, tuple(unreadable))

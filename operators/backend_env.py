@@ -17,6 +17,7 @@ class IGS_OT_create_backend_env(BackendOperator, bpy.types.Operator):
 
     bl_idname = "igs.create_backend_env"
     bl_label = "Create Backend Environment"
+    writes_workspace = False
 
     def make_job(self, context) -> BackendJob:
         prefs = preferences.get(context)
@@ -40,6 +41,7 @@ class IGS_OT_check_backend(BackendOperator, bpy.types.Operator):
     """Check that the backend interpreter has every pinned package for its Python and the Device, which torch build it has, whether CUDA works, and list the backend's commands"""
 
     bl_idname = "igs.check_backend"
+    writes_workspace = False
     bl_label = "Check Backend"
 
     def make_job(self, context) -> BackendJob:

@@ -72,6 +72,8 @@ def backend_ready(cls, context) -> bool:
     if context.scene is None or not context.scene.igs.workspace.strip():
         cls.poll_message_set("choose the Workspace folder first")
         return False
+    if cls.workspace_busy(context):
+        return False
     try:
         preferences.interpreter(context)
     except UserError as e:
@@ -82,6 +84,8 @@ def backend_ready(cls, context) -> bool:
 
 class IGS_OT_import_splat_file(BackendOperator, bpy.types.Operator):
     """Load any Gaussian splat file as a layer point cloud: PLY (binary, ASCII or SuperSplat's compressed PLY) directly; .splat, .spz and .sog converted by the backend"""
+
+    writes_workspace = False  # converts into a temporary folder
 
     bl_idname = "igs.import_splat_file"
     bl_label = "Import Splat File"

@@ -15,6 +15,7 @@ import bpy
 from ..igs_blender import backend_env, jobs, preferences, scene_objects
 from ..igs_blender.client import BackendError, BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.workspace_files import busy_line
 from .modes import in_object_mode
 
 
@@ -46,13 +47,26 @@ class BackendOperator:
 
     bl_options = {"REGISTER"}
     poll_seconds = 0.2
+    writes_workspace = True
+    """The job writes to the scene's workspace: greyed out while another program is writing to it."""
 
     @classmethod
     def poll(cls, context):
         if jobs.running():
             cls.poll_message_set("a backend job is running; wait for it or cancel it")
             return False
-        return context.scene is not None
+        if context.scene is None:
+            return False
+        return not cls.workspace_busy(context)
+
+    @classmethod
+    def workspace_busy(cls, context) -> bool:
+        """Another program (a command line, another Blender) holds the workspace's lock: the backend
+        would refuse, so the button is greyed out and its tooltip names the holder."""
+        line = busy_line(context.scene.igs.workspace) if cls.writes_workspace else None
+        if line:
+            cls.poll_message_set(line)
+        return line is not None
 
     def make_job(self, context) -> BackendJob:
         raise NotImplementedError

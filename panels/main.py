@@ -10,6 +10,7 @@ from ..igs_blender import edits, layers, preferences, scene_objects, splat_viewp
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
+from ..igs_blender.workspace_files import busy_line
 
 CATEGORY = "Intrinsic Splats"
 LAYER_LABELS = {"composite": "Composite A×S+R", "albedo": "Albedo", "shading": "Shading", "residual": "Residual",
@@ -86,6 +87,9 @@ class IGS_PT_main(_Panel, bpy.types.Panel):
             box.operator("igs.cancel_job", icon="CANCEL")
         elif props.last_report:
             _lines(layout.box(), props.last_report, icon="INFO")
+        busy = busy_line(props.workspace) if not props.job_running else None
+        if busy:  # another program is writing to the workspace: the writing buttons are greyed out
+            _lines(layout.box(), busy, icon="LOCKED")
         if props.capture_info:
             _lines(layout, props.capture_info, icon="FILE_FOLDER")
 

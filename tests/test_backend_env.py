@@ -462,4 +462,4 @@ def test_check_backend_reports_the_one_line_and_keeps_the_details(prefs, tmp_pat
     assert lines[1].startswith("Python 3.11") and any(line.startswith("Missing: ") for line in lines)
     prefs.backend_python = PYTHON
     assert bpy.ops.igs.check_backend() == {"FINISHED"}
-    assert prefs.check_ok and prefs.check_report.splitlines()[0].startswith("Python %d.%d" % sys.version_info[:2])
+    assert prefs.check_ok and prefs.check_report.splitlines()[0].startswith("Python {}.{}".format(*sys.version_info[:2]))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import stat
 import subprocess
 import sys
@@ -657,6 +658,50 @@ def test_cancel_from_the_panel_stops_a_running_job(scene, tmp_path, fake_python,
     assert "cancelled" in scene.igs.last_report and "checkpoint" in scene.igs.last_report
     assert not jobs.running() and not scene.igs.job_running
     assert scene.igs.job_progress > 0  # progress reached the panel before the cancel
+
+
+
+_LOCK_HOLDER = """
+import sys
+from backend.core.workspace_lock import hold
+from igs_contract.workspace_lock import lock_path
+with hold(sys.argv[1], "decompose"):
+    if sys.argv[2] == "hide":  # hold the lock but leave no record: the add-on cannot tell, the backend can
+        lock_path(sys.argv[1]).write_text("")
+    print("held", flush=True)
+    sys.stdin.readline()
+"""
+
+
+def test_writing_buttons_are_greyed_out_while_another_program_writes(scene, tmp_path):
+    from types import SimpleNamespace
+
+    ws = tmp_path / "ws"
+    make_tiny_workspace(ws)
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.decompose.poll() and bpy.ops.igs.train_3dgs.poll()
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    for mode in ("show", "hide"):
+        holder = subprocess.Popen([PYTHON, "-c", _LOCK_HOLDER, str(ws), mode], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, cwd=ROOT, env=env)
+        try:
+            assert holder.stdout.readline().strip() == b"held"
+            if mode == "show":  # the buttons that would write are greyed out, the panel names the holder
+                assert not bpy.ops.igs.decompose.poll() and not bpy.ops.igs.import_capture.poll()
+                assert bpy.ops.igs.check_backend.poll()  # writes to no workspace
+                calls = []
+                bpy.types.IGS_PT_main.draw(SimpleNamespace(layout=LayoutProbe(calls)), bpy.context)
+                text = " ".join(str(c[1]) for c in calls if c[0] == "label")
+                assert "in use by `igs decompose`" in text and f"PID {holder.pid}" in text
+            else:  # the backend refuses, and the report is its line
+                assert bpy.ops.igs.train_3dgs.poll()
+                with pytest.raises(RuntimeError, match=r"Train 3DGS not started: .*in use by another igs command; "
+                                                       r"wait for it to finish, or run again with --wait"):
+                    bpy.ops.igs.train_3dgs()
+        finally:
+            holder.stdin.close()
+            holder.wait(timeout=60)
+    assert bpy.ops.igs.decompose.poll()
 
 
 # -- the Blender side of every operator against the backend's command contract -----------------------

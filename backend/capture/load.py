@@ -15,8 +15,9 @@ from backend.capture.colmap_io import read_model
 from backend.core.atomic_io import clean_stale_tmp
 from backend.core.errors import IGSError
 from backend.core.imageio import read_depth, read_image
-from backend.core.staging import recover
+from backend.core.staging import pending, recover
 from backend.core.workspace import GT_PASSES, Capture, Frame, Workspace, split_frames
+from backend.core.workspace_lock import try_hold
 
 
 def _png_size(path: Path) -> tuple[int, int] | None:
@@ -80,8 +81,11 @@ def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool =
     ws = Workspace(Path(root))
     if not ws.root.is_dir():
         raise IGSError(f"{ws.root}: workspace folder not found")
-    recover(ws.root)  # a command killed while swapping in its results: finish the swap first
-    clean_stale_tmp(ws.root, recursive=True)  # and files it was writing
+    if pending(ws.root):  # a command killed while swapping in its results: finish the swap first,
+        with try_hold(ws.root) as free:  # unless a writer is at it
+            if free:
+                recover(ws.root)
+    clean_stale_tmp(ws.root, recursive=True)  # and files killed writers were writing
     meta = ws.read_capture_json()
     if not ws.images.is_dir():
         raise IGSError(f"{ws.images}: missing images folder")

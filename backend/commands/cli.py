@@ -16,11 +16,13 @@ import traceback
 from typing import NoReturn
 
 from backend import __version__
+from backend.commands.locking import run_locked
 from backend.core import events, signals
 from backend.core.atomic_io import os_error
 from backend.core.errors import Cancelled, IGSError
+from backend.core.workspace_lock import WorkspaceBusy
 from igs_contract.events import CANCELLED, DONE, ERROR, START
-from igs_contract.exit_codes import EXIT_CANCELLED, EXIT_INTERNAL, EXIT_OK, EXIT_USER
+from igs_contract.exit_codes import EXIT_BUSY, EXIT_CANCELLED, EXIT_INTERNAL, EXIT_OK, EXIT_USER
 
 # Errors of the machine rather than of the program (full disk, read-only or missing folder,
 # permissions): one line naming the file, like bad input.
@@ -73,8 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; the exit code (:mod:`igs_contract.exit_codes`): 0 done, 2 user error, 130
-    cancelled, 1 internal error.
+    """Run one command; the exit code (:mod:`igs_contract.exit_codes`): 0 done, 2 user error, 75
+    workspace busy, 130 cancelled, 1 internal error.
 
     Without ``argv`` (a process of its own: ``igs``, ``python -m backend``) signals arriving after
     the command has finished are ignored, so that the exit code stays the command's.
@@ -108,7 +110,11 @@ def _main(argv: list[str]) -> int:
     events.emit(START, command=args.command, argv=argv)
     try:
         events.check_cancel()  # a signal that came while loading
-        args.func(args)
+        run_locked(args)  # under the workspace's lock when the command writes to one
+    except WorkspaceBusy as e:  # another command is writing to the workspace: nothing was done
+        events.emit(ERROR, message=str(e))
+        print(f"igs {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_BUSY
     except IGSError as e:
         events.emit(ERROR, message=str(e))
         print(f"igs {args.command}: error: {e}", file=sys.stderr)

@@ -8,8 +8,10 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from backend.commands import locking
 from backend.core import events
 from backend.core.errors import IGSError
+from backend.core.output_paths import check_output
 from backend.splats.formats import read_splat_file
 from backend.splats.formats_write import convert_to_layer
 from igs_contract.layer_ply import KINDS, SPACES
@@ -24,9 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(identity 'unknown'); --kind and --space override. Albedo, shading and residual are written in "
         "linear (sRGB files are decoded), radiance as it is.")
     p.add_argument("input", help="splat file to read")
-    p.add_argument("output", help="layer PLY to write (.ply)")
+    p.add_argument("output", help="layer PLY to write (.ply; inside a workspace only under its exports/ folder)")
     p.add_argument("--kind", choices=KINDS, help="what the file holds (overrides its header and manifest)")
     p.add_argument("--space", choices=SPACES, help="colour space of the file's colours (overrides them too)")
+    locking.writes(p, lambda a: locking.output_workspace(a.output))
     p.set_defaults(func=run)
 
 
@@ -34,6 +37,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     src_path, out = Path(args.input), Path(args.output)
     if out.suffix.lower() != ".ply":
         raise IGSError(f"{out}: the output is a layer PLY; give it a .ply name")
+    if out.is_dir():
+        raise IGSError(f"{out}: is a folder; name the layer PLY to write")
+    check_output(out, "OUTPUT")
     if out.exists() and out.resolve() == src_path.resolve():
         raise IGSError(f"{out}: the output is the input file; choose another name")
     src = read_splat_file(src_path, kind=args.kind, space=args.space)

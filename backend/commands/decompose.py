@@ -4,14 +4,18 @@ single-set baseline, then its held-out evaluation."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args, with_fields
 from backend.core import events
 from backend.core.errors import IGSError
+from backend.core.workspace import Workspace
 from backend.eval.decomposition import evaluate_decomposition
+from backend.eval.metrics_file import read_metrics
 from backend.train.intrinsic.config import STAGES, DecomposeConfig, split_iterations
 from backend.train.intrinsic.run import decompose
 from backend.train.single_set import SCHEDULES, decompose_single_set
@@ -83,6 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     group.add_argument("--restart", dest="resume", action="store_false",
                        help="discard the checkpoints of the stages run and start them over")
     add_config_arguments(p, _D, OPTIONS)
+    locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=run)
 
 
@@ -114,6 +119,7 @@ def show(summary: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> dict:
     # --iterations first: the per-stage options override its split
     cfg = config_from_args(config_with_iterations(args.iterations), STAGE_ITERATIONS + OPTIONS, args)
+    read_metrics(Workspace(Path(args.workspace)).metrics_json)  # a broken file stops it now, not after training
     if args.single_set:
         if args.stage:
             raise IGSError("--stage does not apply to --single-set (one set is trained in one run)")

@@ -15,6 +15,7 @@ from pathlib import Path
 from backend.capture.load import capture_summary, load_capture
 from backend.commands import decompose as decompose_command
 from backend.commands import edit as edit_command
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands import render as render_command
 from backend.core import events
@@ -50,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="decomposition budget: albedo N, shading 3N/4, residual N/2 (default per preset: "
                         + ", ".join(f"{k} {v}" for k, v in ITERATIONS.items()) + ")")
     p.add_argument("--frames", type=opt.COUNT, default=36, help="turntable frames (default 36)")
+    locking.writes(p, locking.workspace_arg, create=True)
     p.set_defaults(func=run)
 
 

@@ -6,10 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.core import events
+from backend.core.output_paths import check_output
 from backend.train.distil import DistilConfig, default_train, distil, sidecar_path
 
 _DEFAULTS = DistilConfig()
@@ -48,17 +50,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "ones). Checkpoints in <ws>/checkpoints/distil-<edit or layers>/; a cancelled run resumes.",
     )
     p.add_argument("workspace", help="workspace folder")
-    p.add_argument("--out", default=None, help="output .ply (default <ws>/exports/<edit or 'layers'>-distilled.ply)")
+    p.add_argument("--out", default=None, help="output .ply (default <ws>/exports/<edit or 'layers'>-distilled.ply; inside a workspace only "
+                        "under its exports/ folder)")
     add_config_arguments(p, _DEFAULTS, OPTIONS)
     group = p.add_mutually_exclusive_group()
     group.add_argument("--resume", dest="resume", action="store_true", default=True,
                        help="continue from the last checkpoint when there is one (default)")
     group.add_argument("--restart", dest="resume", action="store_false", help="discard checkpoints and start over")
+    locking.writes(p, locking.workspace_arg)  # its checkpoints are in the workspace
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> dict:
     cfg = config_from_args(DistilConfig(), OPTIONS, args)
+    if args.out:
+        check_output(args.out, "--out")
     summary = distil(args.workspace, cfg, out=args.out, resume=args.resume)
     keys = ("ply", "psnr", "count", "seconds", "baseline_psnr", "held_out", "iterations", "edit")
     data = {k: summary.get(k) for k in keys}

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
@@ -146,6 +147,7 @@ def _add_fit(sub, kind: ProxyKind) -> None:
                    help="rectangle in pixels of the view (origin top-left, x right, y down)")
     p.add_argument("--name", default=kind, help=f"edit name (folder under <ws>/edits, default {kind})")
     add_config_arguments(p, ProxyFitConfig, fit_options(kind))
+    locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=lambda a: run_fit(a, kind))
 
 
@@ -167,6 +169,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=opt.SEED, default=0, help="random seed (default 0)")
     p.add_argument("--proxy", required=True, help="proxy.json")
     add_config_arguments(p, ProjectConfig, PROJECT_OPTIONS)
+    locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=run_project)
 
     p = esub.add_parser(
@@ -178,4 +181,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(p, BakeConfig, BAKE_OPTIONS[:3])
     add_config_arguments(p, BakeInput, BAKE_INPUT_OPTIONS)
     add_config_arguments(p, BakeConfig, BAKE_OPTIONS[3:])
+    locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=run_bake)

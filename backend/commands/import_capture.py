@@ -11,6 +11,7 @@ from pathlib import Path
 
 from backend.capture.importer import ImportConfig, gt_dir_for, import_capture
 from backend.capture.sfm import SfMConfig
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.commands.priors import add_prior_arguments, priors_config_from_args
@@ -55,6 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(p.add_argument_group("structure from motion"), base, SFM_OPTIONS)
     add_prior_arguments(p)
     add_config_arguments(p, base, FORCE)
+    locking.writes(p, locking.workspace_arg, create=True, drop_new=True)
     p.set_defaults(func=run)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.priors.albedo import ALBEDO_SPECS
@@ -51,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "A prior left at 'none' keeps what the workspace has.")
     p.add_argument("workspace", help="workspace folder")
     add_prior_arguments(p)
+    locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=run)
 
 

@@ -4,12 +4,15 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.core import events
+from backend.core.output_paths import EXPORTS, RENDERS, check_output
 from backend.eval.render_views import MAX_SIDE
 from backend.eval.render_workspace import RenderConfig, render_workspace
 
@@ -46,7 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "matrix_world (Blender camera, 4x4) or R, t (OpenCV world->camera)}.")
     p.add_argument("workspace", help="workspace folder")
     add_config_arguments(p, RenderConfig, OPTIONS)
+    locking.writes(p, written_workspace)
     p.set_defaults(func=run)
+
+
+def written_workspace(args: argparse.Namespace) -> str | Path | None:
+    """The workspace this render writes to: its own (default <ws>/renders/...), or the one --out lies in."""
+    return locking.output_workspace(args.out) if args.out else args.workspace
 
 
 def show(result: dict[str, Any]) -> None:
@@ -54,4 +63,6 @@ def show(result: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    if args.out:
+        check_output(args.out, "--out", (RENDERS, EXPORTS))
     show(render_workspace(args.workspace, config_from_args(RenderConfig, OPTIONS, args)))

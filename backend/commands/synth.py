@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.core import events
 from backend.synth.blender import RENDERERS
@@ -38,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "`import bpy` works, else the binary")
     p.add_argument("--blender", default=None, metavar="PATH",
                    help="the Blender binary for --renderer binary/auto (default: $IGS_BLENDER)")
+    locking.writes(p, locking.workspace_arg, create=True)
     p.set_defaults(func=run)
 
 

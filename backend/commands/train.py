@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args, with_fields
 from backend.core import events
+from backend.core.workspace import Workspace
 from backend.eval.baseline import record_train_3dgs
+from backend.eval.metrics_file import read_metrics
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.loop import TrainConfig
 
@@ -56,11 +60,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="continue from the last checkpoint when there is one (default)")
     group.add_argument("--restart", dest="resume", action="store_false", help="discard checkpoints and start over")
     add_config_arguments(p, base, OPTIONS)
+    locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> dict:
     cfg = config_from_args(cli_defaults(), ITERATIONS + OPTIONS, args)
+    read_metrics(Workspace(Path(args.workspace)).metrics_json)  # a broken file stops it now, not after training
     entry = record_train_3dgs(args.workspace, train_3dgs(args.workspace, cfg, resume=args.resume))
     summary = {k: entry.get(k) for k in ("psnr", "ssim", "lpips", "iterations", "gaussians", "train_seconds")}
     events.result("train-3dgs", summary, indent=None)

@@ -3,5 +3,6 @@
 ``errors`` (user errors), ``atomic_io`` (atomic writes), ``staging`` (build next to the old, swap
 in), ``events`` and ``signals`` (progress, cancel), ``paths`` (names that stay inside their folder),
 ``cameras`` and ``rotations`` (pinhole cameras, quaternions), ``imageio`` (image files and colour),
-``workspace`` (the workspace's paths and records).
+``workspace`` (the workspace's paths and records), ``workspace_lock`` (one writer per workspace),
+``output_paths`` (user-named outputs stay out of a workspace's own files).
 """

@@ -48,31 +48,52 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     (OpenCV, numpy, plyfile) still work. An OSError while writing (disk full, read-only) becomes an
     IGSError naming ``path``.
     """
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.{os.getpid()}-", suffix=f"{TMP_MARK}{path.suffix}",
-                                   dir=path.parent)
-    except OSError as e:
-        raise os_error(path, e) from e
-    os.close(fd)
-    tmp_path = Path(tmp)
-    # mkstemp creates 0600 files; give the result the usual permissions (0666 minus the umask).
+    with atomic_paths([path]) as (tmp,):
+        yield tmp
+
+
+@contextmanager
+def atomic_paths(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
+    """Yield a temporary path beside each of ``paths``; once the body has written them all, each is
+    flushed to the disk and they are renamed into place, one after the other. Files that belong
+    together (a splat and its manifest) thus appear together or not at all: a failure while any of
+    them is written (a full disk) removes every temporary and leaves every target as it was.
+    An OSError becomes an IGSError naming the target it hit.
+    """
+    targets = [Path(p) for p in paths]
+    tmps: list[Path] = []
+    current = targets[0]
     umask = os.umask(0)
     os.umask(umask)
     try:
-        os.chmod(tmp_path, 0o666 & ~umask)
-        yield tmp_path
-        _sync_file(tmp_path, path)
-        os.replace(tmp_path, path)
-        _sync_dir(path.parent)
+        for target in targets:
+            current = target
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.{os.getpid()}-", suffix=f"{TMP_MARK}{target.suffix}",
+                                       dir=target.parent)
+            os.close(fd)
+            tmps.append(Path(tmp))
+            # mkstemp creates 0600 files; give the result the usual permissions (0666 minus the umask).
+            os.chmod(tmp, 0o666 & ~umask)
+        current = targets[0]
+        yield tmps
+        for tmp, target in zip(tmps, targets):
+            current = target
+            _sync_file(tmp, target)
+        for tmp, target in zip(tmps, targets):
+            current = target
+            os.replace(tmp, target)
+        for folder in dict.fromkeys(t.parent for t in targets):
+            _sync_dir(folder)
     except OSError as e:
-        raise os_error(path, e) from e
+        named = {str(t): target for t, target in zip(tmps, targets)}
+        raise os_error(named.get(str(e.filename), current), e) from e
     finally:
-        try:
-            tmp_path.unlink(missing_ok=True)
-        except OSError:
-            pass
+        for tmp in tmps:
+            try:
+                tmp.unlink(missing_ok=True)
+            except OSError:
+                pass
 
 
 def _sync_file(tmp: Path, path: Path, expected: int | None = None) -> None:

@@ -25,6 +25,7 @@ from backend.core.atomic_io import write_bytes, write_image_file  # noqa: E402
 from backend.core.errors import IGSError  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+JPEG_SIGNATURE = b"\xff\xd8\xff"
 
 
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
@@ -55,16 +56,21 @@ MAX_SIDE = 32768  # pixels; larger declared sizes are corrupt headers, not photo
 
 
 def check_image_file(path: str | Path) -> None:
-    """Refuse, before any decoder sees it, a file that is a folder or a PNG whose chunks are corrupt
-    (bad length or CRC, no IHDR/IEND) or that declares an absurd size: libpng would first allocate
-    the declared size, then fail, taking seconds on a few flipped bytes."""
+    """Refuse, before any decoder sees it, a file that is a folder, a PNG whose chunks are corrupt
+    (bad length or CRC, no IHDR/IEND) or that declares an absurd size (libpng would first allocate
+    the declared size, then fail, taking seconds on a few flipped bytes), or a JPEG cut short
+    (:func:`check_jpeg`)."""
     path = Path(path)
     if not path.exists():
         raise IGSError(f"{path}: file not found")
     if not path.is_file():
         raise IGSError(f"{path}: is a folder, not an image file")
     with open(path, "rb") as f:
-        if f.read(8) != PNG_SIGNATURE:
+        head = f.read(8)
+        if head[:3] == JPEG_SIGNATURE:
+            check_jpeg(path, head + f.read())
+            return
+        if head != PNG_SIGNATURE:
             return
         data = f.read()
     pos, first, seen_end = 0, True, False
@@ -89,6 +95,54 @@ def check_image_file(path: str | Path) -> None:
             break
     if not seen_end:
         raise IGSError(f"{path}: unreadable image (truncated PNG: no IEND chunk)")
+
+
+def check_jpeg(path: Path, data: bytes) -> None:
+    """Refuse a JPEG whose segments run past the end of the file or that has no end-of-image marker
+    after its scans: libjpeg decodes such a file anyway, greys out the missing rows and prints a bare
+    "Premature end of JPEG file" (naming no file) from C, where no Python code can catch it.
+
+    Walks the marker segments to each start-of-scan, then the entropy-coded data (where 0xFF is
+    followed by a stuffed 0x00, a restart marker or the next marker) up to the end-of-image marker.
+    """
+    n, pos = len(data), 2
+
+    def cut(where: str) -> IGSError:
+        return IGSError(f"{path}: unreadable image (truncated JPEG: the file ends {where}; it is "
+                        f"{n} bytes long)")
+
+    while True:
+        while pos < n and data[pos] == 0xFF and pos + 1 < n and data[pos + 1] == 0xFF:
+            pos += 1  # fill bytes before a marker
+        if pos + 2 > n:
+            raise cut("before its end-of-image marker")
+        if data[pos] != 0xFF:
+            raise IGSError(f"{path}: unreadable image (corrupt JPEG: no marker at byte {pos})")
+        marker = data[pos + 1]
+        if marker == 0xD9:  # end of image
+            return
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            pos += 2
+            continue
+        if pos + 4 > n:
+            raise cut(f"inside the segment at byte {pos}")
+        length = int.from_bytes(data[pos + 2:pos + 4], "big")
+        if length < 2 or pos + 2 + length > n:
+            raise cut(f"inside the segment at byte {pos}")
+        pos += 2 + length
+        if marker != 0xDA:  # not a start of scan: the next segment follows
+            continue
+        while True:  # entropy-coded data up to the next marker
+            pos = data.find(b"\xff", pos)
+            if pos < 0 or pos + 1 >= n:
+                raise cut("inside the image data")
+            follow = data[pos + 1]
+            if follow == 0x00 or 0xD0 <= follow <= 0xD7:
+                pos += 2
+            elif follow == 0xFF:
+                pos += 1
+            else:
+                break
 
 
 def read_image(path: str | Path) -> np.ndarray:

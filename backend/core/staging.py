@@ -116,3 +116,12 @@ def _finish(root: Path, area: Path) -> None:
     except OSError as e:
         raise IGSError(f"{root}: could not move the new results into place ({e.strerror or e}); "
                        f"run the command again to finish (the journal is {area / JOURNAL})") from e
+
+
+def pending(root: str | os.PathLike) -> bool:
+    """A commit of ``root`` was begun and not finished (a staging area with a journal)."""
+    base = Path(root) / STAGING_DIR
+    try:
+        return base.is_dir() and any((area / JOURNAL).exists() for area in base.iterdir())
+    except OSError:
+        return False

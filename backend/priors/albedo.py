@@ -84,6 +84,7 @@ class FolderAlbedo(AlbedoPredictor):
     def predict(self, frame: PriorFrame, image: np.ndarray) -> np.ndarray:
         path = self.maps.find(frame)
         m = read_map(path)
+        self.maps.check_size(path, m, frame)
         if m.ndim == 2:
             m = np.repeat(m[:, :, None], 3, axis=2)
         if m.shape[2] != 3:

@@ -75,14 +75,16 @@ def _views(ws: Workspace, capture) -> list[_View]:
     for i, f in enumerate(capture.frames):
         rec = records.get(f.name)
         if rec is None:
-            views.append(_View(PriorFrame(i, f.name, f.name, f.image), FrameWarp.identity(f.camera), f.camera, f.image))
+            views.append(_View(PriorFrame(i, f.name, f.name, f.image, size=(f.camera.width, f.camera.height)),
+                               FrameWarp.identity(f.camera), f.camera, f.image))
             continue
         try:
             ri = rec["intrinsics"]
             intr = Intrinsics(str(ri["model"]), int(ri["width"]), int(ri["height"]),
                               tuple(float(p) for p in ri["params"]))
             frame = PriorFrame(int(rec["index"]), f.name, str(rec.get("source", f.name)), Path(rec["raw"]),
-                               None if rec.get("video_index") is None else int(rec["video_index"]))
+                               None if rec.get("video_index") is None else int(rec["video_index"]),
+                               size=(intr.width, intr.height))
         except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise IGSError(f"{ws.capture_json}: the import record of {f.name} is malformed ({type(e).__name__}: {e}); "
                            "re-run `igs import`") from e

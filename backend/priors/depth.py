@@ -76,6 +76,7 @@ class FolderDepth(DepthPredictor):
     def predict(self, frame: PriorFrame, image: np.ndarray) -> np.ndarray:
         path = self.maps.find(frame)
         m = read_map(path)
+        self.maps.check_size(path, m, frame)
         if m.ndim == 3:
             m = m[:, :, 0]
         if (m < 0).any():

@@ -14,8 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from backend.core import events
 from backend.core.errors import IGSError
 
+MIN_MAP_SIDE = 16
+"""Pixels a map needs on its shorter side (or the frame's shorter side, when that is smaller)."""
+ASPECT_TOLERANCE = 0.01
+"""How far (relative) a map's aspect ratio may stray from its frame's, beyond a pixel of rounding."""
 MAP_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".npy", ".webp", ".bmp")
 
 
@@ -33,6 +38,8 @@ class PriorFrame:
     """The frame as imported, before undistortion."""
     video_index: int | None = None
     """Index of the frame in the source video, if any."""
+    size: tuple[int, int] | None = None
+    """(width, height) of the frame as captured: the geometry of the maps that come with it."""
 
 
 def _natural_key(p: Path) -> list:
@@ -57,6 +64,26 @@ class FolderMaps:
             self.by_stem.setdefault(p.stem, p)
         self.num_frames = num_frames
         self.num_video_frames = num_video_frames
+        self._told: set[tuple[int, int, int, int]] = set()
+
+    def check_size(self, path: Path, m: np.ndarray, frame: PriorFrame) -> None:
+        """A map must have its frame's aspect ratio and at least :data:`MIN_MAP_SIDE` pixels on its shorter
+        side; another size than the frame's is resized to it, and said once per size."""
+        if frame.size is None:
+            return
+        (fw, fh), (h, w) = frame.size, m.shape[:2]
+        if (w, h) == (fw, fh):
+            return
+        if abs(h - w * fh / fw) > 1 + ASPECT_TOLERANCE * h:
+            raise IGSError(f"{path}: the {self.what} map is {w}x{h}, but its frame {frame.name} is {fw}x{fh}: a map "
+                           "must have its frame's aspect ratio (it is resized to the frame, not cropped)")
+        need = min(MIN_MAP_SIDE, fw, fh)
+        if min(w, h) < need:
+            raise IGSError(f"{path}: the {self.what} map is {w}x{h}, too small for its {fw}x{fh} frame {frame.name} "
+                           f"(a map needs at least {need} pixels on its shorter side)")
+        if (w, h, fw, fh) not in self._told:
+            self._told.add((w, h, fw, fh))
+            events.log(f"{self.what}: maps of {w}x{h} in {self.folder} are resized to their frames' {fw}x{fh}")
 
     def find(self, frame: PriorFrame) -> Path:
         # The original name first: maps made elsewhere are named after the photos, and a photo may
@@ -87,7 +114,8 @@ def read_map(path: Path) -> np.ndarray:
             m = np.load(path, allow_pickle=False)
         except Exception as e:
             raise IGSError(f"{path}: unreadable array ({e})") from e
-        m = np.asarray(m, dtype=np.float32)
+        if m.dtype.kind not in "biuf":
+            raise IGSError(f"{path}: the array holds {m.dtype} values; a map holds real numbers")
         if m.ndim == 3 and m.shape[2] == 1:
             m = m[:, :, 0]
         if m.ndim == 3 and m.shape[0] in (1, 3) and m.shape[2] not in (1, 3):  # channels-first
@@ -107,6 +135,15 @@ def read_map(path: Path) -> np.ndarray:
                 m /= 255.0 if raw.dtype == np.uint8 else 65535.0
         else:
             m = read_image(path)
-    if m.ndim not in (2, 3) or not np.isfinite(m).all():
-        raise IGSError(f"{path}: map must be a finite (H, W) or (H, W, 3) array, got shape {m.shape}")
+    if m.ndim not in (2, 3) or 0 in m.shape:
+        raise IGSError(f"{path}: a map must be an (H, W) or (H, W, 3) array, got shape {m.shape}")
+    if m.dtype.kind == "f":
+        finite = np.isfinite(m)
+        if not finite.all():
+            bad = int((~finite).sum())
+            what = "NaN" if np.isnan(m).any() else "infinite"
+            raise IGSError(f"{path}: the map holds {bad} {what} value{'s' if bad > 1 else ''}; a map must be finite "
+                           "(0 = no data in a depth map)")
+        if np.abs(m).max() > np.finfo(np.float32).max:
+            raise IGSError(f"{path}: the map holds values beyond the float32 range")
     return m.astype(np.float32)

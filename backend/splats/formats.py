@@ -32,7 +32,7 @@ from backend.core.errors import IGSError
 from backend.splats.formats_tools import splat_transform
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
-from igs_contract import compressed_ply, layer_ply, manifest, ply_header
+from igs_contract import compressed_ply, layer_ply, layer_values, manifest, ply_header
 from igs_contract.errors import ContractError
 from igs_contract.layer_ply import C0, SH_KINDS
 
@@ -140,13 +140,22 @@ def read_splat_file(path: str | Path, kind: str | None = None, space: str | None
 
 
 def _identity(path: Path, comments: list[str], kind: str | None, space: str | None) -> Identity:
-    file_kind = layer_ply.comment_value(comments, layer_ply.LAYER_COMMENT)
-    if file_kind in layer_ply.KINDS:
-        found = Identity(file_kind, layer_ply.comment_value(comments, layer_ply.SPACE_COMMENT) or "linear", "file")
+    try:
+        from_comments = layer_ply.comment_identity(path, comments)
+    except ContractError as e:
+        raise IGSError(str(e)) from None
+    if from_comments is not None:
+        found = Identity(*from_comments, "file")
     else:
         ident = manifest.identify(path)
-        if ident.manifest is not None and ident.manifest.kind in layer_ply.KINDS \
-                and ident.manifest.space in layer_ply.SPACES:
+        own = manifest.manifest_path(path)
+        told = kind is not None and space is not None  # then no manifest is needed
+        for p, why in ident.unreadable:
+            if p == own and not told:  # the file's own manifest says what it is: a guess would be garbage
+                raise IGSError(f"{why}; fix or delete it, or say what the file holds with "
+                              "`igs convert --kind K --space S`")
+            events.log(f"warning: {why}; skipped")
+        if ident.manifest is not None:
             found = Identity(ident.manifest.kind, ident.manifest.space, ident.status, str(ident.path))
         else:
             found = Identity("radiance", "srgb", "unknown")
@@ -226,8 +235,22 @@ def _gsply(function: str, path: Path):
 
 def _from_gsdata(path: Path, data, finite_opacity: bool = False) -> SplatArrays:
     """gsply's GSData (PLY conventions: log scales, logit opacities, wxyz) as :class:`SplatArrays`;
-    ``finite_opacity``: infinite opacity logits (opacity exactly 0 or 1) are clamped, with a warning."""
-    n = len(data.means)
+    ``finite_opacity``: infinite opacity logits (opacity exactly 0 or 1) are clamped, with a warning.
+    Counts and shapes are checked before any arithmetic."""
+    means = np.asarray(data.means)
+    n = len(means) if means.ndim else 0
+    if n == 0:
+        raise IGSError(f"{path}: the file holds no Gaussians")
+    shn = data.shN if data.shN is not None and np.asarray(data.shN).size else np.zeros((n, 0, 3))
+    columns = {"means": (means, 3), "scales": (data.scales, 3), "rotations": (data.quats, 4),
+               "opacities": (data.opacities, 1), "colours": (data.sh0, 3), "higher SH": (shn, None)}
+    for name, (values, width) in columns.items():
+        v = np.asarray(values)
+        per = v.size // n if n else 0
+        if v.size % n or (width is not None and per != width) or (width is None and per % 3):
+            raise IGSError(f"{path}: {v.size} {name} values for {n} Gaussians; the file is inconsistent")
+        if v.dtype.kind not in "fiu":
+            raise IGSError(f"{path}: {name} are not numbers ({v.dtype})")
     opacity = _f32(np.asarray(data.opacities).reshape(n))
     if finite_opacity:
         inf = np.isinf(opacity)
@@ -235,28 +258,32 @@ def _from_gsdata(path: Path, data, finite_opacity: bool = False) -> SplatArrays:
             events.log(f"warning: {path}: {int(inf.sum())} of {n} Gaussians have an infinite opacity logit "
                        f"(opacity exactly 0 or 1); read as +-{OPACITY_LOGIT_MAX:g}")
             opacity = np.where(inf, np.sign(opacity) * OPACITY_LOGIT_MAX, opacity).astype(np.float32)
-    shn = data.shN if data.shN is not None and np.asarray(data.shN).size else np.zeros((n, 0, 3))
-    shn = np.asarray(shn, dtype=np.float32).reshape(n, -1, 3)
+    shn = _f32(np.asarray(shn)).reshape(n, -1, 3)
     if shn.shape[1] + 1 not in (1, 4, 9, 16):
         raise IGSError(f"{path}: {shn.shape[1]} higher SH coefficients per channel; 0, 3, 8 or 15 are read")
-    arrays = SplatArrays(_f32(data.means), _f32(data.scales), _f32(data.quats),
-                         opacity, _f32(np.asarray(data.sh0).reshape(n, 3)), shn)
-    _check_finite(path, arrays)
+    arrays = SplatArrays(_f32(means).reshape(n, 3), _f32(data.scales).reshape(n, 3), _f32(data.quats).reshape(n, 4),
+                         opacity, _f32(np.asarray(data.sh0)).reshape(n, 3), shn)
+    _check_values(path, arrays)
     return arrays
 
 
 def _read_dot_splat(path: Path) -> SplatArrays:
+    """A ``.splat`` file; its linear scales must be finite and positive (checked before their log)."""
     size = path.stat().st_size
     if size == 0 or size % SPLAT_RECORD.itemsize:
         raise IGSError(f"{path}: {size} bytes is not a whole number of {SPLAT_RECORD.itemsize}-byte .splat records")
     rec = np.fromfile(path, dtype=SPLAT_RECORD)
+    _check_rows(path, ~np.isfinite(rec["pos"]).all(axis=1), "NaN or infinite values in their positions")
+    scale = rec["scale"]
+    _check_rows(path, ~np.isfinite(scale).all(axis=1), "NaN or infinite values in their scales")
+    _check_rows(path, (scale <= 0).any(axis=1), "a zero or negative scale (a .splat stores the scales themselves, "
+                "which must be > 0)")
     rgba = rec["rgba"].astype(np.float64) / 255
     alpha = np.clip(rgba[:, 3], 0.5 / 255, 1 - 0.5 / 255)  # 0 and 255 are exact ends, not infinite logits
-    with np.errstate(divide="ignore"):
-        arrays = SplatArrays(_f32(rec["pos"]), _f32(np.log(np.maximum(rec["scale"], 1e-30))),
-                             _f32((rec["rot"].astype(np.float64) - 128) / 128), _f32(np.log(alpha / (1 - alpha))),
-                             _f32((rgba[:, :3] - 0.5) / C0), np.zeros((len(rec), 0, 3), dtype=np.float32))
-    _check_finite(path, arrays)
+    arrays = SplatArrays(_f32(rec["pos"]), _f32(np.log(scale.astype(np.float64))),
+                         _f32((rec["rot"].astype(np.float64) - 128) / 128), _f32(np.log(alpha / (1 - alpha))),
+                         _f32((rgba[:, :3] - 0.5) / C0), np.zeros((len(rec), 0, 3), dtype=np.float32))
+    _check_values(path, arrays)
     return arrays
 
 
@@ -282,7 +309,25 @@ def _read_sog(path: Path) -> SplatArrays:
         raise IGSError(f"{path}: unreadable .sog file ({type(e).__name__}: {e})") from None
 
 
-def _check_finite(path: Path, a: SplatArrays) -> None:
-    for name in ("means", "log_scales", "quats", "opacity_logits", "f_dc", "f_rest"):
-        if not np.isfinite(getattr(a, name)).all():
-            raise IGSError(f"{path}: {name} has NaN or infinite values")
+_NAMES = {"means": "positions", "log_scales": "log scales", "quats": "rotations", "opacity_logits": "opacities",
+          "f_dc": "colours", "f_rest": "higher SH coefficients"}
+
+
+def _check_rows(path: Path, bad: np.ndarray, problem: str) -> None:
+    """One error naming the file, how many Gaussians (``bad``: (N,) bool) have ``problem``, and the first."""
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        raise IGSError(f"{path}: {len(rows)} of {len(bad)} Gaussians have {problem} (first: Gaussian {rows[0]})")
+
+
+def _check_values(path: Path, a: SplatArrays) -> None:
+    """Finite values everywhere, and rotations that can be normalised (as the layer PLY's readers
+    require, :data:`igs_contract.layer_values.QUAT_RANGE`): a file another tool wrote is checked before
+    anything computes with it."""
+    for name, label in _NAMES.items():
+        v = getattr(a, name).reshape(len(a), -1)
+        _check_rows(path, ~np.isfinite(v).all(axis=1), f"NaN or infinite values in their {label}")
+    size = np.abs(a.quats).max(axis=1)
+    low, high = layer_values.QUAT_RANGE
+    _check_rows(path, size < low, f"a zero rotation quaternion (every component below {low:g})")
+    _check_rows(path, size > high, f"a rotation quaternion too long to normalise (a component above {high:g})")

@@ -24,7 +24,7 @@ import numpy as np
 
 from backend import __version__
 from backend.core import events
-from backend.core.atomic_io import atomic_path, write_bytes, write_text
+from backend.core.atomic_io import atomic_paths
 from backend.core.errors import IGSError
 from backend.splats.formats import SplatArrays, SplatFile
 from backend.splats.viewer_colors import ShMethod, convert_colors, dc_from_f_dc, f_dc_from_dc
@@ -34,17 +34,25 @@ from igs_contract.layer_ply import C0, ENCODINGS
 ExportFormat = Literal["ply", "compressed-ply", "spz", "splat"]
 EXPORT_FORMATS: tuple[ExportFormat, ...] = ("ply", "compressed-ply", "spz", "splat")
 SPZ_COLOR = 0.15 * 255  # SPZ stores a DC coefficient as the byte 127.5 + 38.25 * f_dc
+SPZ_FRACTIONAL_BITS = 12  # SPZ positions are signed 24-bit fixed point with this many fractional bits
+SPZ_POSITION = (-(2 ** 23) / 2 ** SPZ_FRACTIONAL_BITS, (2 ** 23 - 1) / 2 ** SPZ_FRACTIONAL_BITS)
+CHUNK_SPAN = (-1e38, 1e38)  # a compressed PLY chunk's max - min must not overflow float32 (3.4e38)
+SPLAT_LOG_SCALE = (-87.0, 88.0)  # .splat stores exp(log scale) in float32: normal, finite, not 0
 LIMITS: dict[ExportFormat, dict[str, tuple[float, float]]] = {
     "ply": {},
-    # chunked PLY: colours are normalised per chunk of 256 (no clip); SH bytes are 128 + 32 * f_rest
-    "compressed-ply": {"sh": (-4.0, 127 / 32)},
+    # chunked PLY: colours and positions are normalised per chunk of 256, whose float32 range (max - min)
+    # must stay finite; SH bytes are 128 + 32 * f_rest; the chunk bounds of the log scales are clamped
+    # to [-20, 20]
+    "compressed-ply": {"sh": (-4.0, 127 / 32), "log_scale": (-20.0, 20.0), "means": CHUNK_SPAN,
+                       "dc": CHUNK_SPAN},
     "spz": {"dc": (0.5 - C0 * 127.5 / SPZ_COLOR, 0.5 + C0 * 127.5 / SPZ_COLOR), "sh": (-1.0, 127 / 128),
-            "log_scale": (-10.0, 255 / 16 - 10)},
-    "splat": {"dc": (0.0, 1.0)},
+            "log_scale": (-10.0, 255 / 16 - 10), "means": SPZ_POSITION},
+    "splat": {"dc": (0.0, 1.0), "log_scale": SPLAT_LOG_SCALE},
 }
 """Per format, the range each quantity is stored in: ``dc`` the shown DC colour ``0.5 + C0 f_dc``,
-``sh`` the higher SH coefficients, ``log_scale`` the log scales; outside it the writer clips."""
-NAMES = {"dc": "DC colours", "sh": "higher SH coefficients", "log_scale": "log scales"}
+``sh`` the higher SH coefficients, ``log_scale`` the log scales, ``means`` the positions; values
+outside it are clipped to it (:func:`clip_arrays`), with a warning (:func:`warn_clipping`)."""
+NAMES = {"dc": "DC colours", "sh": "higher SH coefficients", "log_scale": "log scales", "means": "positions"}
 
 
 @dataclass(frozen=True)
@@ -71,7 +79,8 @@ def display_arrays(src: SplatFile, sh_method: ShMethod = "fit") -> SplatArrays:
 def clip_report(a: SplatArrays, fmt: ExportFormat) -> dict[str, Any]:
     """What ``fmt`` clips of ``a``: {"clipped": Gaussians with any value clipped, quantity: {"count",
     "min", "max", "lo", "hi"}}; also ``"sh_dropped": True`` when the format keeps no higher bands."""
-    values = {"dc": dc_from_f_dc(a.f_dc), "sh": a.f_rest.reshape(len(a), -1), "log_scale": a.log_scales}
+    values = {"dc": dc_from_f_dc(a.f_dc), "sh": a.f_rest.reshape(len(a), -1), "log_scale": a.log_scales,
+              "means": a.means}
     report: dict[str, Any] = {"clipped": 0}
     any_row = np.zeros(len(a), dtype=bool)
     for quantity, (lo, hi) in LIMITS[fmt].items():
@@ -89,6 +98,22 @@ def clip_report(a: SplatArrays, fmt: ExportFormat) -> dict[str, Any]:
     return report
 
 
+def clip_arrays(a: SplatArrays, fmt: ExportFormat) -> SplatArrays:
+    """``a`` with every quantity clipped to the range ``fmt`` stores (:data:`LIMITS`): done here rather
+    than by the format's writer, so that no writer meets a value it overflows on (gsply's fixed-point
+    positions) or stores as infinity (``.splat``'s linear scales)."""
+    limits = LIMITS[fmt]
+
+    def clip(v: np.ndarray, quantity: str, from_stored=lambda x: x) -> np.ndarray:
+        if quantity not in limits or v.size == 0:
+            return v
+        lo, hi = limits[quantity]  # in float64: a bound may lie beyond float32 (DC 1e38 is f_dc 3.5e38)
+        return np.clip(v.astype(np.float64), from_stored(lo), from_stored(hi)).astype(np.float32)
+
+    return SplatArrays(clip(a.means, "means"), clip(a.log_scales, "log_scale"), a.quats, a.opacity_logits,
+                       clip(a.f_dc, "dc", from_stored=lambda c: (c - 0.5) / C0), clip(a.f_rest, "sh"), a.eps2d)
+
+
 def warn_clipping(report: dict[str, Any], fmt: ExportFormat, n: int) -> None:
     """One warning line per clipped quantity (count and range), and one for dropped SH bands."""
     for quantity, name in NAMES.items():
@@ -102,7 +127,10 @@ def warn_clipping(report: dict[str, Any], fmt: ExportFormat, n: int) -> None:
 
 def export_splats(src: SplatFile, out: str | Path, config: ExportConfig = ExportConfig(),
                   source: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Write ``src`` to ``out`` for viewers, then its manifest; the result of ``igs export``."""
+    """Write ``src`` to ``out`` for viewers, with its manifest; the result of ``igs export``.
+
+    Both files are written under temporary names and renamed into place only when both are complete,
+    so a failure (a full disk) leaves neither, and an older pair as it was."""
     out = Path(out)
     kind = src.identity.kind
     with events.stage("export", total=3) as bar:
@@ -110,20 +138,35 @@ def export_splats(src: SplatFile, out: str | Path, config: ExportConfig = Export
         bar.update()
         report = clip_report(a, config.format)
         warn_clipping(report, config.format, len(a))
+        a = clip_arrays(a, config.format)
         comments = layer_ply.header_comments(kind, ENCODINGS[kind], "srgb", a.sh_degree)
-        WRITERS[config.format](a, out, comments)
-        bar.update()
         degree = 0 if config.format == "splat" else a.sh_degree
-        info = manifest.build(out, format=config.format, kind=kind, space="srgb", encoding=ENCODINGS[kind],
-                              sh_degree=degree, count=len(a), writer=f"igs {__version__}",
-                              source={**(source or {}), "file": str(src.path.resolve())})
-        write_text(manifest.manifest_path(out), manifest.to_json(info))
+        with atomic_paths([out, manifest.manifest_path(out)]) as (part, manifest_part):
+            _run_writer(config.format, a, part, comments, out)
+            bar.update()
+            info = manifest.build(part, format=config.format, kind=kind, space="srgb", encoding=ENCODINGS[kind],
+                                  sh_degree=degree, count=len(a), writer=f"igs {__version__}", name=out.name,
+                                  source={**(source or {}), "file": str(src.path.resolve())})
+            try:
+                manifest_part.write_text(manifest.to_json(info), encoding="utf-8")
+            except OSError as e:  # a failed write names no file: say it was the manifest's
+                raise OSError(e.errno, e.strerror, str(manifest_part)) from e
         bar.update()
     events.output(config.format, out)
     return {"out": str(out), "format": config.format, "kind": kind, "space": "srgb", "count": len(a),
             "sh_degree": degree, "clipped": report["clipped"], "clip": report,
             "manifest": str(manifest.manifest_path(out)), "sha256": info.sha256,
             "source_space": src.identity.space, "identity": src.identity.source}
+
+
+def _run_writer(fmt: ExportFormat, a: SplatArrays, part: Path, comments: list[str], out: Path) -> None:
+    """The format's writer into the temporary ``part``; a library's failure is one error naming ``out``."""
+    try:
+        WRITERS[fmt](a, part, comments)
+    except (IGSError, OSError):
+        raise
+    except Exception as e:  # noqa: BLE001 (gsply, ply2splat: any failure of theirs names the file)
+        raise IGSError(f"{out}: the {fmt} writer failed ({type(e).__name__}: {e})") from e
 
 
 def ply_bytes(a: SplatArrays, comments: list[str], keep_filter: bool = True) -> bytes:
@@ -142,7 +185,7 @@ def ply_bytes(a: SplatArrays, comments: list[str], keep_filter: bool = True) -> 
 
 
 def _write_ply(a: SplatArrays, out: Path, comments: list[str]) -> None:
-    write_bytes(out, ply_bytes(a, comments))
+    out.write_bytes(ply_bytes(a, comments))
 
 
 def _gsdata(a: SplatArrays, tmp: Path):
@@ -157,21 +200,21 @@ def _write_compressed(a: SplatArrays, out: Path, comments: list[str]) -> None:
     gsply = _module("gsply")
     with tempfile.TemporaryDirectory(prefix="igs-export-") as tmp:
         data = gsply.compress_to_bytes(_gsdata(a, Path(tmp)))
-    write_bytes(out, _with_comments(data, comments))
+    out.write_bytes(_with_comments(data, comments))
 
 
 def _write_spz(a: SplatArrays, out: Path, comments: list[str]) -> None:
     gsply = _module("gsply")
-    with tempfile.TemporaryDirectory(prefix="igs-export-") as tmp, atomic_path(out) as part:
-        gsply.write_spz(str(part), _gsdata(a, Path(tmp)), version=3)
+    with tempfile.TemporaryDirectory(prefix="igs-export-") as tmp:
+        gsply.write_spz(str(out), _gsdata(a, Path(tmp)), version=3, fractional_bits=SPZ_FRACTIONAL_BITS)
 
 
 def _write_splat(a: SplatArrays, out: Path, comments: list[str]) -> None:
     ply2splat = _module("ply2splat")
-    with tempfile.TemporaryDirectory(prefix="igs-export-") as tmp, atomic_path(out) as part:
+    with tempfile.TemporaryDirectory(prefix="igs-export-") as tmp:
         plain = Path(tmp) / "plain.ply"
         plain.write_bytes(ply_bytes(a, [], keep_filter=False))
-        ply2splat.convert(str(plain), str(part), sort=False)  # unsorted: Gaussian i stays record i
+        ply2splat.convert(str(plain), str(out), sort=False)  # unsorted: Gaussian i stays record i
 
 
 def _with_comments(data: bytes, comments: list[str]) -> bytes:
