@@ -110,18 +110,18 @@ def export_splats(src: SplatFile, out: str | Path, config: ExportConfig = Export
         bar.update()
         report = clip_report(a, config.format)
         warn_clipping(report, config.format, len(a))
-        comments = layer_ply.header_comments(kind, ENCODINGS[kind], "srgb", a.sh_degree)
+        comments = layer_ply.header_comments(kind, ENCODINGS[kind], "srgb", a.sh_degree, src.identity.raster)
         WRITERS[config.format](a, out, comments)
         bar.update()
         degree = 0 if config.format == "splat" else a.sh_degree
         info = manifest.build(out, format=config.format, kind=kind, space="srgb", encoding=ENCODINGS[kind],
                               sh_degree=degree, count=len(a), writer=f"igs {__version__}",
-                              source={**(source or {}), "file": str(src.path.resolve())})
+                              source={**(source or {}), "file": str(src.path.resolve())}, raster=src.identity.raster)
         write_text(manifest.manifest_path(out), manifest.to_json(info))
         bar.update()
     events.output(config.format, out)
     return {"out": str(out), "format": config.format, "kind": kind, "space": "srgb", "count": len(a),
-            "sh_degree": degree, "clipped": report["clipped"], "clip": report,
+            "sh_degree": degree, "raster": src.identity.raster, "clipped": report["clipped"], "clip": report,
             "manifest": str(manifest.manifest_path(out)), "sha256": info.sha256,
             "source_space": src.identity.space, "identity": src.identity.source}
 
@@ -209,9 +209,9 @@ def convert_to_layer(src: SplatFile, out: str | Path, sh_method: ShMethod = "fit
         a = SplatArrays(a.means, a.log_scales, a.quats, a.opacity_logits, f_dc_from_dc(dc),
                         a.f_rest if rest is None else rest, a.eps2d)
         space = "linear"
-    g = gaussians_from_arrays(a, kind)
+    g = gaussians_from_arrays(a, kind, src.identity.raster)
     write_ply(out, g, space=space)
     events.output("layer", out)
     return {"out": str(out), "count": len(g), "kind": kind, "space": space, "sh_degree": g.sh_degree,
-            "format": src.format, "source_space": src.identity.space, "identity": src.identity.source,
+            "raster": g.raster_mode, "format": src.format, "source_space": src.identity.space, "identity": src.identity.source,
             "manifest": src.identity.manifest}

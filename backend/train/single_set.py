@@ -115,12 +115,12 @@ class LayeredGaussians(GaussianSet):
         t = {k: self.params[k].detach().clone() for k in GEOMETRY}
         if kind == "albedo":
             t["colors"] = self.params["albedo_logits"].detach().clone()
-            return GaussianSet("albedo", t)
+            return GaussianSet("albedo", t, raster_mode=self.raster_mode)
         if kind == "shading":
             t["colors"] = self.shading.detach().clone()
-            return GaussianSet("shading", t)
+            return GaussianSet("shading", t, raster_mode=self.raster_mode)
         t["sh0"], t["shN"] = self.params["sh0"].detach().clone(), self.params["shN"].detach().clone()
-        return GaussianSet("residual", t, self.sh_degree, self.sh_degree)
+        return GaussianSet("residual", t, self.sh_degree, self.sh_degree, self.raster_mode)
 
 
 class SingleSetStage(Stage):
@@ -135,7 +135,9 @@ class SingleSetStage(Stage):
         self.shading_gain = shading_gain
 
     def restore_gaussians(self, ckpt: dict[str, Any]) -> GaussianSet:
-        return LayeredGaussians(ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"], self.shading_gain)
+        g = LayeredGaussians(ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"], self.shading_gain)
+        g.raster_mode = self.config.raster_mode
+        return g
 
     def phase(self) -> int:
         return 0 if self.iteration < self.phases[0] else 1 if self.iteration < self.phases[1] else 2
@@ -148,7 +150,8 @@ class SingleSetStage(Stage):
         center = torch.as_tensor(view.camera.center, dtype=torch.float32, device=self.device)
         features = g.features(center, freeze_albedo=self.albedo_frozen())
         return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, features,
-                      view.camera, log_scales=True, backend=self.config.backend, with_depth=self.wants_depth(view))
+                      view.camera, log_scales=True, backend=self.config.backend, with_depth=self.wants_depth(view),
+                      raster_mode=g.raster_mode)
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         c = out.color
