@@ -137,11 +137,10 @@ class Stage:
         if not train_views:
             raise IGSError(f"stage {name}: no training views")
         self.name = name
-        gaussians.raster_mode = config.raster_mode  # the set is trained (and written) in the stage's mode
+        self.config = config
         self.gaussians = gaussians
         self.train_views = list(train_views)
         self.test_views = list(test_views)
-        self.config = config
         self.scene_extent = float(scene_extent)
         self.strategy = strategy
         self.color_space = color_space
@@ -150,6 +149,17 @@ class Stage:
         """Where the Gaussians, views and caches live (:meth:`to`)."""
         self.iteration = 0
         """Iterations done before the current one (set by :func:`train`; stages with phases read it)."""
+
+    @property
+    def gaussians(self) -> GaussianSet:
+        """The optimised set. Whatever set is put here (the initial one, a restored one) is trained,
+        checkpointed and written in the stage's raster mode (``config.raster_mode``)."""
+        return self._gaussians
+
+    @gaussians.setter
+    def gaussians(self, g: GaussianSet) -> None:
+        g.raster_mode = self.config.raster_mode
+        self._gaussians = g
 
     def to(self, device: torch.device | str) -> Stage:
         """Move the optimised set, the views (with their cached layers) and :meth:`frozen` sets to
@@ -175,8 +185,7 @@ class Stage:
 
     def restore_gaussians(self, ckpt: dict[str, Any]) -> GaussianSet:
         """The set saved in a checkpoint (a stage with extra per-Gaussian parameters overrides this)."""
-        return GaussianSet(ckpt["kind"], ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"],
-                           self.config.raster_mode)
+        return GaussianSet(ckpt["kind"], ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"])
 
     def render(self, view: View) -> RenderOutput:
         return render(**self.gaussians.render_args(), camera=view.camera, background=self.background,

@@ -135,9 +135,7 @@ class SingleSetStage(Stage):
         self.shading_gain = shading_gain
 
     def restore_gaussians(self, ckpt: dict[str, Any]) -> GaussianSet:
-        g = LayeredGaussians(ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"], self.shading_gain)
-        g.raster_mode = self.config.raster_mode
-        return g
+        return LayeredGaussians(ckpt["params"], ckpt["sh_degree"], ckpt["active_sh_degree"], self.shading_gain)
 
     def phase(self) -> int:
         return 0 if self.iteration < self.phases[0] else 1 if self.iteration < self.phases[1] else 2
