@@ -4,9 +4,11 @@ Each Gaussian takes texels of four floats in row-major 2D textures ``TEXTURE_WID
 Gaussian's texels are consecutive, so texel ``k`` of Gaussian ``i`` is at linear index
 ``i * per + k``):
 
-- ``geometry`` (4 texels): ``x y z opacity`` | ``Sxx Sxy Sxz Syy`` | ``Syz Szz eps2d 0`` | ``r g b 0``
+- ``geometry`` (4 texels): ``x y z opacity`` | ``Sxx Sxy Sxz Syy`` | ``Syz Szz eps2d aa`` | ``r g b 0``
   with the 3D covariance S = R diag(s^2) R^T from the unit quaternion and the scales, the screen
-  low-pass (the layer's per-Gaussian ``eps2d``, else 3DGS's 0.3 px^2) and the base colour
+  low-pass (the layer's per-Gaussian ``eps2d``, else its raster mode's: 0.3 px^2 classic, 0.17
+  antialiased), ``aa`` 1 when the layer's raster mode (its ``igs_raster`` comment) is
+  ``antialiased`` (the shader then compensates the opacity), else 0, and the base colour
   ``0.5 + C0 f_dc`` (the SH DC term for SH layers; the layer's colour for the others), linear.
 - ``sh`` (12 texels, SH layers of degree >= 1 only): the 15 higher coefficients times their
   channel, ``[c1.rgb, c2.r] [c2.gb, c3.rg] ...``, i.e. the 45 floats of ``f_rest`` coefficient-major,
@@ -21,13 +23,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..igs_contract.layer_ply import C0
+from ..igs_contract.layer_ply import C0, LOW_PASS, raster_mode
 
 TEXTURE_WIDTH = 4096
 GEOMETRY_TEXELS = 4
 SH_TEXELS = 12
-DEFAULT_EPS2D = 0.3
-"""3DGS's screen-space low-pass, the backend's default (pixels^2)."""
+DEFAULT_EPS2D = LOW_PASS["classic"]
+"""3DGS's screen-space low-pass, the backend's default in the classic raster mode (pixels^2)."""
 
 
 @dataclass
@@ -82,15 +84,17 @@ def pack_layer(layer, eps2d: np.ndarray | None = None) -> PackedLayer:
     eps2d: (N,) per-Gaussian low-pass overriding the layer's own (``layer.eps2d`` when it has one).
     """
     n = len(layer.means)
+    mode = raster_mode(getattr(layer, "comments", []))
     if eps2d is None:
         eps2d = getattr(layer, "eps2d", None)
-    eps = np.full(n, DEFAULT_EPS2D) if eps2d is None else np.asarray(eps2d, dtype=np.float64).reshape(n)
+    eps = np.full(n, LOW_PASS[mode]) if eps2d is None else np.asarray(eps2d, dtype=np.float64).reshape(n)
     cov = covariances(layer.unit_quats, layer.scales)
     geo = np.zeros((n, GEOMETRY_TEXELS * 4), dtype=np.float32)
     geo[:, 0:3] = layer.means
     geo[:, 3] = layer.opacities
     geo[:, 4:10] = cov
     geo[:, 10] = eps
+    geo[:, 11] = 1.0 if mode == "antialiased" else 0.0
     geo[:, 12:15] = base_colors(layer)
     degree = int(layer.sh_degree)
     sh = None

@@ -2,7 +2,8 @@
 
 The splat shader reproduces the backend's rasterizer (:mod:`backend.render.projection` and the
 ``cpu`` kernel) per Gaussian: EWA projection of the 3D covariance with the Jacobian clamped at 1.3x
-the field of view, ``+ eps2d`` on the 2D covariance, the opacity-aware footprint outside which
+the field of view, ``+ eps2d`` on the 2D covariance (and, for a layer trained in the ``antialiased``
+raster mode, the opacity scaled by sqrt(det S / det(S + eps2d I))), the opacity-aware footprint outside which
 alpha < 1/255, ``alpha = min(0.99, o exp(power))`` with contributions under 1/255 dropped, and SH
 colours ``max(SH(dir) + 0.5, 0)`` seen from the camera centre. Each Gaussian is one screen-aligned
 quad (6 vertices, no vertex data of its own: ``gl_VertexID / 6`` is its rank in the depth order),
@@ -78,11 +79,17 @@ void main() {
   vec3 t0 = transpose(Wr) * j0;  // row 0 of J Wr
   vec3 t1 = transpose(Wr) * j1;
   mat3 S = mat3(g1.x, g1.y, g1.z, g1.y, g1.w, g2.x, g1.z, g2.x, g2.y);
-  float a = dot(t0, S * t0) + g2.z;
+  float a0 = dot(t0, S * t0);
   float b = dot(t0, S * t1);
-  float c = dot(t1, S * t1) + g2.z;
+  float c0 = dot(t1, S * t1);
+  float a = a0 + g2.z;
+  float c = c0 + g2.z;
   float det = a * c - b * b;
   float o = g0.w;
+  if (g2.w > 0.5) {  // antialiased raster mode: the low-pass keeps the Gaussian's integral
+    float det0 = a0 * c0 - b * b;
+    o *= det0 > 1e-12 ? sqrt(det0 / det) : 0.0;
+  }
   if (!(det > 0.0) || o * 255.0 <= 1.0) { return; }
   float k = sqrt(2.0 * log(o * 255.0));
   vec2 mean = vec2(fx * p.x / p.z + cx, fy * p.y / p.z + cy);

@@ -20,6 +20,11 @@ Header comments:
   encoding shows as ``0.5 + C0 * f_dc``, the DC colour a standard viewer shows.
 - ``igs_space <space>``: ``linear`` or ``srgb`` colour values.
 - ``igs_sh_degree <d>``.
+- ``igs_raster <mode>``: the screen-space low-pass the layer was trained with: ``classic`` (3DGS:
+  the 2D covariance widened by 0.3 px^2 at full opacity) or ``antialiased`` (widened by 0.17 px^2,
+  the opacity scaled by sqrt(det S / det(S + 0.17 I)): Mip-Splatting's and gsplat's antialiased
+  kernel, and what Blender's pixel filter does to its own splats). Absent: ``classic``. Readers that
+  do not know it keep it among the file's other comments.
 
 A PLY without them was written by another 3DGS tool: a ``radiance`` layer in sRGB whose SH degree
 follows from its number of ``f_rest`` properties. Layers are written binary little-endian
@@ -46,6 +51,13 @@ FILTER = "eps2d"
 
 LAYER_COMMENT, COLOR_COMMENT, SPACE_COMMENT, DEGREE_COMMENT = "igs_layer", "igs_color", "igs_space", "igs_sh_degree"
 COMMENT_KEYS = (LAYER_COMMENT, COLOR_COMMENT, SPACE_COMMENT, DEGREE_COMMENT)
+"""The comments :func:`header_comments` writes from a layer's identity (readers re-create them)."""
+RASTER_COMMENT = "igs_raster"
+"""The raster mode's comment: written by the backend after the others, and carried by readers that
+keep a file's other comments (not in COMMENT_KEYS)."""
+RASTER_MODES = ("classic", "antialiased")
+LOW_PASS = {"classic": 0.3, "antialiased": 0.17}
+"""Each raster mode's screen-space low-pass variance in pixels^2 (for Gaussians without ``eps2d``)."""
 
 REST_TO_DEGREE = {3 * ((d + 1) ** 2 - 1): d for d in range(4)}
 """Number of ``f_rest`` properties -> SH degree (0, 9, 24, 45 -> 0..3)."""
@@ -67,10 +79,16 @@ def property_names(n_rest: int) -> list[str]:
             + ["opacity", *GROUPS["scales"], *GROUPS["rot"]])
 
 
-def header_comments(kind: str, encoding: str, space: str, sh_degree: int) -> list[str]:
-    """The ``igs_*`` comments of a layer, in the order they are written."""
-    return [f"{LAYER_COMMENT} {kind}", f"{COLOR_COMMENT} {encoding}", f"{SPACE_COMMENT} {space}",
-            f"{DEGREE_COMMENT} {sh_degree}"]
+def header_comments(kind: str, encoding: str, space: str, sh_degree: int, raster: str | None = None) -> list[str]:
+    """The ``igs_*`` comments of a layer, in the order they are written; ``raster``: the raster mode's
+    comment too (None: left out, for writers that carry it among the file's other comments)."""
+    comments = [f"{LAYER_COMMENT} {kind}", f"{COLOR_COMMENT} {encoding}", f"{SPACE_COMMENT} {space}",
+                f"{DEGREE_COMMENT} {sh_degree}"]
+    if raster is not None:
+        if raster not in RASTER_MODES:
+            raise ValueError(f"raster mode must be one of {', '.join(RASTER_MODES)}, got {raster!r}")
+        comments.append(f"{RASTER_COMMENT} {raster}")
+    return comments
 
 
 def comment_value(comments: list[str], key: str) -> str | None:
@@ -124,6 +142,8 @@ class LayerLayout:
     """The file has the per-Gaussian ``eps2d`` property."""
     count: int
     """Number of Gaussians."""
+    raster: str = "classic"
+    """The raster mode (``igs_raster``; classic when absent)."""
 
 
 def check_layout(path: str | os.PathLike, header: PlyHeader, kind: str | None = None) -> LayerLayout:
@@ -166,4 +186,14 @@ def check_layout(path: str | os.PathLike, header: PlyHeader, kind: str | None = 
     if space not in SPACES:
         raise ContractError(f"{path}: unknown colour space '{space}' in 'comment {SPACE_COMMENT}'")
     return LayerLayout(kind, encoding, space, foreign, REST_TO_DEGREE[n_rest], tuple(rest), FILTER in present,
-                       vertex.count)
+                       vertex.count, raster_mode(header.comments, path))
+
+
+def raster_mode(comments: list[str], path: str | os.PathLike = "") -> str:
+    """The raster mode a file's comments record (``classic`` without ``igs_raster``); an unknown one is
+    a ContractError naming ``path``."""
+    mode = comment_value(comments, RASTER_COMMENT) or "classic"
+    if mode not in RASTER_MODES:
+        raise ContractError(f"{path}: unknown raster mode '{mode}' in 'comment {RASTER_COMMENT}' "
+                            f"(one of {', '.join(RASTER_MODES)})")
+    return mode

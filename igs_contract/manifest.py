@@ -2,8 +2,8 @@
 
 ``igs export`` writes ``<file>.igs.json`` beside every file it writes (``albedo.ply`` ->
 ``albedo.ply.igs.json``, ``albedo.spz`` -> ``albedo.spz.igs.json``). It records the layer kind, the
-colour space and encoding, the SH degree, the Gaussian count, where the file came from and the
-file's sha256. A reader that meets a splat file without ``igs_*`` header comments calls
+colour space and encoding, the SH degree, the raster mode the Gaussians were trained in, the
+Gaussian count, where the file came from and the file's sha256. A reader that meets a splat file without ``igs_*`` header comments calls
 :func:`identify`:
 
 - ``"manifest"``: a manifest names this file's exact content (hash match): the identity is known.
@@ -41,6 +41,8 @@ TOOL_SUFFIXES = (".compressed", "_compressed", ".cleaned", "-cleaned", "_cleaned
 """Stem endings other tools add when they rewrite a file (SuperSplat: ``scene.compressed.ply``)."""
 
 Status = Literal["manifest", "manifest-changed", "unknown"]
+RASTER_MODES = ("classic", "antialiased")
+"""As ``igs_contract.layer_ply.RASTER_MODES`` (this module imports nothing of ours)."""
 
 
 class ManifestError(ValueError):
@@ -74,6 +76,9 @@ class Manifest:
     writer: str = ""
     """The program that wrote it (``igs 0.1.0``)."""
     schema: int = SCHEMA
+    raster: str = "classic"
+    """The screen-space low-pass the Gaussians were trained with, as the layer PLY's ``igs_raster``:
+    classic or antialiased (classic in manifests written before it was recorded)."""
 
 
 @dataclass(frozen=True)
@@ -105,13 +110,14 @@ def sha256_file(file: str | os.PathLike, chunk: int = 1 << 20) -> str:
 
 
 def build(file: str | os.PathLike, *, format: str, kind: str, space: str, encoding: str, sh_degree: int,
-          count: int, source: dict[str, Any] | None = None, writer: str = "", name: str | None = None) -> Manifest:
+          count: int, source: dict[str, Any] | None = None, writer: str = "", name: str | None = None,
+          raster: str = "classic") -> Manifest:
     """The manifest of the finished ``file`` (hashes it now: call it once the file is complete).
     ``name``: the name the file will have, when ``file`` is still its temporary."""
     file = Path(file)
     return Manifest(file=name or file.name, format=format, kind=kind, space=space, encoding=encoding,
                     sh_degree=int(sh_degree), count=int(count), sha256=sha256_file(file),
-                    size=file.stat().st_size, source=dict(source or {}), writer=writer)
+                    size=file.stat().st_size, source=dict(source or {}), writer=writer, raster=raster)
 
 
 def to_json(manifest: Manifest) -> str:
@@ -149,7 +155,10 @@ def read(path: str | os.PathLike) -> Manifest:
         raise ManifestError(f"{path}: field 'writer' must be str, got {writer!r}")
     if not isinstance(schema, int) or isinstance(schema, bool) or schema != SCHEMA:
         raise ManifestError(f"{path}: field 'schema' must be {SCHEMA}, got {schema!r}")
-    return Manifest(**{k: data[k] for k in _TYPES}, source=source, writer=writer, schema=schema)
+    raster = data.get("raster", "classic")
+    if raster not in RASTER_MODES:
+        raise ManifestError(f"{path}: field 'raster' must be one of {', '.join(RASTER_MODES)}, got {raster!r}")
+    return Manifest(**{k: data[k] for k in _TYPES}, source=source, writer=writer, schema=schema, raster=raster)
 
 
 def split_name(name: str) -> tuple[str, str]:

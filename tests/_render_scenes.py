@@ -55,7 +55,7 @@ def random_splats(n: int, seed: int = 0, channels: int = 3, sh_degree: int | Non
 def with_grad(s: Splats) -> Splats:
     """A copy whose tensors are fresh leaves that require gradients."""
     return Splats(*(getattr(s, p).detach().clone().requires_grad_(True) for p in PARAMS),
-                  sh_degree=s.sh_degree, log_scales=s.log_scales)
+                  sh_degree=s.sh_degree, log_scales=s.log_scales, raster_mode=s.raster_mode)
 
 
 def weighted_loss(outs, seed: int = 1) -> torch.Tensor:

@@ -153,3 +153,30 @@ def test_output_must_be_ply_and_formats_are_detected(tmp_path, capsys):
     assert main(["convert", str(tmp_path / "a.ply"), str(tmp_path / "out.spz")]) == 2
     assert "give it a .ply name" in capsys.readouterr().err
     assert detect_format(tmp_path / "a.ply") == "ply"
+
+
+@pytest.mark.parametrize("ext", [".ply", ".spz"])
+def test_raster_mode_survives_export_and_convert(tmp_path, capsys, ext):
+    """The raster mode a layer was trained in goes into the export's header (PLY) and its manifest,
+    and converting the export back gives a layer of the same mode: through the manifest where the
+    format has no comments (SPZ)."""
+    src = tmp_path / "albedo.ply"
+    g = make("albedo")
+    g.raster_mode = "antialiased"
+    write_ply(src, g)
+    export(src, tmp_path / f"view{ext}", capsys)
+    assert manifest.read(manifest.manifest_path(tmp_path / f"view{ext}")).raster == "antialiased"
+    assert read_splat_file(tmp_path / f"view{ext}").identity.raster == "antialiased"
+    code, res, _ = convert([tmp_path / f"view{ext}", tmp_path / "back.ply"], capsys)
+    assert code == 0 and res["raster"] == "antialiased"
+    assert read_ply(tmp_path / "back.ply")[0].raster_mode == "antialiased"
+    # a manifest written before the field existed reads as classic; a wrong value is named
+    m = manifest.manifest_path(tmp_path / f"view{ext}")
+    data = json.loads(m.read_text())
+    del data["raster"]
+    m.write_text(json.dumps(data))
+    assert manifest.read(m).raster == "classic"
+    data["raster"] = "fuzzy"
+    m.write_text(json.dumps(data))
+    with pytest.raises(manifest.ManifestError, match="field 'raster' must be one of classic, antialiased"):
+        manifest.read(m)

@@ -11,7 +11,8 @@ from backend.render import Splats, render, render_layers
 
 def _render(s: Splats, cam, backend: str, background=None):
     return render(s.means, s.quats, s.scales, s.opacities, s.colors, cam, sh_degree=s.sh_degree,
-                  log_scales=s.log_scales, background=background, backend=backend, return_ids=True)
+                  log_scales=s.log_scales, background=background, backend=backend, return_ids=True,
+                  raster_mode=s.raster_mode)
 
 
 def _run(s: Splats, cam, backend: str, background=None):
@@ -413,3 +414,32 @@ def test_polynomial_exp_matches_exp_over_the_blended_range():
     # Below the domain the value is clamped, never garbage: alpha stays below 1/255 there.
     assert 0.0 < K.exp_neg(np.float32(-50.0)) < 1.0 / 255.0
 
+
+
+@pytest.mark.parametrize("width,height,channels,sh_degree", [(37, 29, 3, None), (50, 33, 2, None), (30, 22, 3, 2)])
+def test_cpu_matches_reference_in_the_antialiased_mode(width, height, channels, sh_degree):
+    """The compensated low-pass (forward, every gradient, the footprints) is the reference's, tiny and
+    huge Gaussians included."""
+    cam = make_camera(width, height)
+    s = random_splats(120, seed=width + channels, channels=channels, sh_degree=sh_degree)
+    s.raster_mode = "antialiased"
+    out_c, out_r, g_c = compare(s, cam, background=torch.linspace(0.1, 0.9, channels))
+    assert out_r.alpha.max() > 0.5
+    classic = _render(random_splats(120, seed=width + channels, channels=channels, sh_degree=sh_degree), cam, "cpu")
+    assert float((classic.alpha - out_c.alpha).abs().max()) > 0.05  # the mode changes the picture
+    assert (g_c["opacities"] != 0).any() and (g_c["scales"] != 0).any()
+
+
+def test_cpu_antialiased_gradients_reach_opacity_and_covariance_through_the_compensation():
+    """A lone Gaussian thinner than a pixel: its alpha is almost all compensation, and the cpu
+    gradients of opacity, scales and rotation through it are the reference's (float64 reference)."""
+    cam = make_camera(15, 13, off_centre=False)
+    s = Splats(torch.tensor([[0.02, -0.01, 3.0], [0.3, 0.2, 4.0]]), torch.tensor([[0.9, 0.2, -0.3, 0.1],
+               [0.5, -0.5, 0.2, 0.7]]), torch.tensor([[0.02, 0.003, 0.05], [0.01, 0.2, 0.004]]),
+               torch.tensor([0.8, 0.6]), torch.tensor([[1.0, 0.5, 0.2], [0.1, 0.9, 0.4]]), raster_mode="antialiased")
+    out_c, g_c = _run(s, cam, "cpu")
+    s64 = Splats(*(getattr(s, p).double() for p in PARAMS), raster_mode="antialiased")
+    out_r, g_r = _run(s64, cam, "reference")
+    np.testing.assert_allclose(out_c.color.detach(), out_r.color.detach().float(), atol=2e-5)
+    assert_close_grads(g_c, {k: v.float() for k, v in g_r.items()}, rel=1e-4)
+    assert float(out_r.alpha.max()) < 0.5  # faded: the classic mode would draw it at its opacity

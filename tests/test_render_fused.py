@@ -17,10 +17,14 @@ def _three_sets():
     return [albedo, shading, residual, depth_only]
 
 
-@pytest.mark.parametrize("backend", ["cpu", "reference"])
-def test_fused_layers_equal_separate_renders_with_gradients(backend):
+@pytest.mark.parametrize("backend,modes", [("cpu", "cccc"), ("reference", "cccc"), ("cpu", "acac"),
+                                           ("reference", "aaca")])
+def test_fused_layers_equal_separate_renders_with_gradients(backend, modes):
+    """Also with sets in different raster modes (a: antialiased, c: classic) in one pass."""
     cam = make_camera(41, 27)
     sets = _three_sets()
+    for s, m in zip(sets, modes):
+        s.raster_mode = "antialiased" if m == "a" else "classic"
     bgs = [torch.tensor([0.1, 0.2, 0.3]), None, 0.5, None]
 
     fused_in = [with_grad(s) for s in sets]
@@ -30,7 +34,8 @@ def test_fused_layers_equal_separate_renders_with_gradients(backend):
     for i, s in enumerate(sets):
         leaf = with_grad(s)
         sep = render(leaf.means, leaf.quats, leaf.scales, leaf.opacities, leaf.colors, cam,
-                     sh_degree=leaf.sh_degree, background=bgs[i], backend=backend, return_ids=True)
+                     sh_degree=leaf.sh_degree, background=bgs[i], backend=backend, return_ids=True,
+                     raster_mode=leaf.raster_mode)
         # Each output gets the same weights as in the fused loss: weighted_loss draws them in order.
         g = torch.Generator().manual_seed(1)
         for j in range(i):

@@ -148,3 +148,33 @@ def test_per_gaussian_low_pass_round_trips_and_plain_sets_stay_standard(tmp_path
     assert h.render_args()["eps2d"] is not None and g.render_args()["eps2d"] is None
     both = GaussianSet.concat([g, h])  # a set without values gets the renderer's default
     assert torch.equal(both.eps2d[: len(g)], torch.full((len(g),), 0.3)) and torch.equal(both.eps2d[len(g):], h.eps2d)
+
+
+def test_raster_mode_is_written_and_read_back_and_old_files_are_classic(tmp_path):
+    """A set's raster mode travels in ``comment igs_raster``; files without it (written before it
+    existed, or by other tools) are read as classic, and copies of a set keep its mode."""
+    g = make("residual", sh_degree=2)
+    g.raster_mode = "antialiased"
+    path = write_ply(tmp_path / "aa.ply", g)
+    assert "igs_raster antialiased" in ply_header_comments(path)
+    h, _ = read_ply(path)
+    assert h.raster_mode == "antialiased" and h.render_args()["raster_mode"] == "antialiased"
+    assert {h.clone().raster_mode, h.index(torch.arange(3)).raster_mode, h.with_filter(0.1).raster_mode} == {"antialiased"}
+    old = tmp_path / "old.ply"
+    old.write_bytes(path.read_bytes().replace(b"comment igs_raster antialiased\n", b"", 1))
+    assert "igs_raster antialiased" not in ply_header_comments(old)
+    assert read_ply(old)[0].raster_mode == "classic"
+    assert "igs_raster classic" in ply_header_comments(write_ply(tmp_path / "c.ply", make("albedo")))
+    with pytest.raises(ValueError, match="different raster modes"):
+        GaussianSet.concat([h, read_ply(old)[0]])
+    # an antialiased set without per-Gaussian values gets its own mode's default when concatenated
+    sharp = h.with_filter(0.05)
+    both = GaussianSet.concat([h, sharp])
+    assert torch.equal(both.eps2d[: len(h)], torch.full((len(h),), 0.17))
+
+
+def test_unknown_raster_mode_comment_is_rejected(tmp_path):
+    path = write_ply(tmp_path / "r.ply", make("albedo"))
+    path.write_bytes(path.read_bytes().replace(b"igs_raster classic", b"igs_raster mipmap", 1))
+    with pytest.raises(IGSError, match=r"r.ply: unknown raster mode 'mipmap' in 'comment igs_raster'"):
+        read_ply(path)

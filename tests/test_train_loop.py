@@ -14,7 +14,7 @@ from backend.core import events
 from backend.core.errors import Cancelled, IGSError
 from backend.core.workspace import split_frames
 from backend.eval.baseline import record_train_3dgs
-from backend.splats.ply import read_ply
+from backend.splats.ply import ply_header_comments, read_ply
 from backend.train.baseline import BaselineConfig, initial_gaussians, train_3dgs
 from backend.train.loop import TrainConfig, load_checkpoint
 
@@ -108,6 +108,27 @@ def test_resume_with_other_settings_is_refused(box_ws):
     train_3dgs(box_ws.root, small_config(12), resume=False, stop_after=10)
     with pytest.raises(IGSError, match=r"other settings.*iterations: 12 -> 14.*--restart"):
         train_3dgs(box_ws.root, small_config(14), resume=True)
+
+
+def test_antialiased_mode_trains_resumes_identically_and_is_written_with_the_layer(box_ws):
+    """The raster mode of the config is the set's: trained with, checkpointed (a resume in the other
+    mode is refused), saved in config.json and written in the PLY's header."""
+    learn = BaselineConfig(train=TrainConfig(iterations=30, checkpoint_every=1000, seed=0, raster_mode="antialiased"))
+    entry = train_3dgs(box_ws.root, learn, resume=False)
+    assert entry["psnr"] > entry["initial"]["psnr"] + 2.0, entry
+    cfg = small_config(30, raster_mode="antialiased")
+    train_3dgs(box_ws.root, cfg, resume=False)
+    straight = params_of(box_ws)
+    train_3dgs(box_ws.root, cfg, resume=False, stop_after=15)
+    train_3dgs(box_ws.root, cfg, resume=True)
+    assert_same_state(straight, params_of(box_ws))
+    g, _ = read_ply(box_ws.layers / "radiance.ply")
+    assert g.raster_mode == "antialiased" and "igs_raster antialiased" in ply_header_comments(box_ws.layers / "radiance.ply")
+    saved = json.loads((box_ws.root / "checkpoints" / "train_3dgs" / "config.json").read_text())
+    assert saved["train"]["raster_mode"] == "antialiased"
+    train_3dgs(box_ws.root, cfg, resume=False, stop_after=10)
+    with pytest.raises(IGSError, match=r"other settings.*raster_mode: antialiased -> classic"):
+        train_3dgs(box_ws.root, small_config(30), resume=True)
 
 
 def test_metrics_json_keeps_other_keys(box_ws):

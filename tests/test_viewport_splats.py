@@ -98,7 +98,7 @@ def test_covariances_are_r_s2_rt():
         np.testing.assert_allclose(cov[i], S[[0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]], atol=1e-12)
 
 
-def _layer_file(tmp_path, kind: str, n: int = 37, sh_degree: int = 0, eps2d=None):
+def _layer_file(tmp_path, kind: str, n: int = 37, sh_degree: int = 0, eps2d=None, raster_mode: str = "classic"):
     g = torch.Generator().manual_seed(3)
     rgb = torch.rand(n, 3, generator=g) * (4 if kind == "shading" else 1)
     gs = GaussianSet.from_activated(kind, torch.randn(n, 3, generator=g), rgb, torch.randn(n, 3, generator=g) - 3,
@@ -109,6 +109,7 @@ def _layer_file(tmp_path, kind: str, n: int = 37, sh_degree: int = 0, eps2d=None
     if eps2d is not None:
         gs = gs.with_filter(0.3)
         gs.params["eps2d"].data[:] = torch.as_tensor(eps2d, dtype=torch.float32)
+    gs.raster_mode = raster_mode
     return write_ply(tmp_path / f"{kind}.ply", gs)
 
 
@@ -123,6 +124,17 @@ def test_packed_geometry_holds_centre_opacity_covariance_low_pass_and_colour(tmp
     np.testing.assert_allclose(texels[:, 10], DEFAULT_EPS2D)
     np.testing.assert_allclose(texels[:, 12:15], 0.5 + C0 * layer.f_dc, rtol=1e-6, atol=1e-7)
     assert texels[:, 12:15].min() >= 0 and texels[:, 12:15].max() <= 1  # albedo: sigmoid colours
+
+
+def test_an_antialiased_layer_is_packed_with_its_low_pass_and_the_compensation_flag(tmp_path):
+    """The shader compensates the opacity where texel 2's last value is 1: layers written in the
+    antialiased raster mode (comment igs_raster), with that mode's 0.17 px^2; others 0 and 0.3."""
+    for mode, eps, flag in (("classic", 0.3, 0.0), ("antialiased", 0.17, 1.0)):
+        layer = read_splat_ply(_layer_file(tmp_path, "shading", raster_mode=mode))
+        assert f"igs_raster {mode}" in layer.comments
+        texels = pack_layer(layer).geometry.reshape(-1, 4)[: 4 * 37].reshape(37, 16)
+        np.testing.assert_allclose(texels[:, 10], eps, rtol=1e-6)
+        assert (texels[:, 11] == flag).all()
 
 
 def test_a_baked_edits_own_low_pass_is_packed(tmp_path):

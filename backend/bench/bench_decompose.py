@@ -45,6 +45,7 @@ from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.foreground import FOREGROUND_ALBEDO_LUMINANCE
 from backend.eval.layer_metrics import radiance_foreground
 from backend.render import BACKENDS, Backend
+from backend.render.types import RASTER_MODES, RasterMode
 from backend.splats.ply import read_ply
 from backend.train.baseline import BaselineConfig, train_3dgs
 from backend.train.device import add_device_argument
@@ -65,11 +66,14 @@ DEFAULT_WS = "demo"
 def configs(iterations: int, downscale: float, max_gaussians: int, backend: Backend,
             residual_points: int, device: str = "auto",
             gray_weight: float | None = None,
-            shading_geometry: ShadingGeometry | None = None) -> tuple[BaselineConfig, DecomposeConfig]:
-    base = TrainConfig(iterations=iterations, backend=backend, checkpoint_every=max(iterations, 1))
+            shading_geometry: ShadingGeometry | None = None,
+            raster_mode: RasterMode = TrainConfig.raster_mode) -> tuple[BaselineConfig, DecomposeConfig]:
+    base = TrainConfig(iterations=iterations, backend=backend, checkpoint_every=max(iterations, 1),
+                       raster_mode=raster_mode)
     base.densify.max_gaussians = max_gaussians
     vanilla = BaselineConfig(train=base, downscale=downscale, device=device)
-    dec = DecomposeConfig(downscale=downscale, device=device).set_all(backend=backend, checkpoint_every=max(iterations, 1))
+    dec = DecomposeConfig(downscale=downscale, device=device).set_all(backend=backend, checkpoint_every=max(iterations, 1),
+                                                                      raster_mode=raster_mode)
     dec.spawn.points = residual_points
     if gray_weight is not None:
         dec.lambda_gray = gray_weight
@@ -103,9 +107,10 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
         residual_points: int, single_set: bool = True, device: str = "auto",
         single_set_fraction: float = 1.0, gray_weight: float | None = None,
         single_set_schedules: tuple[Schedule, ...] = ("joint",),
-        shading_geometry: ShadingGeometry | None = None) -> dict[str, Any]:
+        shading_geometry: ShadingGeometry | None = None,
+        raster_mode: RasterMode = TrainConfig.raster_mode) -> dict[str, Any]:
     vanilla_cfg, dec_cfg = configs(iterations, downscale, max_gaussians, backend, residual_points, device,
-                                   gray_weight, shading_geometry)
+                                   gray_weight, shading_geometry, raster_mode)
     single_cfg = scaled_iterations(dec_cfg, single_set_fraction)
     t0 = time.perf_counter()
     events.log(f"bench_decompose: vanilla 3DGS, {iterations} iterations")
@@ -146,7 +151,7 @@ def run(ws: str, iterations: int, downscale: float, max_gaussians: int, backend:
             "single_set_schedules": list(singles),
             "downscale": downscale, "resolution": three["resolution"], "max_gaussians_per_field": max_gaussians,
             "residual_points": residual_points, "gray_weight": dec_cfg.lambda_gray,
-            "shading_geometry": dec_cfg.shading_geometry, "backend": backend,
+            "shading_geometry": dec_cfg.shading_geometry, "backend": backend, "raster_mode": raster_mode,
             "device": three["device"],
             "held_out_views": three["held_out_views"],
             "priors": three["priors"], "alignment": three["alignment"], "metric_space": three["metric_space"],
@@ -317,6 +322,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="the single set's loss schedule: joint (default; the albedo loss in every phase, the "
                         "target is judged against it), sequential (each loss as long as in the three sets) or both")
     p.add_argument("--backend", default="auto", choices=BACKENDS)
+    p.add_argument("--raster-mode", default=TrainConfig.raster_mode, choices=RASTER_MODES,
+                   help=f"raster mode of every field (default {TrainConfig.raster_mode}, as the training commands)")
     add_device_argument(p)
     args = p.parse_args(argv)
     if args.iterations < 4:
@@ -336,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
         result = run(args.ws, args.iterations, args.downscale, args.max_gaussians, args.backend, args.residual_points,
                      args.single_set, args.device, args.single_set_fraction, args.gray_weight,
                      SCHEDULES if args.single_set_schedule == "both" else (args.single_set_schedule,),
-                     args.shading_geometry)
+                     args.shading_geometry, args.raster_mode)
     except IGSError as e:
         return error("bench_decompose", e)
     return write_result(table(result), args.out, result)

@@ -28,6 +28,7 @@ OPTIONS = (
     shared.device(),
     Option("--downscale", "downscale", "divide the image size by this factor (default 1)", type=opt.DOWNSCALE),
     shared.seed(*(f"{s}.seed" for s in STAGES)),
+    shared.raster_mode(*(f"{s}.raster_mode" for s in STAGES)),
     Option("--checkpoint-every", tuple(f"{s}.checkpoint_every" for s in STAGES),
            f"iterations between checkpoints (default {_D.albedo.checkpoint_every})", type=opt.COUNT),
     # the residual keeps its own, larger budget

@@ -34,6 +34,7 @@ OPTIONS = (
            type=opt.integer(0, 10_000)),
     Option("--downscale", "downscale", "divide the image size by this factor (default 1)", type=opt.DOWNSCALE),
     shared.seed("train.seed"),
+    shared.raster_mode("train.raster_mode"),
     Option("--checkpoint-every", "train.checkpoint_every",
            f"iterations between checkpoints (default {default_train().checkpoint_every})", type=opt.COUNT),
 )

@@ -27,6 +27,7 @@ OPTIONS = (
     shared.device(),
     Option("--downscale", "downscale", "divide the image size by this factor (default 1)", type=opt.DOWNSCALE),
     shared.seed("train.seed"),
+    shared.raster_mode("train.raster_mode"),
     Option("--checkpoint-every", "train.checkpoint_every",
            f"iterations between checkpoints (default {TrainConfig.checkpoint_every})", type=opt.COUNT),
     Option("--sh-degree", "sh_degree", "highest SH degree (default 3)"),

@@ -55,7 +55,7 @@ from backend.edit.touched_gaussians import contributors, paint_surface_gaussians
 from backend.edit.view_selection import MIN_CAPTURE_VIEW_FRACTION, capture_views_seeing, resolve_view
 from backend.edit.views import check_proxy_visible, hemisphere_views, proxy_target
 from backend.edit.workspace_edits import BAKE_JSON, edit_dir, load_albedo
-from backend.render.projection import EPS2D
+from backend.render.types import default_low_pass
 from backend.splats.gaussians import FILTER, GaussianSet
 from backend.splats.ply import write_ply
 from backend.splats.strategy import DensifyStrategy, scene_extent
@@ -188,8 +188,9 @@ def _clear_surface(original: GaussianSet, edit: _EditView, cfg: BakeConfig) -> t
     """3b. (the old Gaussians to keep, how many were painted, how many removed): the ones on the proxy
     under the edit are removed or repainted (``cfg.surface``). The copy carries per-Gaussian filters
     when the original does or the new ones get another than the renderer's default."""
-    sharp = FILTER in original.params or cfg.edit_filter != EPS2D
-    g = original.with_filter(EPS2D) if sharp else original.clone()
+    default = default_low_pass(original.raster_mode)
+    sharp = FILTER in original.params or cfg.edit_filter != default
+    g = original.with_filter(default) if sharp else original.clone()
     if cfg.surface == "paint":
         return g, paint_surface_gaussians(g, edit.camera, edit.edited, edit.mask, edit.proxy_render,
                                           cfg.surface_tolerance), 0
@@ -240,7 +241,8 @@ def _reoptimise(inp: _Inputs, name: str, split: _Split, views: list[View], edit_
     """4c. G_A's trained Gaussians re-optimised with the albedo loss against ``views``; no checkpoint is
     kept (a bake is short: no resume)."""
     tcfg = TrainConfig(iterations=cfg.iterations, seed=cfg.seed, checkpoint_every=max(cfg.iterations, 1),
-                       backend=cfg.backend, lambda_dssim=cfg.lambda_dssim, scale_schedule=False,
+                       backend=cfg.backend, raster_mode=inp.original.raster_mode,  # the albedo's: one mode a file
+                       lambda_dssim=cfg.lambda_dssim, scale_schedule=False,
                        lr=LearningRates(means=1.6e-5, means_final=1.6e-6, colors=cfg.color_lr),
                        densify=bake_densify(cfg, len(split.trained), edit_pixels))
     extent = scene_extent([f.camera for f in inp.capture.frames])
@@ -308,7 +310,8 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
         "densified": len(result.gaussians) - n_trained, "gaussians_before": len(inp.original),
         "gaussians_after": len(baked), "active": int(split.active.sum()), "editable": int(editable.sum()),
         "iterations": result.step, "train_seconds": round(result.train_seconds, 2), "device": describe(inp.device),
-        "wall_seconds": round(time.perf_counter() - t_start, 2), "held_out": change,
+        "wall_seconds": round(time.perf_counter() - t_start, 2), "raster_mode": baked.raster_mode,
+        "held_out": change,
         "config": asdict(cfg),
     }
     write_json(inp.out_dir / BAKE_JSON, summary)

@@ -65,8 +65,9 @@ class BakeConfig:
     """The re-optimisation renders only the window around the edit (its bounding box + this many pixels)."""
     edit_filter: float = 0.1
     """Screen-space low-pass (pixels^2) of the spawned Gaussians and their densified children; the rest keep
-    theirs (0.3, as 3DGS). The 0.3 dilation blurs every splat by >= 0.55 px, too soft for a texture with
-    1-2 px detail; 0.1 (Mip-Splatting's 2D filter) blurs by 0.32 px. 0.3: no per-Gaussian filter is stored."""
+    theirs (their raster mode's: 0.3 classic, as 3DGS; 0.17 antialiased). The 0.3 dilation blurs every splat
+    by >= 0.55 px, too soft for a texture with 1-2 px detail; 0.1 (Mip-Splatting's 2D filter) blurs by
+    0.32 px. Equal to the mode's value: no per-Gaussian filter is stored."""
 
 
 def check_bake_config(cfg: BakeConfig) -> None:

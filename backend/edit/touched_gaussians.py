@@ -25,7 +25,8 @@ def contributors(g: GaussianSet, targets: list[tuple[Camera, torch.Tensor | None
             continue
         op = g.opacities.detach().clone().requires_grad_(True)
         out = render(args["means"].detach(), args["quats"].detach(), args["scales"].detach(), op,
-                     args["colors"].detach(), camera, log_scales=True, backend=backend, eps2d=args["eps2d"])
+                     args["colors"].detach(), camera, log_scales=True, backend=backend, eps2d=args["eps2d"],
+                     raster_mode=g.raster_mode)
         (out.alpha if mask is None else out.alpha * mask).sum().backward()
         hit |= op.grad.abs() > 0
     return hit

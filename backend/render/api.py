@@ -6,7 +6,8 @@ pixel ``(i, j)`` is evaluated at ``(i + 0.5, j + 0.5)`` in the coordinates of
 :meth:`backend.core.cameras.Camera.project`; Gaussians with ``z <= near`` are culled. Quaternions
 are wxyz (any norm), opacities are in [0, 1] (activated), scales are activated unless
 ``log_scales=True``. Colours are (N, C) features (any C) or, with ``sh_degree``, (N, K, C) spherical
-harmonics evaluated from the camera centre as ``max(SH + 0.5, 0)`` (3DGS).
+harmonics evaluated from the camera centre as ``max(SH + 0.5, 0)`` (3DGS). Each set is low-passed on
+screen in its :data:`~backend.render.types.RasterMode` (``classic`` or ``antialiased``).
 """
 
 from __future__ import annotations
@@ -22,7 +23,15 @@ from backend.core.errors import IGSError
 from backend.render import gsplat_backend
 from backend.render.fused import render_fused
 from backend.render.projection import check_gaussians
-from backend.render.types import BACKENDS, Backend, Background, RenderOutput, Splats
+from backend.render.types import (
+    BACKENDS,
+    Backend,
+    Background,
+    RasterMode,
+    RenderOutput,
+    Splats,
+    check_raster_mode,
+)
 
 
 def gsplat_available() -> bool:
@@ -46,16 +55,18 @@ def render(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colo
            *, sh_degree: int | None = None, log_scales: bool = False,
            background: Background = None, near: float = 0.01, far: float = 1e10,
            backend: Backend = "auto", return_ids: bool = False, with_depth: bool = True,
-           eps2d: Tensor | float | None = None, sh_rest: Tensor | None = None) -> RenderOutput:
+           eps2d: Tensor | float | None = None, sh_rest: Tensor | None = None,
+           raster_mode: RasterMode = "classic") -> RenderOutput:
     """Render one set of Gaussians for ``camera``.
 
     means: (N, 3); quats: (N, 4) wxyz; scales: (N, 3) (log-scales if ``log_scales``); opacities: (N,);
     colors: (N, C) features or (N, K, C) SH with ``sh_degree``; background: (C,), a scalar or None (0);
     eps2d: the screen-space low-pass, a scalar or (N,) (see :attr:`Splats.eps2d`); sh_rest: the SH
     coefficients after the DC term when ``colors`` holds only that (see :attr:`Splats.sh_rest`);
-    with_depth: blend the depth too (one more channel); without it ``depth`` is None.
+    with_depth: blend the depth too (one more channel); without it ``depth`` is None;
+    raster_mode: ``classic`` or ``antialiased`` (see :data:`~backend.render.types.RasterMode`).
     """
-    splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales, eps2d, sh_rest)
+    splats = Splats(means, quats, scales, opacities, colors, sh_degree, log_scales, eps2d, sh_rest, raster_mode)
     return render_layers([splats], camera, backgrounds=[background], near=near, far=far, backend=backend,
                          return_ids=return_ids, with_depth=with_depth)[0]
 
@@ -78,6 +89,7 @@ def render_layers(layers: Sequence[Splats], camera: Camera, *,
     if len(backgrounds) != len(layers):
         raise IGSError(f"render_layers: {len(backgrounds)} backgrounds for {len(layers)} layers")
     for i, s in enumerate(layers):
+        check_raster_mode(s.raster_mode, f"layer {i}: raster_mode")
         check_gaussians(s.means, s.quats, s.scales, s.opacities, s.colors, s.sh_degree, what=f"layer {i}",
                         sh_rest=s.sh_rest)
         if s.means.device != layers[0].means.device:

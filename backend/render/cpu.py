@@ -82,52 +82,61 @@ def _camera_args(cam: CameraTensors) -> tuple:
 
 class _Project(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, eps2d, cam, near, far):
+    def forward(ctx, means, quats, scales, opacities, eps2d, comp, cam, near, far):
         t0 = _now()
         args = (_np32(means), _np32(quats), _np32(scales))
         cam_args = _camera_args(cam)
         n = args[0].shape[0]
         bufs = P.forward_buffers(n)
-        fixed = (*args, _np32(opacities), *cam_args, near, far, eps2d, BOX_MARGIN, *bufs)
+        fixed = (*args, _np32(opacities), *cam_args, near, far, eps2d, comp, BOX_MARGIN, *bufs)
         run_chunks(P.project_forward_range, [(a, b, *fixed) for a, b in _range_chunks(n, GAUSSIANS_PER_CHUNK)])
-        m2d, con, dep, bbox, radii = bufs
-        ctx.saved = (args, cam_args, near, far, eps2d)
+        m2d, con, dep, bbox, radii, rho = bufs
+        ctx.saved = (args, cam_args, near, far, eps2d, comp)
         ctx.dtypes = (means.dtype, quats.dtype, scales.dtype)
         dev, dt = means.device, means.dtype
         out = (torch.from_numpy(m2d).to(dev, dt), torch.from_numpy(con).to(dev, dt), torch.from_numpy(dep).to(dev, dt),
-               torch.from_numpy(bbox).to(dev), torch.from_numpy(radii).to(dev))
+               torch.from_numpy(bbox).to(dev), torch.from_numpy(radii).to(dev), torch.from_numpy(rho).to(dev, dt))
         ctx.mark_non_differentiable(out[3], out[4])
         _tick("project forward", t0)
         return out
 
     @staticmethod
-    def backward(ctx, g_m2d, g_con, g_dep, _g_bbox, _g_radii):
+    def backward(ctx, g_m2d, g_con, g_dep, _g_bbox, _g_radii, g_rho):
         t0 = _now()
-        args, cam_args, near, far, eps2d = ctx.saved
+        args, cam_args, near, far, eps2d, comp = ctx.saved
         n = args[0].shape[0]
         z = lambda shape: np.zeros(shape, np.float32)  # noqa: E731
         gm = z((n, 2)) if g_m2d is None else _np32(g_m2d)
         gc = z((n, 3)) if g_con is None else _np32(g_con)
         gd = z(n) if g_dep is None else _np32(g_dep)
+        gr = z(n) if g_rho is None else _np32(g_rho)
         bufs = P.backward_buffers(n)
-        fixed = (*args, *cam_args, near, far, eps2d, gm, gc, gd, *bufs)
+        fixed = (*args, *cam_args, near, far, eps2d, comp, gm, gc, gd, gr, *bufs)
         run_chunks(P.project_backward_range, [(a, b, *fixed) for a, b in _range_chunks(n, GAUSSIANS_PER_CHUNK)])
         d_means, d_quats, d_scales = bufs
         dm, dq, ds = ctx.dtypes
-        dev = g_m2d.device if g_m2d is not None else torch.device("cpu")
+        dev = next((g.device for g in (g_m2d, g_con, g_dep, g_rho) if g is not None), torch.device("cpu"))
         _tick("project backward", t0)
         return (torch.from_numpy(d_means).to(dev, dm), torch.from_numpy(d_quats).to(dev, dq),
-                torch.from_numpy(d_scales).to(dev, ds), None, None, None, None, None)
+                torch.from_numpy(d_scales).to(dev, ds), None, None, None, None, None, None)
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam: CameraTensors,
-            near: float = 0.01, far: float = 1e10, eps2d: float | Tensor = EPS2D) -> Projected:
+            near: float = 0.01, far: float = 1e10, eps2d: float | Tensor = EPS2D,
+            compensate: bool | Tensor = False) -> Projected:
     """See :func:`backend.render.projection.project` (same arguments and results)."""
+    n = means.shape[0]
     if torch.is_tensor(eps2d):
-        filt = _np32(eps2d.reshape(-1).expand(means.shape[0]))
+        filt = _np32(eps2d.reshape(-1).expand(n))
     else:
-        filt = np.full(means.shape[0], eps2d, np.float32)
-    m2d, con, dep, bbox, radii = _Project.apply(means, quats, scales, opacities, filt, cam, near, far)
+        filt = np.full(n, eps2d, np.float32)
+    if torch.is_tensor(compensate):
+        comp = np.ascontiguousarray(compensate.detach().cpu().numpy().astype(np.bool_).reshape(-1))
+    else:
+        comp = np.full(n, bool(compensate), np.bool_)
+    m2d, con, dep, bbox, radii, rho = _Project.apply(means, quats, scales, opacities, filt, comp, cam, near, far)
+    if comp.any():  # rho is 1 where comp is False
+        opacities = opacities * rho
     return Projected(m2d, con, dep, opacities, bbox, radii)
 
 

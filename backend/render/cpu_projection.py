@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 ALPHA_MIN = 1.0 / 255.0
+DET_MIN = 1e-12  # as projection.DET_MIN
 
 
 @njit(cache=True, inline="always")
@@ -130,18 +131,31 @@ def _terms(i, means, quats, scales, eps2d, Rw, tw, fx, fy, near, far, lo_u, hi_u
 
 def forward_buffers(n: int):
     """Outputs of :func:`project_forward_range`: means2d (N, 2), conics (N, 3), depths (N,) float32,
-    bbox (N, 4), radii (N,) int32."""
+    bbox (N, 4), radii (N,) int32, rho (N,) float32."""
     return (np.empty((n, 2), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
-            np.empty((n, 4), np.int32), np.empty(n, np.int32))
+            np.empty((n, 4), np.int32), np.empty(n, np.int32), np.empty(n, np.float32))
+
+
+@njit(cache=True, inline="always")
+def _compensation(a, b, c, e2):
+    """(rho, det0): the antialiased mode's opacity factor sqrt(det S / det(S + e2 I)) for the
+    low-passed 2D covariance [[a, b], [b, c]] = S + e2 I (see projection.compensation); rho is 0
+    where det S <= DET_MIN."""
+    det0 = (a - e2) * (c - e2) - b * b
+    if det0 > DET_MIN:
+        return math.sqrt(det0 / max(a * c - b * b, DET_MIN)), det0
+    return 0.0, det0
 
 
 @njit(nogil=True, cache=True)
 def project_forward_range(start, end, means, quats, scales, opac, Rw, tw, fx, fy, cx, cy, width, height, near, far,
-                          eps2d, box_margin, means2d, conics, depths, bbox, radii):
+                          eps2d, comp, box_margin, means2d, conics, depths, bbox, radii, rho):
     """Project Gaussians ``start..end-1`` into the output arrays (see :func:`forward_buffers`).
 
     means (N, 3), quats (N, 4) wxyz, scales (N, 3) activated, opac (N,), eps2d (N,) each Gaussian's
-    low-pass variance in pixels^2; Rw (3, 3), tw (3,) world-to-camera. The outputs are exactly :func:`backend.render.projection.project`'s.
+    low-pass variance in pixels^2, comp (N,) bool: the Gaussian's opacity is scaled by its
+    compensation ``rho`` (1 where not); Rw (3, 3), tw (3,) world-to-camera. The outputs are exactly
+    :func:`backend.render.projection.project`'s, its opacities being ``opac * rho``.
     """
     lo_u, hi_u, lo_v, hi_v = _fov_bounds(fx, fy, cx, cy, width, height)
     for i in range(start, end):
@@ -154,8 +168,10 @@ def project_forward_range(start, end, means, quats, scales, opac, Rw, tw, fx, fy
         conics[i, 0] = c / det
         conics[i, 1] = -b / det
         conics[i, 2] = a / det
+        r = _compensation(a, b, c, np.float64(eps2d[i]))[0] if comp[i] else 1.0
+        rho[i] = r
         # Footprint (see projection._footprint): the box outside which alpha < 1/255.
-        o = np.float64(opac[i])
+        o = np.float64(opac[i]) * r
         k = math.sqrt(2.0 * math.log(max(o * 255.0, 1.0)))
         ex = k * math.sqrt(a) + box_margin
         ey = k * math.sqrt(c) + box_margin
@@ -181,13 +197,15 @@ def backward_buffers(n: int):
 
 @njit(nogil=True, cache=True)
 def project_backward_range(start, end, means, quats, scales, Rw, tw, fx, fy, cx, cy, width, height, near, far,
-                           eps2d, g_means2d, g_conics, g_depths, d_means, d_quats, d_scales):
-    """Gradients of sum(g_means2d * means2d) + sum(g_conics * conics) + sum(g_depths * depths) for
-    Gaussians ``start..end-1``, written into d_means (N, 3), d_quats (N, 4), d_scales (N, 3)."""
+                           eps2d, comp, g_means2d, g_conics, g_depths, g_rho, d_means, d_quats, d_scales):
+    """Gradients of sum(g_means2d * means2d) + sum(g_conics * conics) + sum(g_depths * depths)
+    + sum(g_rho * rho) for Gaussians ``start..end-1``, written into d_means (N, 3), d_quats (N, 4),
+    d_scales (N, 3)."""
     lo_u, hi_u, lo_v, hi_v = _fov_bounds(fx, fy, cx, cy, width, height)
     for i in range(start, end):
+        g_r = np.float64(g_rho[i]) if comp[i] else 0.0
         if (g_means2d[i, 0] == 0.0 and g_means2d[i, 1] == 0.0 and g_conics[i, 0] == 0.0 and g_conics[i, 1] == 0.0
-                and g_conics[i, 2] == 0.0 and g_depths[i] == 0.0):
+                and g_conics[i, 2] == 0.0 and g_depths[i] == 0.0 and g_r == 0.0):
             # no gradient in, none out: the Gaussians no pixel saw (a quarter of them in a typical view)
             d_means[i, 0] = d_means[i, 1] = d_means[i, 2] = 0.0
             d_quats[i, 0] = d_quats[i, 1] = d_quats[i, 2] = d_quats[i, 3] = 0.0
@@ -213,6 +231,17 @@ def project_backward_range(start, end, means, quats, scales, Rw, tw, fx, fy, cx,
         ga = gc2 / det + g_det * c
         gb = -gc1 / det - 2.0 * b * g_det
         gcc = gc0 / det + g_det * a
+        if g_r != 0.0:
+            # rho^2 = det0 / det: d rho^2 / da = ((1 - rho^2) c - e) / det, / db = -2 b (1 - rho^2) / det
+            # (gsplat's add_blur_vjp), and d rho = d rho^2 / (2 rho); no gradient where rho is 0.
+            e2 = np.float64(eps2d[i])
+            rho_i, det0 = _compensation(a, b, c, e2)
+            if det0 > DET_MIN:
+                k = g_r / (2.0 * rho_i * det)
+                one_m = 1.0 - rho_i * rho_i
+                ga += k * (one_m * c - e2)
+                gb += k * (-2.0 * b * one_m)
+                gcc += k * (one_m * a - e2)
         g00, g01, g02 = 2.0 * t00 * ga + t10 * gb, 2.0 * t01 * ga + t11 * gb, 2.0 * t02 * ga + t12 * gb
         g10, g11, g12 = 2.0 * t10 * gcc + t00 * gb, 2.0 * t11 * gcc + t01 * gb, 2.0 * t12 * gcc + t02 * gb
         # T = J P

@@ -36,7 +36,7 @@ def render_fused(layers: Sequence[Splats], camera: Camera, backgrounds: Sequence
     proj = (cpu_backend.project if backend == "cpu" else project)(
         means, cat([s.quats.to(dtype) for s in layers]), cat([s.activated_scales.to(dtype) for s in layers]),
         cat([s.opacities.to(dtype) for s in layers]), cam, near=near, far=far,
-        eps2d=_union_low_pass(filters, sizes, device, dtype))
+        eps2d=_union_low_pass(filters, sizes, device, dtype), compensate=_union_compensation(layers, device))
 
     # Per-set views of means2d that stay in the graph, so each set's screen-space gradient is kept.
     parts = list(proj.means2d.split(sizes)) if len(layers) > 1 else [proj.means2d]
@@ -82,6 +82,14 @@ def _union_low_pass(filters: Sequence[Tensor | float], sizes: Sequence[int], dev
     parts = [f.to(device, dtype) if torch.is_tensor(f) else torch.full((n,), f, device=device, dtype=dtype)
              for f, n in zip(filters, sizes)]
     return parts[0] if len(parts) == 1 else torch.cat(parts)
+
+
+def _union_compensation(layers: Sequence[Splats], device: torch.device) -> bool | Tensor:
+    """Which Gaussians of the union are ``antialiased``: one bool when all sets agree, else (sum N,) bool."""
+    modes = [s.raster_mode == "antialiased" for s in layers]
+    if len(set(modes)) == 1:
+        return modes[0]
+    return torch.cat([torch.full((len(s),), m, dtype=torch.bool, device=device) for s, m in zip(layers, modes)])
 
 
 def _colors(s: Splats, n_ch: int, cam: CameraTensors, backend: Literal["reference", "cpu"]) -> Tensor:

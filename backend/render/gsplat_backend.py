@@ -4,8 +4,9 @@ Written against gsplat's documented API (1.x: ``rasterization(means, quats, scal
 viewmats [C,4,4], Ks [C,3,3], width, height, near_plane, far_plane, radius_clip, eps2d, sh_degree,
 packed, tile_size, backgrounds, render_mode, ...)`` returning ``(colors [C,H,W,D], alphas [C,H,W,1],
 meta)``). Its conventions match ours: wxyz quaternions, activated scales and opacities, OpenCV camera
-axes, pixel centres at +0.5, EWA with eps2d = 0.3, SH colours ``max(SH + 0.5, 0)``, "ED" = expected
-z-depth. Not verified on a GPU in this repository's CI (no CUDA there): its tests skip without CUDA.
+axes, pixel centres at +0.5, EWA with a low-pass of eps2d pixels^2 (``rasterize_mode`` "classic", or
+"antialiased" with gsplat's opacity compensation: our two raster modes), SH colours ``max(SH + 0.5, 0)``,
+"ED" = expected z-depth. Not verified on a GPU in this repository's CI (no CUDA there): its tests skip without CUDA.
 
 gsplat has no max-contributor output; when ids are asked for they are computed by the ``reference``
 rasterizer on the same device from our own projection (same conventions, no gradient).
@@ -77,7 +78,7 @@ def render_splats(splats: Splats, camera: Camera, background: Background, near: 
         means.to(dtype), splats.quats.to(dtype), scales.to(dtype), splats.opacities.to(dtype), colors,
         viewmats, Ks, int(camera.width), int(camera.height), near_plane=near, far_plane=far,
         eps2d=float(eps2d), sh_degree=splats.sh_degree, packed=False, tile_size=16, backgrounds=None,
-        render_mode="RGB+ED" if with_depth else "RGB", rasterize_mode="classic")
+        render_mode="RGB+ED" if with_depth else "RGB", rasterize_mode=splats.raster_mode)
     n_ch = colors.shape[-1]
     depth = render_colors[0, ..., n_ch] if with_depth else None
     alpha = render_alphas[0, ..., 0]
@@ -98,5 +99,6 @@ def _reference_ids(splats: Splats, camera: Camera, near: float, far: float) -> t
     channel (or the SH DC term) is blended."""
     plain = Splats(splats.means, splats.quats, splats.scales, splats.opacities,
                    splats.colors[..., :1] if splats.sh_degree is None else splats.colors[:, :1, :1],
-                   0 if splats.sh_degree is not None else None, splats.log_scales, splats.eps2d)
+                   0 if splats.sh_degree is not None else None, splats.log_scales, splats.eps2d,
+                   raster_mode=splats.raster_mode)
     return render_fused([plain], camera, [None], near, far, "reference", True)[0].ids

@@ -19,9 +19,15 @@ from torch import Tensor
 
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
+from igs_contract.layer_ply import LOW_PASS
 
 ALPHA_MIN = 1.0 / 255.0  # contributions below this alpha are skipped (3DGS)
-EPS2D = 0.3  # low-pass dilation added to the 2D covariance, in pixels^2 (3DGS)
+EPS2D = LOW_PASS["classic"]  # low-pass dilation added to the 2D covariance, in pixels^2 (3DGS): 0.3
+EPS2D_ANTIALIASED = LOW_PASS["antialiased"]
+"""The low-pass variance (pixels^2) of the antialiased mode, 0.17: that of Blender's default pixel
+filters (Cycles' Blackman-Harris of width 1.5 px: 0.173 per axis; EEVEE's Gaussian of sigma 0.426 px:
+0.18), the only low-pass Blender 5.3 applies to its splats (docs/rendering.md)."""
+DET_MIN = 1e-12  # 2D covariance determinants are clamped here (px^4)
 TILE = 16  # tile edge in pixels
 # Added to the bounding-box half-extents: pixels that fall inside only thanks to it have alpha
 # clearly below 1/255, so the box never decides a contribution, even when two implementations
@@ -95,11 +101,14 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam: CameraTensors,
-            near: float = 0.01, far: float = 1e10, eps2d: float | Tensor = EPS2D) -> Projected:
-    """Project Gaussians (EWA splatting with the 3DGS low-pass dilation).
+            near: float = 0.01, far: float = 1e10, eps2d: float | Tensor = EPS2D,
+            compensate: bool | Tensor = False) -> Projected:
+    """Project Gaussians (EWA splatting with a screen-space low-pass).
 
     means: (N, 3) world; quats: (N, 4) wxyz; scales: (N, 3) activated (not log); opacities: (N,);
-    eps2d: the dilation in pixels^2, one value or (N,) per Gaussian.
+    eps2d: the low-pass variance in pixels^2 added to the 2D covariance, one value or (N,) per Gaussian;
+    compensate: one bool or (N,) bool per Gaussian: scale the opacity by
+    :func:`compensation` (the ``antialiased`` mode; the returned ``opacities`` are the scaled ones).
     Differentiable in every input except through the discrete ``bbox`` / ``radii``.
     """
     W, H = cam.width, cam.height
@@ -124,15 +133,32 @@ def project(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, cam
     # cov2d = (J W R S)(J W R S)^T: one (2x3) factor per Gaussian instead of a 3x3 covariance.
     M = quat_to_rotmat(quats) * scales[:, None, :]  # (N, 3, 3) = R S
     T = J @ (cam.R @ M)  # (N, 2, 3)
-    a = (T[:, 0] * T[:, 0]).sum(-1) + eps2d
+    a0 = (T[:, 0] * T[:, 0]).sum(-1)
     b = (T[:, 0] * T[:, 1]).sum(-1)
-    c = (T[:, 1] * T[:, 1]).sum(-1) + eps2d
-    det = (a * c - b * b).clamp_min(1e-12)  # > eps2d^2 mathematically
+    c0 = (T[:, 1] * T[:, 1]).sum(-1)
+    a, c = a0 + eps2d, c0 + eps2d
+    det = (a * c - b * b).clamp_min(DET_MIN)  # > eps2d^2 mathematically
     conics = torch.stack([c / det, -b / det, a / det], dim=-1)
+    if (torch.is_tensor(compensate) and bool(compensate.any())) or compensate is True:
+        rho = compensation(a0, b, c0, det)
+        opacities = opacities * (rho if compensate is True else torch.where(compensate, rho, torch.ones_like(rho)))
 
     with torch.no_grad():
         bbox, radii = _footprint(means2d, a, c, opacities, in_depth, W, H)
     return Projected(means2d, conics, torch.where(in_depth, z, zero), opacities, bbox, radii)
+
+
+def compensation(a0: Tensor, b: Tensor, c0: Tensor, det: Tensor) -> Tensor:
+    """The antialiased mode's opacity factor sqrt(det S / det(S + eps2d I)), (N,), for the 2D
+    covariance S = [[a0, b], [b, c0]] before the low-pass and ``det`` = det(S + eps2d I).
+
+    The low-passed Gaussian keeps the integral of the original one (Mip-Splatting, gsplat's
+    ``antialiased``): a Gaussian thinner than a pixel fades instead of staying opaque and widening.
+    0 (with zero gradient) where det S <= DET_MIN: a flat Gaussian seen edge-on vanishes.
+    """
+    det0 = a0 * c0 - b * b
+    ok = det0 > DET_MIN
+    return torch.where(ok, torch.sqrt(det0.clamp_min(DET_MIN) / det), torch.zeros_like(det0))
 
 
 def _footprint(means2d: Tensor, var_x: Tensor, var_y: Tensor, opacities: Tensor, in_depth: Tensor,

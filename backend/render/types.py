@@ -11,10 +11,30 @@ import torch
 from torch import Tensor
 
 from backend.core.errors import IGSError
-from backend.render.projection import EPS2D
+from backend.render.projection import EPS2D, EPS2D_ANTIALIASED
 
 Backend = Literal["auto", "cpu", "reference", "gsplat"]  # the order `igs --help` lists them in
 BACKENDS: tuple[Backend, ...] = get_args(Backend)
+
+RasterMode = Literal["classic", "antialiased"]
+"""How a Gaussian is low-passed on screen. ``classic`` (3DGS): its 2D covariance is widened by
+:data:`EPS2D` pixels^2 at full opacity. ``antialiased`` (Mip-Splatting, gsplat's mode of that name, and
+what Blender's pixel filter does to its splats): widened by :data:`EPS2D_ANTIALIASED` pixels^2 with the
+opacity scaled by sqrt(det S / det(S + eps I)), so the Gaussian keeps its integral and one thinner
+than a pixel fades."""
+RASTER_MODES: tuple[RasterMode, ...] = get_args(RasterMode)
+
+
+def default_low_pass(mode: RasterMode) -> float:
+    """The low-pass variance (pixels^2) of Gaussians that carry none of their own, in ``mode``."""
+    return EPS2D_ANTIALIASED if mode == "antialiased" else EPS2D
+
+
+def check_raster_mode(mode: str, what: str = "raster_mode") -> RasterMode:
+    """``mode`` if it is one of :data:`RASTER_MODES`, else one IGSError naming ``what``."""
+    if mode not in RASTER_MODES:
+        raise IGSError(f"{what} must be one of {', '.join(RASTER_MODES)}, got {mode!r}")
+    return mode
 
 Background = Tensor | float | Sequence[float] | None
 """A background colour: (C,) values, one value for every channel, or None (0)."""
@@ -41,12 +61,14 @@ class Splats:
     """``scales`` hold log-scales (the raw 3DGS parameters)."""
     eps2d: Tensor | float | None = None
     """Screen-space low-pass: the variance (pixels^2) added to each projected covariance, one value or
-    (N,) per Gaussian; None: :data:`EPS2D` (0.3, as 3DGS and gsplat). Gaussians fitted to sharp detail
-    (an edit's texture) carry a smaller one."""
+    (N,) per Gaussian; None: the mode's (:func:`default_low_pass`: 0.3 classic, as 3DGS and gsplat;
+    0.17 antialiased). Gaussians fitted to sharp detail (an edit's texture) carry a smaller one."""
     sh_rest: Tensor | None = None
     """With ``sh_degree``: the SH coefficients after the DC term, (N, R, C), when ``colors`` holds only
     the DC term. Kept apart as the Gaussians store them: the cpu backend reads the two without a
     concatenated copy, and its gradient needs no split."""
+    raster_mode: RasterMode = "classic"
+    """The screen-space low-pass the set was trained with (:data:`RasterMode`)."""
 
     def __len__(self) -> int:
         return self.means.shape[0]
@@ -76,7 +98,7 @@ class Splats:
         the only one gsplat takes), else (N,). ``layer`` names the set in error messages."""
         e = self.eps2d
         if e is None:
-            return EPS2D
+            return default_low_pass(check_raster_mode(self.raster_mode, f"layer {layer}: raster_mode"))
         if torch.is_tensor(e) and e.numel() == 1:
             e = e.reshape(-1)[0].item()
         if not torch.is_tensor(e):
@@ -91,7 +113,7 @@ class Splats:
         if bool((e < 0).any()) or not bool(torch.isfinite(e).all()):
             raise IGSError(f"layer {layer}: eps2d must be finite and >= 0")
         if len(self) == 0 or bool((e == e[0]).all()):
-            return float(e[0]) if len(self) else EPS2D
+            return float(e[0]) if len(self) else default_low_pass(self.raster_mode)
         return e
 
 

@@ -84,6 +84,9 @@ class Identity:
     in sRGB)."""
     manifest: str | None = None
     """The manifest file used, if any."""
+    raster: str = "classic"
+    """The raster mode the Gaussians were trained in (the ``igs_raster`` comment or the manifest's;
+    classic when neither says)."""
 
 
 @dataclass
@@ -142,10 +145,11 @@ def read_splat_file(path: str | Path, kind: str | None = None, space: str | None
 def _identity(path: Path, comments: list[str], kind: str | None, space: str | None) -> Identity:
     try:
         from_comments = layer_ply.comment_identity(path, comments)
+        raster = layer_ply.raster_mode(comments, path) if from_comments is not None else "classic"
     except ContractError as e:
         raise IGSError(str(e)) from None
     if from_comments is not None:
-        found = Identity(*from_comments, "file")
+        found = Identity(*from_comments, "file", raster=raster)
     else:
         ident = manifest.identify(path)
         own = manifest.manifest_path(path)
@@ -156,7 +160,8 @@ def _identity(path: Path, comments: list[str], kind: str | None, space: str | No
                               "`igs convert --kind K --space S`")
             events.log(f"warning: {why}; skipped")
         if ident.manifest is not None:
-            found = Identity(ident.manifest.kind, ident.manifest.space, ident.status, str(ident.path))
+            found = Identity(ident.manifest.kind, ident.manifest.space, ident.status, str(ident.path),
+                             raster=ident.manifest.raster)
         else:
             found = Identity("radiance", "srgb", "unknown")
     return replace(found, kind=kind or found.kind, space=space or found.space)
@@ -200,8 +205,9 @@ def arrays_from_gaussians(g: GaussianSet) -> SplatArrays:
                        t.get(layer_ply.FILTER))
 
 
-def gaussians_from_arrays(a: SplatArrays, kind: str) -> GaussianSet:
-    """A GaussianSet of ``kind`` from PLY columns; albedo/shading keep only the DC colour."""
+def gaussians_from_arrays(a: SplatArrays, kind: str, raster_mode: str = "classic") -> GaussianSet:
+    """A GaussianSet of ``kind`` (trained in ``raster_mode``) from PLY columns; albedo/shading keep only
+    the DC colour."""
     tensors = {"means": a.means, "quats": a.quats, "log_scales": a.log_scales, "opacity_logits": a.opacity_logits}
     degree = a.sh_degree if kind in SH_KINDS else 0
     if kind in SH_KINDS:
@@ -214,7 +220,8 @@ def gaussians_from_arrays(a: SplatArrays, kind: str) -> GaussianSet:
         tensors["colors"] = c
     if a.eps2d is not None:
         tensors[layer_ply.FILTER] = a.eps2d
-    return GaussianSet(kind, {k: torch.from_numpy(_f32(v)) for k, v in tensors.items()}, sh_degree=degree)
+    return GaussianSet(kind, {k: torch.from_numpy(_f32(v)) for k, v in tensors.items()}, sh_degree=degree,
+                       raster_mode=raster_mode)
 
 
 def _f32(x: np.ndarray) -> np.ndarray:

@@ -139,14 +139,15 @@ def export_splats(src: SplatFile, out: str | Path, config: ExportConfig = Export
         report = clip_report(a, config.format)
         warn_clipping(report, config.format, len(a))
         a = clip_arrays(a, config.format)
-        comments = layer_ply.header_comments(kind, ENCODINGS[kind], "srgb", a.sh_degree)
+        comments = layer_ply.header_comments(kind, ENCODINGS[kind], "srgb", a.sh_degree, src.identity.raster)
         degree = 0 if config.format == "splat" else a.sh_degree
         with atomic_paths([out, manifest.manifest_path(out)]) as (part, manifest_part):
             _run_writer(config.format, a, part, comments, out)
             bar.update()
             info = manifest.build(part, format=config.format, kind=kind, space="srgb", encoding=ENCODINGS[kind],
                                   sh_degree=degree, count=len(a), writer=f"igs {__version__}", name=out.name,
-                                  source={**(source or {}), "file": str(src.path.resolve())})
+                                  source={**(source or {}), "file": str(src.path.resolve())},
+                                  raster=src.identity.raster)
             try:
                 manifest_part.write_text(manifest.to_json(info), encoding="utf-8")
             except OSError as e:  # a failed write names no file: say it was the manifest's
@@ -154,7 +155,7 @@ def export_splats(src: SplatFile, out: str | Path, config: ExportConfig = Export
         bar.update()
     events.output(config.format, out)
     return {"out": str(out), "format": config.format, "kind": kind, "space": "srgb", "count": len(a),
-            "sh_degree": degree, "clipped": report["clipped"], "clip": report,
+            "sh_degree": degree, "raster": src.identity.raster, "clipped": report["clipped"], "clip": report,
             "manifest": str(manifest.manifest_path(out)), "sha256": info.sha256,
             "source_space": src.identity.space, "identity": src.identity.source}
 
@@ -252,9 +253,9 @@ def convert_to_layer(src: SplatFile, out: str | Path, sh_method: ShMethod = "fit
         a = SplatArrays(a.means, a.log_scales, a.quats, a.opacity_logits, f_dc_from_dc(dc),
                         a.f_rest if rest is None else rest, a.eps2d)
         space = "linear"
-    g = gaussians_from_arrays(a, kind)
+    g = gaussians_from_arrays(a, kind, src.identity.raster)
     write_ply(out, g, space=space)
     events.output("layer", out)
     return {"out": str(out), "count": len(g), "kind": kind, "space": space, "sh_degree": g.sh_degree,
-            "format": src.format, "source_space": src.identity.space, "identity": src.identity.source,
+            "raster": g.raster_mode, "format": src.format, "source_space": src.identity.space, "identity": src.identity.source,
             "manifest": src.identity.manifest}

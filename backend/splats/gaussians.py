@@ -17,7 +17,11 @@ Raw parameters live in a :class:`torch.nn.ParameterDict` (as gsplat's trainers k
 - ``colors``: (N, 3) for albedo/shading; ``sh0``: (N, 1, 3) and ``shN``: (N, K-1, 3),
   K = (sh_degree + 1)^2, for SH kinds.
 - optional ``eps2d``: (N,) each Gaussian's screen-space low-pass (pixels^2, not trained). Absent: the
-  renderer's 0.3 for all. An edit bake gives the Gaussians that carry a texture a smaller one.
+  raster mode's for all (0.3 classic, 0.17 antialiased). An edit bake gives the Gaussians that carry
+  a texture a smaller one.
+
+A set also records its ``raster_mode`` (:data:`backend.render.types.RasterMode`): the screen-space
+low-pass it is trained and rendered with. It travels with the set (copies, PLY files, checkpoints).
 
 Every activation is applied here and nowhere else. The in-place helpers (:meth:`prune_`,
 :meth:`append_`, :meth:`replace_`) keep an Adam optimizer's per-parameter state aligned with
@@ -31,7 +35,7 @@ from collections.abc import Iterable, Mapping
 import torch
 from torch import nn
 
-from backend.render.projection import EPS2D
+from backend.render.types import RasterMode, check_raster_mode, default_low_pass
 from igs_contract.layer_ply import C0, FILTER, KINDS, SH_KINDS  # the layer kinds and the PLY's SH constant
 
 GEOMETRY = ("means", "quats", "log_scales", "opacity_logits")
@@ -60,10 +64,11 @@ class GaussianSet(nn.Module):
     """N Gaussians of one layer kind. ``len(g)`` is N."""
 
     def __init__(self, kind: str, tensors: Mapping[str, torch.Tensor], sh_degree: int = 0,
-                 active_sh_degree: int | None = None):
+                 active_sh_degree: int | None = None, raster_mode: RasterMode = "classic"):
         super().__init__()
         check_kind(kind, sh_degree)
         self.kind = kind
+        self.raster_mode: RasterMode = check_raster_mode(raster_mode)
         self.sh_degree = sh_degree
         self.active_sh_degree = sh_degree if active_sh_degree is None else min(active_sh_degree, sh_degree)
         names = GEOMETRY + color_names(kind)
@@ -90,7 +95,7 @@ class GaussianSet(nn.Module):
     @classmethod
     def from_activated(cls, kind: str, means: torch.Tensor, rgb: torch.Tensor, log_scales: torch.Tensor,
                        opacities: torch.Tensor, quats: torch.Tensor | None = None,
-                       sh_degree: int = 0) -> GaussianSet:
+                       sh_degree: int = 0, raster_mode: RasterMode = "classic") -> GaussianSet:
         """Build from activated values. ``rgb``: (N, 3) colours in the kind's value domain
         (albedo in [0,1]; shading any value; SH kinds: the view-independent colour, higher bands 0).
         ``opacities``: (N,) in (0, 1); ``quats``: (N, 4) wxyz, identity when None."""
@@ -101,48 +106,52 @@ class GaussianSet(nn.Module):
         tensors = {"means": means, "quats": quats, "log_scales": log_scales,
                    "opacity_logits": torch.logit(opacities.clamp(1e-6, 1 - 1e-6))}
         tensors.update(rgb_to_color_params(kind, rgb, sh_degree))
-        return cls(kind, tensors, sh_degree=sh_degree, active_sh_degree=0 if kind in SH_KINDS else None)
+        return cls(kind, tensors, sh_degree=sh_degree, active_sh_degree=0 if kind in SH_KINDS else None,
+                   raster_mode=raster_mode)
 
     @classmethod
-    def empty(cls, kind: str, sh_degree: int = 0) -> GaussianSet:
+    def empty(cls, kind: str, sh_degree: int = 0, raster_mode: RasterMode = "classic") -> GaussianSet:
         z = torch.zeros(0, 3)
-        return cls.from_activated(kind, z, z, z, torch.zeros(0), sh_degree=sh_degree)
+        return cls.from_activated(kind, z, z, z, torch.zeros(0), sh_degree=sh_degree, raster_mode=raster_mode)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         """Detached copies of the raw parameters."""
         return {k: v.detach().clone() for k, v in self.params.items()}
 
     def clone(self) -> GaussianSet:
-        return GaussianSet(self.kind, self.tensors(), self.sh_degree, self.active_sh_degree)
+        return GaussianSet(self.kind, self.tensors(), self.sh_degree, self.active_sh_degree, self.raster_mode)
 
     def index(self, rows: torch.Tensor) -> GaussianSet:
         """A new, detached set with the selected rows (bool mask (N,) or int indices)."""
         return GaussianSet(self.kind, {k: v.detach()[rows] for k, v in self.params.items()},
-                           self.sh_degree, self.active_sh_degree)
+                           self.sh_degree, self.active_sh_degree, self.raster_mode)
 
     @staticmethod
     def concat(sets: Iterable[GaussianSet]) -> GaussianSet:
-        """One set holding the rows of several sets of the same kind and SH degree."""
+        """One set holding the rows of several sets of the same kind, SH degree and raster mode."""
         sets = list(sets)
         kinds = {(s.kind, s.sh_degree) for s in sets}
         if len(kinds) != 1:
             raise ValueError(f"cannot concatenate Gaussian sets of different kinds/degrees: {sorted(kinds)}")
+        modes = {s.raster_mode for s in sets}
+        if len(modes) != 1:
+            raise ValueError(f"cannot concatenate Gaussian sets trained in different raster modes: {sorted(modes)}")
         first = sets[0]
         if any(FILTER in s.params for s in sets):  # sets without per-Gaussian filters have the default
-            sets = [s if FILTER in s.params else s.with_filter(EPS2D) for s in sets]
+            sets = [s if FILTER in s.params else s.with_filter(default_low_pass(first.raster_mode)) for s in sets]
         return GaussianSet(first.kind, {k: torch.cat([s.params[k].detach() for s in sets]) for k in sets[0].params},
-                           first.sh_degree, max(s.active_sh_degree for s in sets))
+                           first.sh_degree, max(s.active_sh_degree for s in sets), first.raster_mode)
 
     def with_filter(self, value: float) -> GaussianSet:
         """A detached copy that carries per-Gaussian low-pass values, ``value`` where it had none."""
         t = self.tensors()
         if FILTER not in t:
             t[FILTER] = torch.full((len(self),), float(value), device=self.device)
-        return GaussianSet(self.kind, t, self.sh_degree, self.active_sh_degree)
+        return GaussianSet(self.kind, t, self.sh_degree, self.active_sh_degree, self.raster_mode)
 
     @property
     def eps2d(self) -> torch.Tensor | None:
-        """(N,) per-Gaussian screen-space low-pass in pixels^2, or None (the renderer's default)."""
+        """(N,) per-Gaussian screen-space low-pass in pixels^2, or None (the raster mode's)."""
         return self.params[FILTER] if FILTER in self.params else None
 
     # --- activations --------------------------------------------------------------------------
@@ -209,6 +218,7 @@ class GaussianSet(nn.Module):
             "sh_rest": self.params["shN"] if sh else None,
             "sh_degree": self.active_sh_degree if sh else None,
             "eps2d": self.eps2d.detach() if FILTER in self.params else None,
+            "raster_mode": self.raster_mode,
         }
 
     def scene_bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -263,7 +273,8 @@ class GaussianSet(nn.Module):
         self.active_sh_degree = max(0, min(degree, self.sh_degree))
 
     def extra_repr(self) -> str:
-        return f"kind={self.kind}, n={len(self)}, sh_degree={self.active_sh_degree}/{self.sh_degree}"
+        return (f"kind={self.kind}, n={len(self)}, sh_degree={self.active_sh_degree}/{self.sh_degree}, "
+                f"raster_mode={self.raster_mode}")
 
 
 def rgb_to_color_params(kind: str, rgb: torch.Tensor, sh_degree: int = 0) -> dict[str, torch.Tensor]:

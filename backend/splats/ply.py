@@ -1,7 +1,8 @@
 """PLY files of Gaussian layers: GaussianSet <-> the layer PLY of the contract.
 
 The layout (properties, SH coefficient counts, the ``igs_*`` header comments, colour encodings) and
-its validation are :mod:`igs_contract.layer_ply`'s, shared with the Blender add-on. This module
+its validation are :mod:`igs_contract.layer_ply`'s, shared with the Blender add-on (the set's raster mode is
+its ``igs_raster`` comment; a file without one is ``classic``). This module
 turns a GaussianSet's parameters into those columns and back: ``rgb01`` (albedo) stores
 ``f_dc = (sigmoid(raw) - 0.5) / C0``, ``rgb`` (shading) the same mapping of the raw colour, ``sh``
 (residual, radiance) the SH coefficients. Files are read with the contract's numpy reader
@@ -62,7 +63,8 @@ def write_ply(path: str | Path, gaussians: GaussianSet, space: str = "linear") -
     if bad.any():  # a diverged optimisation: never replace a layer with NaNs
         raise IGSError(f"{path}: not written: {int(bad.sum())} of {n} Gaussians have NaN or infinite values "
                        "(the optimisation diverged; lower the loss weights or the learning rates)")
-    comments = layer_ply.header_comments(gaussians.kind, ENCODINGS[gaussians.kind], space, gaussians.sh_degree)
+    comments = layer_ply.header_comments(gaussians.kind, ENCODINGS[gaussians.kind], space, gaussians.sh_degree,
+                                         gaussians.raster_mode)
     path = Path(path)
     write_bytes(path, layer_ply.header_bytes(n, names, comments) + data.astype("<f4").tobytes())
     return path
@@ -102,7 +104,7 @@ def read_ply(path: str | Path, kind: str | None = None) -> tuple[GaussianSet, La
             tensors["colors"] = torch.logit(c.clamp(eps, 1 - eps))
         else:
             tensors["colors"] = c
-    g = GaussianSet(layout.kind, tensors, sh_degree=sh_degree)
+    g = GaussianSet(layout.kind, tensors, sh_degree=sh_degree, raster_mode=layout.raster)
     return g, LayerFile(kind=layout.kind, encoding=layout.encoding, space=layout.space, foreign=layout.foreign)
 
 

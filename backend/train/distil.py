@@ -129,7 +129,7 @@ def composite_colours(g: GaussianSet, views: list[View], backend: Backend) -> tu
         for v in views:
             feats = torch.zeros(len(g), 4, device=g.device, requires_grad=True)
             out = render(args["means"], args["quats"], args["log_scales"], opacities, feats, v.camera,
-                         log_scales=True, backend=backend)
+                         log_scales=True, backend=backend, raster_mode=g.raster_mode)
             target = torch.cat([v.image, torch.ones_like(v.image[..., :1])], dim=-1)
             (out.color * target).sum().backward()
             acc += feats.grad

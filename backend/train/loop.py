@@ -33,6 +33,7 @@ from backend.core.atomic_io import clean_stale_tmp, os_error, write_bytes, write
 from backend.core.errors import Cancelled, IGSError
 from backend.render import Backend, RenderOutput, render
 from backend.render.threads import torch_threads
+from backend.render.types import RasterMode
 from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.image_metrics import image_metrics, mean_metrics
@@ -78,6 +79,10 @@ class TrainConfig:
     """Write a resumable checkpoint every this many iterations (and at the end and on cancel)."""
     backend: Backend = "auto"
     """Renderer backend: auto, cpu, reference or gsplat."""
+    raster_mode: RasterMode = "classic"
+    """Screen-space low-pass the Gaussians are trained, written (``igs_raster``) and rendered with:
+    classic (3DGS's 0.3 px^2 dilation) or antialiased (0.17 px^2 with the opacity compensated, as
+    Blender 5.3 draws splats; see docs/rendering.md)."""
     lambda_dssim: float = 0.2
     """Weight of the D-SSIM term in the photometric loss."""
     lambda_depth: float = 0.0
@@ -132,10 +137,10 @@ class Stage:
         if not train_views:
             raise IGSError(f"stage {name}: no training views")
         self.name = name
+        self.config = config
         self.gaussians = gaussians
         self.train_views = list(train_views)
         self.test_views = list(test_views)
-        self.config = config
         self.scene_extent = float(scene_extent)
         self.strategy = strategy
         self.color_space = color_space
@@ -144,6 +149,17 @@ class Stage:
         """Where the Gaussians, views and caches live (:meth:`to`)."""
         self.iteration = 0
         """Iterations done before the current one (set by :func:`train`; stages with phases read it)."""
+
+    @property
+    def gaussians(self) -> GaussianSet:
+        """The optimised set. Whatever set is put here (the initial one, a restored one) is trained,
+        checkpointed and written in the stage's raster mode (``config.raster_mode``)."""
+        return self._gaussians
+
+    @gaussians.setter
+    def gaussians(self, g: GaussianSet) -> None:
+        g.raster_mode = self.config.raster_mode
+        self._gaussians = g
 
     def to(self, device: torch.device | str) -> Stage:
         """Move the optimised set, the views (with their cached layers) and :meth:`frozen` sets to
@@ -210,7 +226,7 @@ class Stage:
         g = self.gaussians
         return render(g.means.detach(), g.params["quats"].detach(), g.params["log_scales"].detach(),
                       g.opacities.detach(), colors, camera, log_scales=True, backend=self.config.backend,
-                      eps2d=g.eps2d)
+                      eps2d=g.eps2d, raster_mode=g.raster_mode)
 
 
 @dataclass

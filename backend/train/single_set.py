@@ -115,12 +115,12 @@ class LayeredGaussians(GaussianSet):
         t = {k: self.params[k].detach().clone() for k in GEOMETRY}
         if kind == "albedo":
             t["colors"] = self.params["albedo_logits"].detach().clone()
-            return GaussianSet("albedo", t)
+            return GaussianSet("albedo", t, raster_mode=self.raster_mode)
         if kind == "shading":
             t["colors"] = self.shading.detach().clone()
-            return GaussianSet("shading", t)
+            return GaussianSet("shading", t, raster_mode=self.raster_mode)
         t["sh0"], t["shN"] = self.params["sh0"].detach().clone(), self.params["shN"].detach().clone()
-        return GaussianSet("residual", t, self.sh_degree, self.sh_degree)
+        return GaussianSet("residual", t, self.sh_degree, self.sh_degree, self.raster_mode)
 
 
 class SingleSetStage(Stage):
@@ -148,7 +148,8 @@ class SingleSetStage(Stage):
         center = torch.as_tensor(view.camera.center, dtype=torch.float32, device=self.device)
         features = g.features(center, freeze_albedo=self.albedo_frozen())
         return render(g.params["means"], g.params["quats"], g.params["log_scales"], g.opacities, features,
-                      view.camera, log_scales=True, backend=self.config.backend, with_depth=self.wants_depth(view))
+                      view.camera, log_scales=True, backend=self.config.backend, with_depth=self.wants_depth(view),
+                      raster_mode=g.raster_mode)
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         c = out.color

@@ -54,12 +54,13 @@ def stage_entry(result: TrainResult, cfg: TrainConfig, seconds: float, cache_sec
 
 
 def record_layers(setup: Setup, layers: dict[str, GaussianSet], mode: str) -> None:
-    """Note the layers (kind, colour encoding, space, priors they came from) in capture.json."""
+    """Note the layers (kind, colour encoding, space, raster mode, priors they came from) in capture.json."""
     ws = setup.capture.workspace
     meta = ws.read_capture_json()
     meta.pop("schema", None)
     entry = {k: {"file": str((setup.layers_dir / f"{k}.ply").relative_to(ws.root)), "kind": k,
-                 "encoding": ENCODINGS[k], "space": "linear", "gaussians": len(g)} for k, g in layers.items()}
+                 "encoding": ENCODINGS[k], "space": "linear", "raster_mode": g.raster_mode, "gaussians": len(g)}
+             for k, g in layers.items()}
     meta.setdefault("layers", {})
     meta["layers"][mode] = {"layers": entry, "priors": setup.priors,
                             "composite": "I = A * S + R in linear RGB (sRGB-encode for display)"}
