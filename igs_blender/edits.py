@@ -117,6 +117,7 @@ def remove(props, name: str, workspace: Path | None, delete_files: bool) -> None
             for key in ("igs_edit", "igs_primitive", "igs_vertex_count", "igs_texture_mode"):
                 if key in obj:
                     del obj[key]
+            native_render.send_home(obj, bpy.context.scene)
             continue
         mat = obj.active_material if obj.type == "MESH" else None
         scene_objects.remove_object(obj)

@@ -28,6 +28,8 @@ view transform "Standard", so the PNG Blender writes is what ``igs render`` writ
 
 from __future__ import annotations
 
+import json
+
 import bpy
 
 from . import camera_objects, compat, layers, native_layers, proxies, scene_objects
@@ -286,19 +288,25 @@ def _wire(scene: bpy.types.Scene, previewing: bool) -> None:
 # -- the scene ----------------------------------------------------------------------------------------------------
 
 
+def gather_loose(scene: bpy.types.Scene) -> str:
+    """Move the objects lying directly in the Scene Collection into :data:`SCENE_OBJECTS` (each view layer can
+    then hold them out or leave them out); returns what it did, for the report."""
+    loose = loose_objects(scene)
+    if not loose:
+        return ""
+    coll = bpy.data.collections.get(SCENE_OBJECTS) or bpy.data.collections.new(SCENE_OBJECTS)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    for obj in loose:
+        if obj.name not in coll.objects:
+            coll.objects.link(obj)
+        scene.collection.objects.unlink(obj)
+    return f"moved {len(loose)} object(s) from the Scene Collection into '{SCENE_OBJECTS}'"
+
+
 def setup(scene: bpy.types.Scene) -> list[str]:
     """Make ``scene``'s render the composite (module docstring); returns what it changed, for the report."""
-    notes = []
-    loose = loose_objects(scene)
-    if loose:
-        coll = bpy.data.collections.get(SCENE_OBJECTS) or bpy.data.collections.new(SCENE_OBJECTS)
-        if coll.name not in scene.collection.children:
-            scene.collection.children.link(coll)
-        for obj in loose:
-            if obj.name not in coll.objects:
-                coll.objects.link(obj)
-            scene.collection.objects.unlink(obj)
-        notes.append(f"moved {len(loose)} object(s) from the Scene Collection into '{SCENE_OBJECTS}'")
+    notes = [gather_loose(scene)] if loose_objects(scene) else []
     for vl in scene.view_layers:
         if vl.name not in VIEW_LAYERS.values() and vl.use:
             vl["igs_use_before"] = True
@@ -337,8 +345,42 @@ def sync(scene: bpy.types.Scene) -> None:
             if proxy is not None:
                 vl.material_override = _override_material(proxy)
             vl.use = proxy is not None
+    _gather_proxies(props)
     _albedo_visibility(props, proxy)
     _wire(scene, proxy is not None)
+
+
+HOME = "igs_home_collections"
+"""Custom property of an artist's mesh made a proxy: the collections it lived in (:func:`send_home`)."""
+
+
+def _gather_proxies(props) -> None:
+    """Every edit's proxy in "IGS Edits": a mesh the artist made a proxy (Use Selection as Proxy) is an edit of
+    the albedo now, not a scene object to render lit and to hold the fields out with."""
+    coll = scene_objects.collection(proxies.COLLECTION)
+    for item in props.edits:
+        obj = item.proxy
+        if obj is None or obj.name in coll.objects:
+            continue
+        homes = [c for c in obj.users_collection if c != coll]
+        obj[HOME] = json.dumps([c.name for c in homes])
+        coll.objects.link(obj)
+        for c in homes:
+            c.objects.unlink(obj)
+
+
+def send_home(obj: bpy.types.Object, scene: bpy.types.Scene) -> None:
+    """An artist's mesh that is no longer a proxy goes back to the collections it came from."""
+    if HOME not in obj:
+        return
+    for name in json.loads(obj[HOME]):
+        coll = bpy.data.collections.get(name) or (scene.collection if name == scene.collection.name else None)
+        if coll is not None and obj.name not in coll.objects:
+            coll.objects.link(obj)
+    for c in list(obj.users_collection):
+        if c.name == proxies.COLLECTION and len(obj.users_collection) > 1:
+            c.objects.unlink(obj)
+    del obj[HOME]
 
 
 def _albedo_visibility(props, proxy) -> None:
