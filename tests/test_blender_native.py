@@ -452,7 +452,9 @@ def test_the_capture_orbit_is_the_backends():
 
 
 def test_eevee_renders_the_composite_where_egl_works(scene, tmp_path):
-    """EEVEE (on Mesa's llvmpipe through EGL here: about a minute, mostly compiling shaders)."""
+    """EEVEE (on Mesa's llvmpipe through EGL here: about 90 s, mostly compiling shaders). Measured against igs
+    render: 30.5 / 26.7 / 33.7 dB for A / S / R and 27.7 dB for A*S+R (EEVEE clamps the negative shading
+    splats at 0, unlike Cycles); the thresholds are 3 dB under that."""
     ws, sets = wall_workspace(tmp_path, 150)
     load(scene, ws)
     scene.render.engine = sub("compat").eevee_engine()
@@ -463,5 +465,5 @@ def test_eevee_renders_the_composite_where_egl_works(scene, tmp_path):
         pytest.skip(f"EEVEE cannot render here: {e}")
     want = reference(scene, sets)
     scores = {k: psnr(got[k], want[k]) for k in want}
-    for k in ("Albedo", "Residual", "Image"):
-        assert scores[k] > 24, scores
+    for k, floor in {"Albedo": 27.0, "Shading": 23.0, "Residual": 30.0, "Image": 24.0}.items():
+        assert scores[k] > floor, scores
