@@ -296,6 +296,24 @@ def finish_sequence(context, out: Path, count: int) -> str:
     return msg
 
 
+class IGS_OT_remove_render_setup(bpy.types.Operator):
+    """Stop rendering A x S + R: remove the IGS view layers and the compositor effect; the scene's own view layers render again"""
+
+    bl_idname = "igs.remove_render_setup"
+    bl_label = "Remove Render Setup"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and native_render.is_set_up(context.scene)
+
+    def execute(self, context):
+        native_render.teardown(context.scene)
+        tell(self, context, "INFO", "F12 renders the scene's own view layers again (Load Layers or Render View "
+                                    "sets the composite up again)")
+        return {"FINISHED"}
+
+
 LAYER_NAMES = {"full": "A×S+R", "A": "the albedo", "S": "the shading", "R": "the residual"}
 
 
@@ -317,4 +335,4 @@ def _follow_render(scene: bpy.types.Scene, finish) -> None:
     bpy.app.timers.register(poll, first_interval=1.0)
 
 
-CLASSES = (IGS_OT_render_view, IGS_OT_render_sequence)
+CLASSES = (IGS_OT_render_view, IGS_OT_render_sequence, IGS_OT_remove_render_setup)

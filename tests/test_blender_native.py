@@ -426,6 +426,33 @@ def test_render_turntable_is_an_animated_camera_blender_renders_to_png_and_mp4(s
     first = sub("images").pixels(bpy.data.images.load(str(frames[0])))
     assert first.shape[:2] == (SIZE[1], SIZE[0]) and first[..., :3].max() > 0.1
 
+    # around the capture: the orbit igs render --turntable takes, camera for camera (its field of view too)
+    from backend.capture.load import load_capture
+    from backend.eval.render_views import capture_orbit, capture_up, turntable
+
+    props.turntable_target, props.turntable_frames, props.write_mp4 = "CAPTURE", 2, False
+    assert bpy.ops.igs.render_sequence(mode="TURNTABLE") == {"FINISHED"}, props.last_report
+    cap = load_capture(ws)
+    frames_cv = [f.camera for f in cap.frames]
+    up = capture_up(frames_cv)
+    want = turntable(*capture_orbit(frames_cv, cap.points, up), 2, frames_cv[0], None, up)
+    cam = bpy.data.objects["IGS Turntable"]
+    for frame, c in enumerate(want, start=1):
+        scene.frame_set(frame)
+        v = sub("camera_objects").sfm_view_from_object(scene, cam)
+        np.testing.assert_allclose(v.R, c.R, atol=1e-5)
+        np.testing.assert_allclose(v.t, c.t, atol=1e-4)
+        np.testing.assert_allclose(v.fx * c.width / v.width, c.fx, rtol=1e-4)
+    # the scene camera's own animation, frame by frame
+    scene.frame_start, scene.frame_end = 3, 4
+    assert bpy.ops.igs.render_sequence(mode="CAMERA") == {"FINISHED"}, props.last_report
+    out = Path(props.last_report.split(" into ")[1])
+    assert [f.name for f in sorted(out.glob("frame_*.png"))] == ["frame_0003.png", "frame_0004.png"]
+    # and the scene's own view layers render again once the setup is removed
+    assert bpy.ops.igs.remove_render_setup() == {"FINISHED"}
+    assert [vl.name for vl in scene.view_layers] == ["ViewLayer"] and scene.view_layers[0].use
+    assert "IGS Render" not in scene.compositor_effects
+
 
 def test_the_capture_orbit_is_the_backends():
     """The add-on's orbit around the capture equals ``igs render --turntable``'s cameras."""
@@ -467,3 +494,18 @@ def test_eevee_renders_the_composite_where_egl_works(scene, tmp_path):
     scores = {k: psnr(got[k], want[k]) for k in want}
     for k, floor in {"Albedo": 27.0, "Shading": 23.0, "Residual": 30.0, "Image": 24.0}.items():
         assert scores[k] > floor, scores
+
+
+def test_the_panels_say_blender_renders_and_name_loose_objects(scene, tmp_path):
+    from test_blender_panel import draw, labels, shown_text
+
+    ws, _ = wall_workspace(tmp_path, 50)
+    assert "Load Layers sets up Blender's render" in shown_text(draw("IGS_PT_render"))
+    load(scene, ws)
+    layers_panel = draw("IGS_PT_layers")
+    assert "Blender's own Gaussian splats" in shown_text(layers_panel)
+    assert not any(p in ("splat_view", "radius_scale") for _, p, _, _ in layers_panel)  # no overlay, no sphere size
+    assert "F12 / Ctrl+F12: Cycles renders the IGS view layers" in shown_text(draw("IGS_PT_render"))
+    scene.collection.objects.link(bpy.data.objects.new("stray", None))
+    text = " ".join(labels(draw("IGS_PT_render")))
+    assert "1 object(s) lie directly in the Scene Collection" in text
