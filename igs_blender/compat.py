@@ -1,6 +1,8 @@
-"""Everything that differs between Blender versions (4.2 LTS .. 5.x), in one place.
+"""Everything that differs between Blender versions (4.2 LTS .. 5.3), in one place.
 
-Tested on bpy 5.0.1. Other modules call these helpers instead of testing ``bpy.app.version``.
+Tested on the bpy 5.3.0 and 5.0.1 modules (background mode) and in a Blender 5.2.2 window. Other
+modules call these helpers instead of testing ``bpy.app.version``. Blender 5.3 adds native Gaussian
+splats (:func:`native_splats`), a PointCloud that can be sized directly, and compositor effects.
 """
 
 from __future__ import annotations
@@ -34,13 +36,33 @@ def set_dithered_transparency(material: bpy.types.Material) -> None:
         material.blend_method = "HASHED"
 
 
+NATIVE_VERSION = (5, 3, 0)
+"""The first Blender whose point clouds can be Gaussian splats that its engines render."""
+
+
+def native_splats() -> bool:
+    """True where a PointCloud can be a ``GAUSSIAN_SPLAT`` and be sized from Python (Blender 5.3+)."""
+    if bpy.app.version < NATIVE_VERSION or "resize" not in bpy.types.PointCloud.bl_rna.functions:
+        return False
+    prop = bpy.types.PointCloud.bl_rna.properties.get("type")
+    return prop is not None and "GAUSSIAN_SPLAT" in prop.enum_items.keys()
+
+
 def pointcloud_object(name: str, positions: np.ndarray, collection: bpy.types.Collection) -> bpy.types.Object:
     """A new PointCloud object with ``positions`` (N, 3), linked to ``collection``.
 
-    Blender's Python API cannot resize a PointCloud (up to 5.0 at least), so the points are made as
-    mesh vertices and converted with Object > Convert > Point Cloud, the way a user would.
+    Blender 5.3 makes and sizes the point cloud directly. Before it, Python could not resize a
+    PointCloud, so the points are made as mesh vertices and converted with Object > Convert > Point
+    Cloud, the way a user would.
     """
     n = int(positions.shape[0])
+    if native_splats():
+        pc = bpy.data.pointclouds.new(name)
+        pc.resize(n)
+        pc.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(positions, dtype=np.float32).ravel())
+        obj = bpy.data.objects.new(name, pc)
+        collection.objects.link(obj)
+        return obj
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(n)
     mesh.vertices.foreach_set("co", np.ascontiguousarray(positions, dtype=np.float32).ravel())
@@ -62,6 +84,38 @@ def pointcloud_object(name: str, positions: np.ndarray, collection: bpy.types.Co
     if sel is not None:
         obj.data.attributes.remove(sel)
     return obj
+
+
+def compositor_tree(scene: bpy.types.Scene, name: str) -> bpy.types.NodeTree:
+    """The compositor node tree called ``name`` that ``scene``'s render goes through, created (and made
+    the scene's) when missing. Blender 5.3 composites through a stack of effects: the tree is the
+    node group of an effect of the same name. 5.0-5.2 have one ``compositing_node_group``."""
+    tree = bpy.data.node_groups.get(name)
+    if tree is None or tree.bl_idname != "CompositorNodeTree":
+        tree = bpy.data.node_groups.new(name, "CompositorNodeTree")
+    effects = getattr(scene, "compositor_effects", None)
+    if effects is not None:
+        effect = effects.get(name) or effects.new(name)
+        effect.node_group = tree
+        effect.enable_for_render = True
+    else:
+        scene.compositing_node_group = tree
+    scene.render.use_compositing = True
+    return tree
+
+
+def remove_compositor_tree(scene: bpy.types.Scene, name: str) -> None:
+    """Undo :func:`compositor_tree`: the scene's render no longer goes through the tree ``name``."""
+    effects = getattr(scene, "compositor_effects", None)
+    if effects is not None:
+        effect = effects.get(name)
+        if effect is not None:
+            effects.remove(effect)
+    elif getattr(scene, "compositing_node_group", None) is not None and scene.compositing_node_group.name == name:
+        scene.compositing_node_group = None
+    tree = bpy.data.node_groups.get(name)
+    if tree is not None and tree.users == 0:
+        bpy.data.node_groups.remove(tree)
 
 
 def quaternion_attribute_type() -> str:

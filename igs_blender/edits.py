@@ -7,7 +7,7 @@ from pathlib import Path
 
 import bpy
 
-from . import layers, proxies, scene_objects
+from . import layers, native_render, proxies, scene_objects
 from .errors import UserError
 from .workspace_files import EDIT_NAME
 
@@ -62,7 +62,12 @@ def apply_visibility(_item=None) -> None:
     """Show one layer point cloud, the panel's ``layer_display`` (or the first loaded one), and each
     visible edit's proxy. A visible baked edit's albedo replaces the original albedo when the albedo is shown.
     While the viewport draws splats, the point clouds show as their bounds."""
-    props = bpy.context.scene.igs
+    scene = bpy.context.scene
+    props = scene.igs
+    if layers.use_native():
+        _native_visibility(props)
+        native_render.sync(scene)
+        return
     for obj in [*layers.loaded_layers().values(), *(i.albedo for i in props.edits if i.albedo is not None)]:
         _point_display(obj, props.splat_view)
     shown = layers.shown_kind(props.layer_display) or "albedo"  # only edits loaded: their albedo shows
@@ -73,6 +78,22 @@ def apply_visibility(_item=None) -> None:
         edited_shown |= item.visible and item.albedo is not None
     for kind, obj in layers.loaded_layers().items():
         _hide(obj, kind != shown or (kind == "albedo" and edited_shown))
+
+
+def _native_visibility(props) -> None:
+    """Native splats: the viewport shows one layer, as above, but only through ``hide_viewport``: what
+    renders is each view layer's business (:mod:`.native_render`), which needs every field."""
+    shown = layers.shown_kind(props.layer_display) or "albedo"
+    edited_shown = False
+    for item in props.edits:
+        if item.proxy is not None:
+            item.proxy.hide_viewport = not item.visible
+        if item.albedo is not None:
+            item.albedo.hide_viewport = not (item.visible and shown == "albedo")
+        edited_shown |= item.visible and item.albedo is not None
+    for kind, obj in layers.loaded_layers().items():
+        obj.hide_viewport = kind != shown or (kind == "albedo" and edited_shown)
+        obj.hide_render = False
 
 
 def show_only(props, name: str) -> None:
@@ -96,6 +117,7 @@ def remove(props, name: str, workspace: Path | None, delete_files: bool) -> None
             for key in ("igs_edit", "igs_primitive", "igs_vertex_count", "igs_texture_mode"):
                 if key in obj:
                     del obj[key]
+            native_render.send_home(obj, bpy.context.scene)
             continue
         mat = obj.active_material if obj.type == "MESH" else None
         scene_objects.remove_object(obj)

@@ -16,6 +16,9 @@ radius, every Gaussian parameter as a named point attribute:
 so a proxy round-trips to the same PLY (:func:`layer_from_object`). The "composite" proxy is a
 preview only: the albedo points coloured with albedo x shading + residual averaged over a voxel
 grid; the exact composite of the three fields is what the Render panel produces.
+
+On Blender 5.3+ (unless the preferences turn Native Splats off) a layer is Blender's own Gaussian
+splat object instead (:mod:`.native_layers`), one collection per field, and Blender renders it.
 """
 
 from __future__ import annotations
@@ -26,18 +29,28 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from . import compat, scene_objects
+from . import compat, native_layers, preferences, scene_objects
 from .errors import UserError
 from .ply_io import FILTER, SplatLayer, read_splat_ply
 
 LAYER_KINDS = ("albedo", "shading", "residual", "radiance")
-COLLECTION = "IGS Layers"
+COLLECTION = native_layers.LAYERS_COLLECTION
 MATERIAL = "IGS Splat Points"
 COLOR_ATTRIBUTE = "Col"
 
 
 DISPLAY_ORDER = ("composite", "albedo", "shading", "residual", "radiance")
 """The layer point clouds, in the order the Layers panel lists them; one is shown at a time."""
+
+
+def use_native() -> bool:
+    """Layers as Blender's own Gaussian splats: Blender 5.3+ with Native Splats on (the default)."""
+    if not compat.native_splats():
+        return False
+    try:
+        return bool(preferences.get().native_splats)
+    except (UserError, AttributeError):  # preferences not registered (the modules used outside the add-on)
+        return True
 
 
 def object_name(kind: str, edit: str | None = None) -> str:
@@ -133,14 +146,23 @@ def _get_attr(pc, name: str, width: int, field: str, dtype=np.float32) -> np.nda
 def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, radius_scale: float = 1.0,
                        source: Path | None = None, collection: bpy.types.Collection | None = None,
                        ) -> bpy.types.Object:
-    """A PointCloud object for ``layer`` (replacing an object of the same name), parented to the capture root."""
+    """A PointCloud object for ``layer`` (replacing an object of the same name), parented to the capture root.
+
+    Natively (:func:`use_native`) a Gaussian splat object in its field's collection, else a point cloud
+    of spheres with the material :func:`splat_material`.
+    """
     total = len(layer)
     idx = subsample_index(total, max_points)
     sub = layer.subset(idx) if len(idx) < total else layer
-    coll = collection or scene_objects.collection(COLLECTION)
     old = bpy.data.objects.get(name)
     hidden = old.hide_viewport if old is not None else False
     scene_objects.remove_object(old)
+    if use_native():
+        obj = native_layers.build(name, sub, idx, collection or native_layers.field_collection(layer.kind))
+        _describe(obj, layer, total, source)
+        obj.hide_viewport = hidden
+        return obj
+    coll = collection or scene_objects.collection(COLLECTION)
 
     obj = compat.pointcloud_object(name, sub.means, coll)
     pc = obj.data
@@ -160,7 +182,14 @@ def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, rad
     _set_attr(pc, "igs_index", "INT", idx.astype(np.int32), "value")
     pc.materials.clear()
     pc.materials.append(splat_material())
+    _describe(obj, layer, total, source)
+    obj.hide_viewport = hidden
+    obj.hide_render = hidden
+    return obj
 
+
+def _describe(obj: bpy.types.Object, layer: SplatLayer, total: int, source: Path | None) -> None:
+    """What a layer object records about its PLY (for Export and the panels), and its place under the root."""
     obj["igs_layer"] = layer.kind
     obj["igs_color"] = layer.encoding
     obj["igs_space"] = layer.space
@@ -170,9 +199,6 @@ def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, rad
     if source is not None:
         obj["igs_ply"] = str(source)
     scene_objects.parent_to_root(obj)
-    obj.hide_viewport = hidden
-    obj.hide_render = hidden
-    return obj
 
 
 def load_layer(path: Path, name: str | None = None, **kwargs) -> bpy.types.Object:
@@ -185,6 +211,8 @@ def layer_from_object(obj: bpy.types.Object) -> SplatLayer:
     """The Gaussians a layer proxy holds, as a :class:`SplatLayer` (PLY-ready raw parameters)."""
     if obj is None or obj.type != "POINTCLOUD" or "igs_layer" not in obj:
         raise UserError(f"'{getattr(obj, 'name', obj)}' is not a splat layer proxy (a point cloud made by Load Layers)")
+    if native_layers.is_native(obj):
+        return native_layers.layer_from_native(obj)
     pc = obj.data
     n = len(pc.points)
     means = _get_attr(pc, "position", 3, "vector")
@@ -244,13 +272,19 @@ def composite_colors(albedo: SplatLayer, shading: SplatLayer, residual: SplatLay
 def build_composite_object(albedo: SplatLayer, shading: SplatLayer, residual: SplatLayer | None, **kwargs,
                            ) -> bpy.types.Object:
     """The composite preview: albedo geometry, colour A * S + R (see the module docstring)."""
+    native = use_native()
+    if native:
+        kwargs["collection"] = native_layers.field_collection("composite")
     obj = build_layer_object(object_name("composite"), albedo, **kwargs)
     pc = obj.data
     idx = _get_attr(pc, "igs_index", 1, "value", dtype=np.int32)
     rgb = composite_colors(albedo.subset(idx), shading, residual)
-    rgba = _get_attr(pc, COLOR_ATTRIBUTE, 4, "color")
-    rgba[:, :3] = rgb
-    pc.attributes[COLOR_ATTRIBUTE].data.foreach_set("color", rgba.ravel())
+    if native:
+        native_layers.recolor(obj, rgb)
+    else:
+        rgba = _get_attr(pc, COLOR_ATTRIBUTE, 4, "color")
+        rgba[:, :3] = rgb
+        pc.attributes[COLOR_ATTRIBUTE].data.foreach_set("color", rgba.ravel())
     obj["igs_layer_display"] = "composite"
     obj["igs_preview_only"] = True
     return obj

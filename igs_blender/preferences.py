@@ -68,6 +68,13 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
                     "synthetic demo captures: 383 MB with its dependencies; exists only for Python 3.11",
         default=True,
     )
+    native_splats: BoolProperty(
+        name="Native Splats (Blender 5.3+)",
+        description="Load layers as Blender's own Gaussian splats, which EEVEE and Cycles render (F12 renders "
+                    "A x S + R through a compositor group). Off: point clouds drawn by the add-on's viewport "
+                    "splats, rendered by the backend, as on Blender 4.2-5.2",
+        default=True,
+    )
     check_report: StringProperty(name="Check Report", default="")
     check_ok: BoolProperty(default=False)
 
@@ -93,6 +100,10 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
             box.progress(factor=job.state.fraction, text=job.state.status_text())
             box.operator("igs.cancel_job", icon="CANCEL")
         adv = layout.column(heading="Advanced")
+        from . import compat
+
+        if compat.native_splats():  # Blender 5.3+: the choice between native splats and the add-on's own
+            adv.prop(self, "native_splats")
         adv.prop(self, "base_python")
         adv.prop(self, "env_dir")
         sub = adv.row()

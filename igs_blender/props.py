@@ -205,14 +205,16 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
         description="The fewest distinct Gaussians the rectangle must select. Lower it for a small rectangle "
                     "on a low-resolution capture or a briefly trained field; a larger rectangle is more reliable")
     edits: CollectionProperty(type=IGS_EditItem)
-    edits_index: IntProperty(default=0)
+    edits_index: IntProperty(default=0, update=_layer_display)  # native splats: the render uses the selected edit
 
     # -- render ---------------------------------------------------------------------------------
     render_layer: EnumProperty(name="Layer", items=[("full", "Composite", "A x S + R, the full image"),
                                                     ("A", "Albedo", ""), ("S", "Shading", ""),
-                                                    ("R", "Residual", "")], default="full")
-    render_edit: BoolProperty(name="Use Selected Edit", default=True,
-                              description="Render with the baked edit selected in the Edit panel")
+                                                    ("R", "Residual", "")], default="full",
+                               update=_layer_display)  # native splats: the compositor's output follows
+    render_edit: BoolProperty(name="Use Selected Edit", default=True, update=_layer_display,
+                              description="Render with the baked edit selected in the Edit panel (Blender 5.3+: "
+                                          "before its bake, its proxy previewed over the albedo)")
     turntable_frames: IntProperty(name="Frames", default=36, min=1, max=3600)
     turntable_radius: FloatProperty(
         name="Radius", default=0.0, min=0.0, subtype="DISTANCE",

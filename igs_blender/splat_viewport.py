@@ -25,7 +25,7 @@ import bpy
 import gpu
 import numpy as np
 
-from . import edits, layers, proxies, scene_objects
+from . import edits, layers, native_render, proxies, scene_objects
 from .errors import UserError
 from .ply_io import SplatLayer, read_splat_ply
 from .splat_camera import PinholeView, from_region
@@ -234,7 +234,7 @@ def region_view(context, props) -> PinholeView | None:
 def _draw() -> None:
     context = bpy.context
     props = getattr(context.scene, "igs", None)
-    if props is None or not props.splat_view:
+    if props is None or not props.splat_view or layers.use_native():  # native splats: Blender draws them
         return
     t0 = time.perf_counter()
     keys = None
@@ -273,12 +273,14 @@ def _draw() -> None:
 
 def register() -> None:
     global _HANDLE
+    native_render.register()
     if _HANDLE is None:
         _HANDLE = bpy.types.SpaceView3D.draw_handler_add(_draw, (), "WINDOW", "POST_VIEW")
 
 
 def unregister() -> None:
     global _HANDLE
+    native_render.unregister()
     if _HANDLE is not None:
         bpy.types.SpaceView3D.draw_handler_remove(_HANDLE, "WINDOW")
         _HANDLE = None

@@ -7,7 +7,7 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import edits, layers, scene_objects
+from ..igs_blender import edits, layers, native_render, scene_objects
 from ..igs_blender.errors import UserError
 from ..igs_blender.ply_io import write_splat_ply
 from ..igs_blender.workspace_files import metrics_summary
@@ -19,7 +19,7 @@ def loaded_summary(objs: dict) -> str:
 
 
 class IGS_OT_load_layers(bpy.types.Operator):
-    """Show the workspace's layers (albedo, shading, residual, and the 3DGS radiance if trained) as point clouds"""
+    """Show the workspace's layers (albedo, shading, residual, and the 3DGS radiance if trained) as point clouds (Blender 5.3+: as Blender's own Gaussian splats, and F12 renders A x S + R)"""
 
     bl_idname = "igs.load_layers"
     bl_label = "Load Layers"
@@ -33,8 +33,13 @@ class IGS_OT_load_layers(bpy.types.Operator):
             return {"CANCELLED"}
         ws, objs = loaded
         props.metrics_info = metrics_summary(ws)
+        native = layers.use_native()
+        notes = native_render.setup(context.scene) if native else []
         edits.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"
+        if native:
+            msg += "; F12 renders A×S+R (view layers IGS Albedo/Shading/Residual/Scene, compositor group IGS Composite)"
+            msg += "".join(f"; {n}" for n in notes)
         on_disk = [n for n in edits.workspace_edits(ws) if edits.find(props, n)[1] is None]
         if on_disk:
             msg += f"; the workspace has {len(on_disk)} edit(s) not in the scene: Edit panel > Load Edits"

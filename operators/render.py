@@ -8,6 +8,11 @@ cameras, so it runs through the free space they filmed rather than through a wal
 written as the contract's cameras.json (``igs_contract.camera_json``: pinhole intrinsics and the OpenCV
 world-to-camera pose in SfM coordinates); ``render --cameras`` writes ``OUT/<layer>/<name>.png`` per
 camera and ``OUT/<layer>.mp4``.
+
+With native splats (Blender 5.3+) Blender renders instead (:mod:`..igs_blender.native_render`):
+Render View is F12 (in background mode it writes ``renders/view-<time>/<layer>.png``), and the
+turntable is the animated camera "IGS Turntable" that Blender renders into
+``renders/turntable-<time>/frame_####.png``, then encodes into ``<layer>.mp4`` with its FFmpeg.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import numpy as np
 from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
-from ..igs_blender import compat, edits, images, scene_objects
+from ..igs_blender import compat, edits, images, layers, native_render, native_turntable, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.client import BackendJob
@@ -29,6 +34,8 @@ from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
 from ..igs_contract import camera_json
 from .job import BackendOperator, backend_job
+from .modes import in_object_mode
+from .reports import tell
 
 
 def orbit(context, target: Vector) -> tuple[float, float]:
@@ -84,11 +91,75 @@ def _render_job(context, cameras: Path | list, out: Path, label: str, mp4: bool 
     return backend_job(context, args, label, expected_stages=1)
 
 
-class IGS_OT_render_view(BackendOperator, bpy.types.Operator):
-    """Render the active camera's view of the (edited) splats and show it in the Image Editor"""
+def native_ready(context) -> None:
+    """The scene renders the composite (set up once, brought up to date every time)."""
+    if not layers.loaded_layers():
+        raise UserError("no layers in the scene: Load Layers first (Blender renders their splats)")
+    if not native_render.is_set_up(context.scene):
+        native_render.setup(context.scene)
+    native_render.gather_loose(context.scene)
+    edits.apply_visibility()  # the edit the render uses, the previewed proxy, then the view layers
+
+
+def _interactive(context) -> bool:
+    return not bpy.app.background and context.window is not None
+
+
+class _NativeOrBackend(BackendOperator):
+    """Blender renders with native splats (:meth:`native`), the backend otherwise (the job)."""
+
+    def execute(self, context):
+        if layers.use_native():
+            return self._native(context)
+        return BackendOperator.execute(self, context)
+
+    def invoke(self, context, event):
+        if layers.use_native():
+            return self._native(context)
+        return BackendOperator.invoke(self, context, event)
+
+    def _native(self, context):
+        try:
+            with in_object_mode(context):
+                msg = self.native(context)
+        except (UserError, OSError, RuntimeError) as e:  # RuntimeError: Blender's render failed
+            tell(self, context, "ERROR", str(e))
+            return {"CANCELLED"}
+        tell(self, context, "INFO", msg)
+        return {"FINISHED"}
+
+    def native(self, context) -> str:
+        raise NotImplementedError
+
+
+class IGS_OT_render_view(_NativeOrBackend, bpy.types.Operator):
+    """Render the active camera's view of the (edited) splats and show it in the Image Editor (Blender 5.3+: F12, the composite rendered by Blender)"""
 
     bl_idname = "igs.render_view"
     bl_label = "Render View"
+
+    def native(self, context) -> str:
+        scene = context.scene
+        if scene.camera is None:
+            raise UserError("the scene has no camera: set one (Ctrl+Numpad 0 on a camera)")
+        native_ready(context)
+        layer = scene.igs.render_layer
+        if _interactive(context):
+            bpy.ops.render.render("INVOKE_DEFAULT")
+            return f"Rendering {LAYER_NAMES[layer]} with {scene.render.engine.title()} (F12)"
+        out = fresh_output_dir(existing_workspace(scene.igs.workspace), "view")
+        out.mkdir(parents=True)
+        before = scene.render.filepath
+        scene.render.filepath = str(out / layer)
+        try:
+            bpy.ops.render.render(write_still=True)
+        finally:
+            scene.render.filepath = before
+        files = sorted(out.glob(f"{layer}.*"))
+        if not files:
+            raise UserError(f"Blender's render wrote no image into {out}")
+        images.load_image(files[0], "IGS Render")
+        return f"Rendered {files[0]}"
 
     def make_job(self, context) -> BackendJob:
         scene = context.scene
@@ -107,7 +178,7 @@ class IGS_OT_render_view(BackendOperator, bpy.types.Operator):
         return f"Rendered {files[0]}"
 
 
-class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
+class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
     """Render a turntable around the 3D cursor, the selection or the capture, or along the scene's animated camera, as an image sequence (and MP4), then load it"""
 
     bl_idname = "igs.render_sequence"
@@ -174,5 +245,94 @@ class IGS_OT_render_sequence(BackendOperator, bpy.types.Operator):
             msg += f" and {movies[0].name}"
         return msg
 
+    # -- Blender 5.3+: Blender renders the frames ------------------------------------------------------------------
 
-CLASSES = (IGS_OT_render_view, IGS_OT_render_sequence)
+    def native(self, context) -> str:
+        scene = context.scene
+        props = scene.igs
+        ws = existing_workspace(props.workspace)
+        native_ready(context)
+        out = fresh_output_dir(ws, self.mode.lower())
+        if self.mode == "TURNTABLE":
+            if props.turntable_target == "CAPTURE":
+                mats, fov = native_turntable.capture_matrices(ws, props.turntable_frames)
+                cam = native_turntable.turntable_camera(scene, mats, fov)
+            else:
+                target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else \
+                    scene_objects.selection_center(context)
+                radius, height = orbit(context, target)
+                cam = native_turntable.turntable_camera(
+                    scene, turntable_matrices(np.array(target), radius, height, props.turntable_frames))
+            native_turntable.sequence_output(scene, out, 1, props.turntable_frames, camera=cam)
+        else:
+            if scene.camera is None:
+                raise UserError("the scene has no camera to follow")
+            native_turntable.sequence_output(scene, out, scene.frame_start, scene.frame_end, scene.frame_step)
+        count = len(range(scene.frame_start, scene.frame_end + 1, scene.frame_step))
+        if _interactive(context):
+            bpy.ops.render.render("INVOKE_DEFAULT", animation=True)
+            _follow_render(scene, lambda: finish_sequence(bpy.context, out, count))
+            return f"Rendering {count} frames with {scene.render.engine.title()} into {out}"
+        try:
+            bpy.ops.render.render(animation=True)
+        finally:
+            native_turntable.restore(scene)
+        return finish_sequence(context, out, count)
+
+
+def finish_sequence(context, out: Path, count: int) -> str:
+    """After Blender's render of a sequence: the MP4 (if asked for) and the frames shown as an image sequence."""
+    scene = context.scene
+    frames = native_turntable.frames_written(out)
+    if len(frames) != count:
+        raise UserError(f"expected {count} frames in {out}, Blender's render wrote {len(frames)} (cancelled?)")
+    msg = f"Rendered {len(frames)} frames into {out}"
+    if scene.igs.write_mp4:
+        movie = native_turntable.encode_mp4(frames, out / f"{scene.igs.render_layer}.mp4", scene.render.fps,
+                                            render_size(scene))
+        msg += f" and {movie.name}"
+    image = images.load_image(frames[0], "IGS Sequence", sequence_length=len(frames))
+    compat.show_image(context, image, render_size(scene))
+    return msg
+
+
+class IGS_OT_remove_render_setup(bpy.types.Operator):
+    """Stop rendering A x S + R: remove the IGS view layers and the compositor effect; the scene's own view layers render again"""
+
+    bl_idname = "igs.remove_render_setup"
+    bl_label = "Remove Render Setup"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and native_render.is_set_up(context.scene)
+
+    def execute(self, context):
+        native_render.teardown(context.scene)
+        tell(self, context, "INFO", "F12 renders the scene's own view layers again (Load Layers or Render View "
+                                    "sets the composite up again)")
+        return {"FINISHED"}
+
+
+LAYER_NAMES = {"full": "A×S+R", "A": "the albedo", "S": "the shading", "R": "the residual"}
+
+
+def _follow_render(scene: bpy.types.Scene, finish) -> None:
+    """Once Blender's render job ends (finished or cancelled), put the scene's settings back and ``finish()``."""
+
+    def poll():
+        if bpy.app.is_job_running("RENDER"):
+            return 0.5
+        native_turntable.restore(scene)
+        try:
+            msg = finish()
+        except (UserError, OSError, RuntimeError) as e:
+            msg = str(e)
+        scene.igs.last_report = msg
+        scene_objects.tag_redraw()
+        return None
+
+    bpy.app.timers.register(poll, first_interval=1.0)
+
+
+CLASSES = (IGS_OT_render_view, IGS_OT_render_sequence, IGS_OT_remove_render_setup)

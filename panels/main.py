@@ -6,7 +6,7 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import edits, layers, preferences, scene_objects, splat_viewport
+from ..igs_blender import edits, layers, native_render, preferences, scene_objects, splat_viewport
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
@@ -168,9 +168,11 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         props = context.scene.igs
+        native = layers.use_native()
         col = layout.column()
         col.prop(props, "max_points", text="Max Points (0 = all)")
-        col.prop(props, "radius_scale")
+        if not native:  # Blender sizes its own splats
+            col.prop(props, "radius_scale")
         col.prop(props, "build_composite")
         layout.operator("igs.load_layers", icon="POINTCLOUD_DATA")
         box = layout.box()
@@ -188,7 +190,11 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
                 label = LAYER_LABELS[kind] + (f" + {', '.join(edited)}" if kind == "albedo" and edited else "")
                 text = f"{label}: {shown:,}" + (f" of {total:,}" if total != shown else "")
                 col.prop_enum(props, "layer_display", kind, text=text)
-        _splat_view(layout.box(), props)
+        if native:
+            _lines(layout.box(), "Blender's own Gaussian splats: Material Preview or Rendered shading shows them, "
+                   "F12 renders A×S+R (Render panel)", icon="INFO", context=context)
+        else:
+            _splat_view(layout.box(), props)
         layout.operator("igs.export_layer", icon="EXPORT")
         row = layout.row(align=True)  # other tools' splat files in, files for other viewers out
         row.operator("igs.import_splat_file", text="Import File", icon="IMPORT")
@@ -283,9 +289,12 @@ class IGS_PT_render(_SubPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        props = context.scene.igs
+        scene = context.scene
+        props = scene.igs
         layout.prop(props, "render_layer")
         layout.prop(props, "render_edit")
+        if layers.use_native():
+            _native_render_info(layout, scene, context)
         row = layout.row()
         row.scale_y = 1.3
         row.operator("igs.render_view", icon="RENDER_STILL")
@@ -306,6 +315,22 @@ class IGS_PT_render(_SubPanel, bpy.types.Panel):
         box.prop(props, "write_mp4", text="MP4 (H.264)")
         box.operator("igs.render_sequence", text="Render Turntable", icon="ORIENTATION_GIMBAL").mode = "TURNTABLE"
         box.operator("igs.render_sequence", text="Render Camera Path", icon="CAMERA_DATA").mode = "CAMERA"
+
+
+def _native_render_info(layout, scene, context) -> None:
+    """Blender 5.3+: who renders, through what, and the objects no view layer can tell apart."""
+    box = layout.box()
+    if not native_render.is_set_up(scene):
+        _lines(box, "Load Layers sets up Blender's render of A×S+R", icon="INFO", context=context)
+        return
+    engine = scene.render.engine.replace("BLENDER_", "").title()
+    _lines(box, f"F12 / Ctrl+F12: {engine} renders the IGS view layers, composited by the node group "
+           f"'{native_render.GROUP}'", icon="NODE_COMPOSITING", context=context)
+    box.operator("igs.remove_render_setup", icon="X")
+    loose = native_render.loose_objects(scene)
+    if loose:
+        _lines(box, f"{len(loose)} object(s) lie directly in the Scene Collection and render in every field: "
+               f"Render View moves them into '{native_render.SCENE_OBJECTS}'", icon="ERROR", context=context)
 
 
 def _fitted_orbit(context) -> str:

@@ -76,9 +76,15 @@ def sub(name: str):
 
 @pytest.fixture
 def scene(addon):
-    """A fresh empty scene with the add-on's settings at their defaults and the real backend configured."""
+    """A fresh empty scene with the add-on's settings at their defaults and the real backend configured.
+
+    These tests cover the point-cloud path (Blender 4.2-5.2, and 5.3 with Native Splats off): on 5.3 it is
+    chosen here. ``test_blender_native.py`` covers Blender 5.3's native splats."""
     bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.context.preferences.addons[MOD].preferences.backend_python = PYTHON
+    prefs = bpy.context.preferences.addons[MOD].preferences
+    prefs.backend_python = PYTHON
+    if hasattr(prefs, "native_splats"):
+        prefs.native_splats = False
     return bpy.context.scene
 
 
@@ -942,7 +948,10 @@ def _flow_scene(flow):
     scene = bpy.context.scene
     if "ws" in flow:
         scene.igs.workspace = str(flow["ws"])
-    bpy.context.preferences.addons[MOD].preferences.backend_python = PYTHON
+    prefs = bpy.context.preferences.addons[MOD].preferences
+    prefs.backend_python = PYTHON
+    if hasattr(prefs, "native_splats"):
+        prefs.native_splats = False  # the point-cloud path, as the scene fixture
     return scene
 
 

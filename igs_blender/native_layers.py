@@ -1,0 +1,209 @@
+"""Gaussian layers as Blender's own Gaussian splats (Blender 5.3+): the objects its engines render.
+
+A layer becomes a ``GAUSSIAN_SPLAT`` point cloud with Blender's attributes, as its PLY importer
+makes them:
+
+- ``position``        FLOAT_VECTOR centres
+- ``scale``           FLOAT_VECTOR standard deviations (exp of the PLY's logs)
+- ``rotation``        QUATERNION   unit wxyz rotation
+- ``radiance:base``   FLOAT4       DC colour coefficients in Blender's convention, and the opacity
+- ``radiance:sh_<k>`` FLOAT_VECTOR higher SH coefficient k = 0..14 (SH layers only)
+
+(colours converted from our linear values by :mod:`.native_colors`), and two of ours:
+
+- ``eps2d``     FLOAT  per-Gaussian screen-space low-pass in pixels^2 (a baked edit's layer; Blender
+                       draws every splat with its own low-pass, so it is only carried for Export)
+- ``igs_index`` INT    row of the Gaussian in its PLY (a density-limited layer keeps a subset)
+
+so Export writes back the same PLY (:func:`layer_from_native`). Blender draws SH layers (residual,
+3DGS) itself. Plain-colour layers (albedo, shading) get the material :data:`MATERIAL`, an emission of
+the same ``radiance:base`` decoded in the shader, because Blender clamps a splat's colour at 0 and a
+shading field's Gaussians may be negative (their blend is what the field is). Each render field has
+a collection of its own (:func:`field_collection`), which the render setup's view layers pick.
+"""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+import numpy as np
+
+from . import compat, native_colors, scene_objects
+from .errors import UserError
+from .ply_io import FILTER, SplatLayer
+
+LAYERS_COLLECTION = "IGS Layers"
+"""The add-on's collection of layer objects (the fields' collections are inside it)."""
+BASE = "radiance:base"
+REST = "radiance:sh_{}"
+MATERIAL = "IGS Splat Linear"
+FIELDS = ("albedo", "shading", "residual", "radiance", "composite")
+"""The layers' collections: the three fields, the 3DGS baseline and the composite preview."""
+IMPORTED = "IGS Imported"
+"""Splat files from other tools: scene content, rendered over the composite like a mesh."""
+PLAIN_KINDS = ("albedo", "shading")
+"""Kinds with one plain colour per Gaussian, drawn through :data:`MATERIAL`."""
+
+
+def field_collection(field: str) -> bpy.types.Collection:
+    """The collection of one field's splat objects, inside the add-on's "IGS Layers"."""
+    return scene_objects.collection(field_collection_name(field), scene_objects.collection(LAYERS_COLLECTION))
+
+
+def field_collection_name(field: str) -> str:
+    return f"IGS Field {field}"
+
+
+def imported_collection() -> bpy.types.Collection:
+    return scene_objects.collection(IMPORTED)
+
+
+def _set(pc, name: str, dtype: str, values: np.ndarray, field: str) -> None:
+    attr = pc.attributes.get(name)
+    if attr is not None and (attr.data_type != dtype or attr.domain != "POINT"):
+        pc.attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = pc.attributes.new(name, dtype, "POINT")
+    attr.data.foreach_set(field, np.ascontiguousarray(values, dtype=np.float32 if dtype != "INT" else np.int32).ravel())
+
+
+def _get(pc, name: str, width: int, field: str, dtype=np.float32) -> np.ndarray:
+    attr = pc.attributes.get(name)
+    if attr is None:
+        raise UserError(f"point cloud '{pc.name}' has no '{name}' attribute; it is not a Gaussian splat layer")
+    n = len(pc.points)
+    out = np.empty(n * width, dtype=dtype)
+    attr.data.foreach_get(field, out)
+    return out.reshape(n, width) if width > 1 else out
+
+
+def linear_material() -> bpy.types.Material:
+    """Emission of the linear colour that ``radiance:base`` encodes (the inverse of the encoding, negative
+    values included), for plain-colour layers. Blender takes the splat's opacity and footprint as usual."""
+    mat = bpy.data.materials.get(MATERIAL)
+    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get("IGS emission") is not None:
+        return mat
+    mat = mat or bpy.data.materials.new(MATERIAL)
+    compat.use_nodes(mat)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+
+    def vmath(op: str, *inputs, x: int = 0, y: int = 0):
+        node = nodes.new("ShaderNodeVectorMath")
+        node.operation = op
+        node.location = (x, y)
+        for i, value in enumerate(inputs):
+            if isinstance(value, bpy.types.NodeSocket):
+                links.new(value, node.inputs[i])
+            else:
+                node.inputs[i].default_value = (value,) * 3
+        return node.outputs["Vector"]
+
+    base = nodes.new("ShaderNodeAttribute")
+    base.attribute_type = "GEOMETRY"
+    base.attribute_name = BASE
+    base.name = "IGS radiance"
+    base.location = (-1000, 0)
+    s = vmath("MULTIPLY_ADD", base.outputs["Vector"], native_colors.C0, 0.5, x=-800)  # the encoded value
+    low = vmath("DIVIDE", s, 12.92, x=-600, y=200)
+    knee = vmath("MAXIMUM", s, native_colors.SRGB_KNEE, x=-600, y=-100)
+    high = vmath("POWER", vmath("DIVIDE", vmath("ADD", knee, 0.055, x=-450, y=-100), 1.055, x=-300, y=-100), 2.4,
+                 x=-150, y=-100)
+    # 1 above the knee, 0 below it (both branches agree at the knee itself)
+    above = vmath("MULTIPLY", vmath("ADD", vmath("SIGN", vmath("SUBTRACT", s, native_colors.SRGB_KNEE, x=-600, y=-300),
+                                                 x=-450, y=-300), 1.0, x=-300, y=-300), 0.5, x=-150, y=-300)
+    mix = nodes.new("ShaderNodeMix")
+    mix.data_type = "VECTOR"
+    mix.factor_mode = "NON_UNIFORM"
+    mix.clamp_factor = False
+    mix.location = (50, 0)
+    links.new(above, mix.inputs[1])  # the non-uniform factor
+    links.new(low, mix.inputs[4])  # A (vector)
+    links.new(high, mix.inputs[5])  # B (vector)
+    emission = nodes.new("ShaderNodeEmission")
+    emission.name = "IGS emission"
+    emission.inputs["Strength"].default_value = 1.0
+    emission.location = (250, 0)
+    links.new(mix.outputs[1], emission.inputs["Color"])
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (450, 0)
+    links.new(emission.outputs["Emission"], out.inputs["Surface"])
+    mat.diffuse_color = (0.8, 0.8, 0.8, 1.0)
+    return mat
+
+
+def fill(obj: bpy.types.Object, layer: SplatLayer, idx: np.ndarray) -> None:
+    """Write ``layer`` (already the subset ``idx`` of its PLY's rows) into the splat object ``obj``."""
+    pc = obj.data
+    pc.type = "GAUSSIAN_SPLAT"
+    dc, rest = native_colors.encode(layer.f_dc, layer.f_rest, layer.space)
+    _set(pc, "scale", "FLOAT_VECTOR", layer.scales, "vector")
+    _set(pc, "rotation", "QUATERNION", layer.unit_quats, "value")
+    _set(pc, BASE, "FLOAT4", np.concatenate([dc, layer.opacities[:, None]], axis=1), "vector")
+    for k in range(rest.shape[1]):
+        _set(pc, REST.format(k), "FLOAT_VECTOR", rest[:, k], "vector")
+    if layer.eps2d is not None:
+        _set(pc, FILTER, "FLOAT", layer.eps2d, "value")
+    _set(pc, "igs_index", "INT", idx, "value")
+    pc.materials.clear()
+    if layer.kind in PLAIN_KINDS:
+        pc.materials.append(linear_material())
+
+
+def build(name: str, layer: SplatLayer, idx: np.ndarray, collection: bpy.types.Collection) -> bpy.types.Object:
+    """A new splat object ``name`` in ``collection`` holding ``layer`` (rows ``idx`` of its PLY)."""
+    obj = compat.pointcloud_object(name, layer.means, collection)
+    fill(obj, layer, idx)
+    return obj
+
+
+def is_native(obj) -> bool:
+    return obj is not None and obj.type == "POINTCLOUD" and getattr(obj.data, "type", "POINTS") == "GAUSSIAN_SPLAT"
+
+
+def rest_count(pc) -> int:
+    """How many higher SH coefficients (0, 3, 8 or 15) the splats carry: sh_0.. up to the first gap."""
+    k = 0
+    while pc.attributes.get(REST.format(k)) is not None:
+        k += 1
+    return max(d for d in (0, 3, 8, 15) if d <= k)
+
+
+def layer_from_native(obj: bpy.types.Object) -> SplatLayer:
+    """The Gaussians a splat object holds, as a :class:`SplatLayer` (its PLY's raw parameters).
+
+    Reads Blender's attributes, so what the artist changed in Blender (moved points, edited colours,
+    another modifier's output applied) is what gets exported. An object not made by the add-on (Blender's
+    own PLY import) is a radiance layer in sRGB, as other tools' files are."""
+    pc = obj.data
+    n = len(pc.points)
+    kind = str(obj.get("igs_layer", "radiance"))
+    space = str(obj.get("igs_space", "linear" if "igs_layer" in obj else "srgb"))
+    means = _get(pc, "position", 3, "vector")
+    base = _get(pc, BASE, 4, "vector")
+    scales = _get(pc, "scale", 3, "vector").astype(np.float64)
+    quats = _get(pc, "rotation", 4, "value")
+    k1 = rest_count(pc)
+    rest = np.zeros((n, k1, 3), dtype=np.float32)
+    for k in range(k1):
+        rest[:, k] = _get(pc, REST.format(k), 3, "vector")
+    if kind not in ("residual", "radiance"):
+        rest = rest[:, :0]
+    f_dc, f_rest = native_colors.decode(base[:, :3], rest, space)
+    opac = np.clip(base[:, 3].astype(np.float64), 1e-7, 1 - 1e-7)
+    eps2d = _get(pc, FILTER, 1, "value") if pc.attributes.get(FILTER) is not None else None
+    encoding = str(obj.get("igs_color", {"albedo": "rgb01", "shading": "rgb"}.get(kind, "sh")))
+    return SplatLayer(kind, means, f_dc, f_rest, np.log(opac / (1 - opac)).astype(np.float32),
+                      np.log(np.maximum(scales, 1e-30)).astype(np.float32), quats, encoding=encoding, space=space,
+                      comments=json.loads(obj.get("igs_comments", "[]")), eps2d=eps2d)
+
+
+def recolor(obj: bpy.types.Object, linear_rgb: np.ndarray) -> None:
+    """Give the splats of ``obj`` the (N, 3) linear colours ``linear_rgb`` (the composite preview)."""
+    pc = obj.data
+    base = _get(pc, BASE, 4, "vector")
+    f_dc = ((np.asarray(linear_rgb, dtype=np.float64) - 0.5) / native_colors.C0).astype(np.float32)
+    base[:, :3], _ = native_colors.encode(f_dc, np.zeros((len(f_dc), 0, 3), np.float32), "linear")
+    pc.attributes[BASE].data.foreach_set("vector", base.ravel())
