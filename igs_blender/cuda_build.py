@@ -283,11 +283,16 @@ class Reporter:
         if event == "progress":
             eta = fields.get("eta_s")
             left = f", about {_duration(eta)} left" if eta is not None else ""
-            print(f"  {fields['stage']}: {fields['step']}/{fields['total']} compiled{left}", flush=True)
+            done = "compiled" if fields["stage"] == STAGE else "done"
+            print(f"  {fields['stage']}: {fields['step']}/{fields['total']} {done}{left}", flush=True)
         elif event in ("log", "error", "cancelled"):
             print(("error: " if event == "error" else "") + fields["message"], flush=True)
         elif event == "stage":
             print(f"== {fields['stage']}", flush=True)
+        elif event == "output":
+            print(f"{fields['kind']}: {fields['path']}", flush=True)
+        elif event == "done":
+            print(f"done in {_duration(fields['seconds'])}", flush=True)
 
     def close(self) -> None:
         if self._log is not None:

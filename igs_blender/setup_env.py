@@ -17,7 +17,8 @@ cuda, cuda_build.py (beside this file) then installs NVIDIA's compiler wheels an
 kernels in the environment, for the GPU present or ``--cuda-archs``; its C++ compiler and Python
 headers are checked before anything is downloaded.
 Speaks the backend's JSON-lines event protocol on stdout (stage, progress, log, output, done,
-error, cancelled) so the add-on shows it like any backend job. Exit codes: 0 ok, 2 failed,
+error, cancelled) so the add-on shows it like any backend job; on a terminal it prints progress
+lines instead and keeps pip's output in DIR/igs-setup.log. Exit codes: 0 ok, 2 failed,
 130 cancelled.
 """
 
@@ -33,8 +34,13 @@ import sysconfig
 import time
 import venv
 
+_human = None  # on a terminal: cuda_build.Reporter's lines instead of events (main sets it)
+
 
 def emit(event: str, **fields) -> None:
+    if _human is not None:
+        _human(event, **fields)
+        return
     sys.stdout.write(json.dumps({"event": event, **fields}) + "\n")
     sys.stdout.flush()
 
@@ -142,7 +148,7 @@ def run_pip(python: str, args: list[str], stage: str, step: int = 0, total: int 
             continue
         if "error" in line.lower():
             last_error = line
-        emit("log", message=line)
+        emit("log", message=line, tool=True)
     rc = proc.wait()
     if rc != 0:
         raise RuntimeError(f"pip {' '.join(args[:2])} failed (exit {rc})" + (f": {last_error}" if last_error else ""))
@@ -165,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--torch-index", default="", help="package index for the torch step only (empty: PyPI)")
     parser.add_argument("--pip-arg", action="append", default=[], help="extra argument for every pip install")
     args = parser.parse_args(argv)
+    global _human
+    if sys.stdout.isatty():  # run by hand: progress lines here, pip's output in the environment's log
+        _human = load_script("cuda_build").Reporter(None, os.path.join(args.venv, "igs-setup.log"))
     t0 = time.perf_counter()
     emit("start", command="setup-env", argv=argv if argv is not None else sys.argv[1:])
     python_full = ".".join(str(v) for v in sys.version_info[:3])
@@ -190,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 archs = build.parse_archs(args.cuda_archs or build.DEFAULT_ARCHS)
             except ValueError as e:
-                raise ValueError(f"CUDA Architectures: {e}") from e
+                raise ValueError(f"--cuda-archs: {e}") from e
             paths = sysconfig.get_paths()
             problem = build.python_headers_problem(paths["include"], os.path.isfile(
                 os.path.join(paths["include"], "Python.h"))) or build.host_compiler_problem()
