@@ -19,9 +19,11 @@ Standard library only. In the environment of ``--python``:
    TORCH_CUDA_ARCH_LIST, MAX_JOBS, PATH and LIBRARY_PATH set for that subprocess only: a system
    toolkit is neither used nor changed, and nothing is written outside the environment except pip's
    temporary build folder. Ninja's ``[k/n]`` lines become progress.
-3. The wheel replaces the installed gsplat; the module is loaded the way gsplat loads it at run time
-   (``gsplat.cuda._backend._C``, no environment variables) and its architectures are read back from
-   it (check_env.py's reader).
+3. The wheel replaces the installed gsplat; the module is loaded by its path, its architectures are
+   read back from it (check_env.py's reader), and then it is imported the way gsplat's rasterizer
+   imports it at run time (``gsplat.cuda._backend._C``, no environment variables).
+
+An installed build that loads and already holds the architectures is kept (no download, no build).
 
 Architectures: those of the GPUs torch sees, else ``--cuda-archs`` (default DEFAULT_ARCHS). A host
 C++ compiler (g++) and Python's headers are needed, as for any C++ extension. Speaks the backend's
@@ -177,6 +179,14 @@ if out["torch"]:
 print("IGS-PROBE " + json.dumps(out))
 """
 
+_KERNELS = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])  # check_env.py's folder
+import torch  # gsplat.csrc links against torch's libraries
+import check_env
+print("IGS-KERNELS " + json.dumps(check_env.gsplat_kernels(load=True)))
+"""
+
 _VERIFY = r"""
 import json, torch
 from gsplat.cuda import _backend  # what gsplat's rasterizer imports: the built module, else a JIT build
@@ -185,9 +195,9 @@ print("IGS-VERIFY " + json.dumps({"name": getattr(c, "__name__", None), "file": 
 """
 
 
-def _run_json(python: str, code: str, tag: str, env: dict[str, str] | None = None, timeout: float = 600) -> dict:
+def _run_json(python: str, code: str, tag: str, args: tuple[str, ...] = (), timeout: float = 600):
     """Run ``code`` in ``python``; its line starting with ``tag`` as JSON (RuntimeError with its last line)."""
-    res = subprocess.run([python, "-c", code], capture_output=True, text=True, timeout=timeout, env=env)
+    res = subprocess.run([python, "-c", code, *args], capture_output=True, text=True, timeout=timeout)
     for line in res.stdout.splitlines():
         if line.startswith(tag + " "):
             return json.loads(line[len(tag) + 1:])
@@ -202,6 +212,25 @@ def probe(python: str) -> dict:
         return _run_json(python, _PROBE, "IGS-PROBE")
     except (OSError, subprocess.SubprocessError, RuntimeError, ValueError) as e:
         raise RuntimeError(f"{python}: cannot inspect the environment ({e})") from e
+
+
+def built_kernels(python: str) -> dict | None:
+    """check_env.gsplat_kernels(load=True) in the environment of ``python``: the installed gsplat's
+    module, its architectures and whether it loads (None: no gsplat). Loads the module by its path,
+    never through gsplat's own import, which would start a compile where a module is missing."""
+    here = os.path.dirname(os.path.abspath(check_env.__file__))
+    try:
+        return _run_json(python, _KERNELS, "IGS-KERNELS", (here,))
+    except (OSError, subprocess.SubprocessError, RuntimeError, ValueError) as e:
+        raise RuntimeError(f"{python}: cannot inspect gsplat's kernels ({e})") from e
+
+
+def covers(kernels: dict | None, archs: list[str]) -> bool:
+    """Whether a loadable build of the pinned gsplat holds every architecture of ``archs``."""
+    if not kernels or not kernels["module"] or kernels["error"] or kernels["version"] != GSPLAT.split("==")[-1]:
+        return False
+    want_sm, want_ptx = sm_numbers(archs)
+    return set(want_sm) <= set(kernels["sm"]) and set(want_ptx) <= set(kernels["ptx"])
 
 
 def host_compiler_problem(path: str | None = None) -> str:
@@ -350,6 +379,14 @@ def setup_cuda(python: str, fallback_archs: list[str], pip_args: list[str], repo
                               f" -> {target}")
     else:
         report("log", message=f"no GPU visible: building for {target} (CUDA Architectures)")
+    current = built_kernels(python)
+    if covers(current, archs):
+        assert current is not None
+        report("log", message=f"gsplat's kernels are already built for {check_env.arch_text(current['sm'], current['ptx'])}"
+                              f" and load: kept ({current['module']})")
+        return {"gsplat": current["version"], "module": current["module"], "sm": current["sm"], "ptx": current["ptx"],
+                "archs": ";".join(archs), "build_seconds": 0.0, "jobs": 0, "compiler": compiler, "kept": True,
+                "seconds": round(time.perf_counter() - t0, 1)}
     pip = [python, "-m", "pip"]
     quiet = ["--disable-pip-version-check", "--progress-bar", "off"]
     report("log", message=f"installing NVIDIA's compiler: {', '.join(compiler)} (about 100 MB)")
@@ -388,17 +425,22 @@ def setup_cuda(python: str, fallback_archs: list[str], pip_args: list[str], repo
         run_tool([*pip, "install", *quiet, "--no-deps", "--force-reinstall", *pip_args, wheels[0]],
                  "installing the built gsplat", report)
         run_tool([*pip, "install", *quiet, *pip_args, wheels[0]], "installing gsplat's dependencies", report)
-    loaded = _run_json(python, _VERIFY, "IGS-VERIFY", timeout=600)
-    if loaded.get("name") != "gsplat.csrc" or not loaded.get("file"):
+    kernels = built_kernels(python)
+    if not kernels or not kernels["module"]:
+        raise RuntimeError(f"the built {GSPLAT} has no kernels module (gsplat/csrc)")
+    if kernels["error"]:
+        raise RuntimeError(f"gsplat's built kernels do not load: {kernels['error']}")
+    sm, ptx = kernels["sm"], kernels["ptx"]
+    if not covers(kernels, archs):
+        raise RuntimeError(f"{kernels['module']} holds {check_env.arch_text(sm, ptx)}, not {target}")
+    # The way gsplat's rasterizer finds them at run time, with no variable set (safe now: it loads).
+    loaded = _run_json(python, _VERIFY, "IGS-VERIFY")
+    same = bool(loaded.get("file")) and os.path.realpath(loaded["file"]) == os.path.realpath(kernels["module"])
+    if loaded.get("name") != "gsplat.csrc" or not same:
         raise RuntimeError(f"gsplat imports, but not its built kernels ({loaded})")
-    section = check_env.elf_section(loaded["file"], ".nv_fatbin")
-    sm, ptx = check_env.fatbin_archs(section or b"")
-    want_sm, want_ptx = sm_numbers(archs)
-    if not set(want_sm) <= set(sm) or not set(want_ptx) <= set(ptx):
-        raise RuntimeError(f"{loaded['file']} holds {check_env.arch_text(sm, ptx)}, not {target}")
-    summary = {"gsplat": GSPLAT.split("==")[-1], "module": loaded["file"], "sm": sm, "ptx": ptx,
+    summary = {"gsplat": kernels["version"], "module": loaded["file"], "sm": sm, "ptx": ptx,
                "archs": ";".join(archs), "build_seconds": round(build_s, 1), "jobs": jobs,
-               "compiler": compiler, "seconds": round(time.perf_counter() - t0, 1)}
+               "compiler": compiler, "kept": False, "seconds": round(time.perf_counter() - t0, 1)}
     report("log", message=f"gsplat built for {check_env.arch_text(sm, ptx)} in {_duration(build_s)}: {loaded['file']}")
     return summary
 

@@ -485,6 +485,13 @@ def test_setup_env_installs_its_pythons_set_torch_first_and_switches_the_build(w
     assert "gsplat built for sm_80, sm_89, sm_90 (+PTX compute_90)" in lines  # read from the module, which loads
     assert f"CUDA compiler: {home / 'bin' / 'nvcc'}" in lines
 
+    # Again with the same architectures: the build that loads is kept, nothing is compiled.
+    again = backend_env.setup_job(PYTHON, env_dir, root=str(ROOT), device="cuda", cuda_archs="8.0;8.9;9.0+PTX")
+    local_pip(again, "--no-index", f"--find-links={wheelhouses['cuda']}", f"--find-links={wheelhouses['rest']}").start()
+    assert again.wait(timeout=300) == 0, again.report() + logs(again)[-3000:]
+    assert "gsplat's kernels are already built for sm_80, sm_89, sm_90 (+PTX compute_90) and load: kept" in logs(again)
+    assert not any(" wheel " in c or "cuda-toolkit" in c for c in pip_commands(again))
+
 
 def run_setup(*args: str) -> BackendJob:
     job = BackendJob(backend_env.script_argv(PYTHON, "setup_env.py", list(args)), "Create backend environment").start()
