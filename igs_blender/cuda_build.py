@@ -5,7 +5,7 @@ for an environment that already has torch's CUDA build::
 
     python cuda_build.py --python ENV/bin/python [--cuda-archs "8.0;8.6;8.9;9.0+PTX"] [--pip-arg ARG ...]
         [--events]
-    python cuda_build.py --python ENV/bin/python --print-requirements     (the compiler pins, one a line)
+    python cuda_build.py --python ENV/bin/python --print-requirements     (what it installs, one a line)
 
 Standard library only. In the environment of ``--python``:
 
@@ -47,6 +47,8 @@ import time
 STAGE = "gsplat kernels"
 COMPILER_EXTRAS = "cccl,nvcc"  # cuda-toolkit's extras: nvcc brings crt, nvvm and the runtime's headers
 NINJA = "ninja==1.13.2"  # torch's extension builder runs the compiles in parallel with it
+UNDECLARED = ("packaging",)
+"""What gsplat 1.5.3 imports at run time without declaring it (gsplat/cuda/_backend.py: packaging)."""
 DEFAULT_ARCHS = "8.0;8.6;8.9;9.0+PTX"
 """When no GPU is visible: A100, RTX 30xx, RTX 40xx/L4/L40, H100/H200 machine code; compute_90 PTX
 that the driver compiles for newer GPUs (RTX 50xx, B200) on first use."""
@@ -424,7 +426,8 @@ def setup_cuda(python: str, fallback_archs: list[str], pip_args: list[str], repo
         build_s = time.perf_counter() - t_build
         run_tool([*pip, "install", *quiet, "--no-deps", "--force-reinstall", *pip_args, wheels[0]],
                  "installing the built gsplat", report)
-        run_tool([*pip, "install", *quiet, *pip_args, wheels[0]], "installing gsplat's dependencies", report)
+        run_tool([*pip, "install", *quiet, *pip_args, wheels[0], *UNDECLARED], "installing gsplat's dependencies",
+                 report)
     kernels = built_kernels(python)
     if not kernels or not kernels["module"]:
         raise RuntimeError(f"the built {GSPLAT} has no kernels module (gsplat/csrc)")
@@ -453,7 +456,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pip-arg", action="append", default=[], help="extra argument for every pip run")
     parser.add_argument("--events", action="store_true", help="JSON-lines events on stdout (the add-on's protocol)")
     parser.add_argument("--print-requirements", action="store_true",
-                        help="print the compiler's pins for this environment's torch and exit")
+                        help="print what is installed besides gsplat (the compiler's pins for this environment's "
+                             "torch, ninja, packaging) and exit")
     args = parser.parse_args(argv)
     emit = check_env.emit if args.events else None
     report = Reporter(emit, "" if args.events else os.path.join(os.path.dirname(os.path.dirname(args.python)),
@@ -467,7 +471,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"building gsplat's kernels is set up for Linux only, not {sys.platform}")
         if args.print_requirements:
             info = probe(args.python)
-            print("\n".join(compiler_requirements(info["torch"] or "(none)", info["cuda"], info["requires"])))
+            print("\n".join([*compiler_requirements(info["torch"] or "(none)", info["cuda"], info["requires"]),
+                             *UNDECLARED]))
             return 0
         report("start", command="gsplat-build", argv=argv if argv is not None else sys.argv[1:])
         summary = setup_cuda(args.python, archs, args.pip_arg, report)

@@ -78,7 +78,7 @@ echo "== downloading $torch (torch's CUDA build and NVIDIA's CUDA libraries) int
 "${PIP[@]}" install -q --no-index --find-links "$W" "$torch"
 t_torch=$(secs)
 mapfile -t compiler < <("$E" igs_blender/cuda_build.py --python "$E" --print-requirements)
-echo "== downloading NVIDIA's compiler (${compiler[*]}), gsplat's sdist and its dependencies"
+echo "== downloading NVIDIA's compiler and gsplat's undeclared dependency (${compiler[*]}), gsplat's sdist and its dependencies"
 "${PIP[@]}" download -q --no-cache-dir -d "$W" "${compiler[@]}"
 compiler_bytes=$(du -cb "$W"/nvidia_cuda_nvcc-* "$W"/nvidia_cuda_crt-* "$W"/nvidia_nvvm-* "$W"/nvidia_cuda_cccl-* \
   "$W"/cuda_toolkit-* "$W"/ninja-* | tail -1 | cut -f1)
@@ -89,15 +89,16 @@ CUDA_HOME=$home "${PIP[@]}" download -q --no-cache-dir --no-build-isolation --no
 download_bytes=$(du -sb "$W" | cut -f1)
 env_before=$(du -sb "$DIR/env" | cut -f1)
 echo "== cuda_build.py: the compiler, then gsplat's kernels for $ARCHS"
-summary=$("$E" igs_blender/cuda_build.py --python "$E" --cuda-archs "$ARCHS" --pip-arg=--isolated \
-  --pip-arg=--no-index --pip-arg="--find-links=$W" | tee /dev/stderr | tail -1)
+"$E" igs_blender/cuda_build.py --python "$E" --cuda-archs "$ARCHS" --pip-arg=--isolated \
+  --pip-arg=--no-index --pip-arg="--find-links=$W" | tee "$DIR/cuda_build.out"
+summary=$(tail -1 "$DIR/cuda_build.out")
 t_end=$(secs)
 env_after=$(du -sb "$DIR/env" | cut -f1)
 built=$("$E" -c 'import json, sys; s = json.loads(sys.argv[1]); print(", ".join("sm_%d" % v for v in s["sm"]) + (" (+PTX %s)" % ", ".join("compute_%d" % v for v in s["ptx"]) if s["ptx"] else "")); print(s["build_seconds"], s["jobs"], s["module"])' "$summary")
 { read -r archs_text; read -r build_s jobs module; } <<< "$built"
 [ "$KEEP_WHEELS" = 1 ] || rm -rf "$W"
 mins() { awk -v s="$1" 'BEGIN { printf "%d min %02d s", s / 60, s % 60 }'; }
-result="gsplat $("$E" -c 'import importlib.metadata as m; print(m.version("gsplat"))') built for $archs_text and imported (gsplat.cuda._backend._C = $module) in $(mins $((t_end - t0))) on $(nproc) CPUs: torch $(mins $((t_torch - t0))), kernels $(mins "${build_s%.*}") with $jobs parallel compiles, the rest $(mins $((t_end - t0 - (t_torch - t0) - ${build_s%.*}))); downloads $(gb "$download_bytes") (NVIDIA's compiler $(gb "$compiler_bytes")); environment $(gb "$env_after") on disk ($(gb $((env_after - env_before))) of it the compiler and gsplat); $toolkit"
+result="gsplat $("$E" -c 'import importlib.metadata as m; print(m.version("gsplat"))') built for $archs_text and imported (gsplat.cuda._backend._C = $module) in $(mins $((t_end - t0))) on $(nproc) CPUs: torch $(mins $((t_torch - t0))), kernels $(mins "${build_s%.*}") with $jobs parallel compiles, the rest $(mins $((t_end - t0 - (t_torch - t0) - ${build_s%.*}))); downloads $(gb "$download_bytes") (NVIDIA's compiler $(gb "$compiler_bytes")); environment $(gb "$env_after") on disk ($(gb $((env_after - env_before))) of it the compiler, gsplat and its dependencies); $toolkit"
 echo "gsplat-build: $result"
 mkdir -p "$STAMP_DIR"
 printf '%s\n%s\n' "$inputs" "$(date -u +%Y-%m-%d) $result" > "$STAMP"

@@ -391,6 +391,7 @@ def wheelhouses(tmp_path_factory) -> dict[str, Path]:
                files={"nvidia/cu13/bin/nvcc": "#!/bin/sh\necho stand-in nvcc\n", "nvidia/cu13/lib/libcudart.so.13": ""})
     make_wheel(folders["cuda"], "nvidia-cuda-cccl", "13.0.85", files={"nvidia/cu13/include/cccl/cub.h": ""})
     make_wheel(folders["cuda"], "ninja", cuda_build.NINJA.split("==")[1])
+    make_wheel(folders["cuda"], "packaging", "26.4")  # gsplat imports it without declaring it
     make_sdist(folders["cuda"], "gsplat", "1.5.3", STANDIN_GSPLAT_BACKEND)
     return folders
 
