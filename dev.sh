@@ -121,5 +121,7 @@ case "$cmd" in
     exec "$VENV/bin/python" -m pytest -q -p no:cacheprovider tests_blender "$@" ;;
   lint)  setup; exec "$VENV/bin/ruff" check . ;;
   igs)   setup; exec "$VENV/bin/igs" "$@" ;;
-  *) echo "usage: ./dev.sh demo|test|test-blender|test-py311|setup|lint|igs ARGS..." >&2; exit 2 ;;
+  # gsplat's kernels built without a CUDA toolkit, in a fresh environment (slow; scripts/gsplat_build.sh)
+  gsplat-build) PYTHON=${PYTHON:-$(find_python 3.13)} exec scripts/gsplat_build.sh "$@" ;;
+  *) echo "usage: ./dev.sh demo|test|test-blender|test-py311|gsplat-build|setup|lint|igs ARGS..." >&2; exit 2 ;;
 esac

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from ..igs_contract import events
-from . import check_env
+from . import check_env, cuda_build
 from .client import BackendJob, backend_command
 from .errors import UserError
 
@@ -109,13 +109,19 @@ def check_job(interpreter: str, root: str = "", include_bpy: bool = True, device
 
 
 def setup_job(base_python: str, env_dir: Path, include_bpy: bool = True, root: str = "", device: str = "cpu",
-              torch_index: str = CPU_TORCH_INDEX) -> BackendJob:
+              torch_index: str = CPU_TORCH_INDEX, cuda_archs: str = cuda_build.DEFAULT_ARCHS) -> BackendJob:
     """A job that creates/updates the backend venv from the pinned requirements (see setup_env.py).
 
     ``base_python`` ('' = the running Python, Blender's own) makes the venv; its version picks the
     pins. ``torch_index`` (CPU only; '' = PyPI) is where the CPU build of torch comes from.
+    ``cuda_archs`` (CUDA only) are the GPU architectures gsplat's kernels are built for when the
+    set-up sees no GPU.
     """
     device = _device(device)
+    try:
+        archs = cuda_build.parse_archs(cuda_archs) if device == "cuda" else []
+    except ValueError as e:
+        raise UserError(f"CUDA Architectures: {e}") from e
     if base_python and not (os.path.isfile(base_python) and os.access(base_python, os.X_OK)):
         raise UserError(f"Base Python {base_python}: not found or not executable; fix 'Base Python' under "
                         "Advanced in the preferences (empty: Blender's own Python)")
@@ -125,12 +131,14 @@ def setup_job(base_python: str, env_dir: Path, include_bpy: bool = True, root: s
             "--device", device]
     if device == "cpu" and torch_index.strip():
         args += ["--torch-index", torch_index.strip()]
+    if archs:
+        args += ["--cuda-archs", ";".join(archs)]
     argv = script_argv(base_python or sys.executable, "setup_env.py", args)
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     env.pop("PYTHONPATH", None)
     return BackendJob(argv, "Create backend environment", env=env, cwd=str(Path.home()),
-                      expected_stages=1, grace_s=10.0, log_path=log_path("setup-env"))
+                      expected_stages=2 if archs else 1, grace_s=10.0, log_path=log_path("setup-env"))
 
 
 def _device(device: str) -> str:
@@ -156,9 +164,30 @@ def _package_problem(missing: list[dict], wrong: list[dict]) -> str:
     return " and ".join(parts)
 
 
+def _kernels_report(env: dict, info: dict) -> tuple[str, list[str]]:
+    """(what is wrong with gsplat's built kernels, which Create Backend Environment fixes; detail lines)."""
+    lines = [f"CUDA compiler: {env['nvcc']}" if env.get("nvcc") else
+             "CUDA compiler: none in the environment (Create Backend Environment installs NVIDIA's from PyPI)"]
+    kernels = env.get("gsplat_kernels")
+    if kernels is None:  # gsplat is not installed: the package list says so
+        return "", lines
+    if not kernels["module"]:
+        lines.append(f"gsplat {kernels['version']}: its CUDA kernels are not built")
+        return "gsplat's CUDA kernels are not built", lines
+    built = check_env.arch_text(kernels["sm"], kernels["ptx"])
+    if kernels["error"]:
+        lines.append(f"gsplat built for {built}, but it does not load: {kernels['error']}")
+        return f"gsplat's kernels do not load ({kernels['error']})", lines
+    lines.append(f"gsplat built for {built}")
+    capability = (info.get("cuda_capability") or 0) if info.get("cuda_available") else 0
+    if capability and not check_env.runs_on(capability, kernels["sm"], kernels["ptx"]):
+        return f"gsplat is built for {built}, not for this GPU (sm_{capability})", lines
+    return "", lines
+
+
 def _torch_report(env: dict) -> tuple[str, str, list[str]]:
-    """(what is wrong with torch for the device and needs a new environment, what else is wrong with a
-    fix of its own, detail lines)."""
+    """(what is wrong with torch or gsplat's kernels for the device and needs Create Backend Environment,
+    what else is wrong with a fix of its own, detail lines)."""
     info, device = env.get("torch"), env.get("device", "cpu")
     if not info:
         return "", "", []  # missing: the package list says so
@@ -173,15 +202,15 @@ def _torch_report(env: dict) -> tuple[str, str, list[str]]:
         lines = [f"torch {version}: CPU-only build"]
     if device != "cuda":
         return "", "", lines
-    lines.append(f"CUDA toolkit for gsplat's kernels: {env.get('nvcc') or 'none found (no nvcc on PATH or CUDA_HOME)'}")
     if not info.get("cuda"):
         return f"torch {version} is a CPU-only build where the Device is NVIDIA CUDA", "", lines
+    kernels_problem, kernel_lines = _kernels_report(env, info)
+    lines += kernel_lines
+    if kernels_problem:
+        return kernels_problem, "", lines
     if not info.get("cuda_available"):
         return "", (f"CUDA is not usable ({info.get('cuda_error') or 'no GPU'}): install the NVIDIA driver, "
                     f"or choose CPU as Device and {FIX_ENV}"), lines
-    if not env.get("nvcc"):
-        return "", ("no CUDA toolkit (nvcc) found, and gsplat compiles its kernels with it on first use: "
-                    f"install it and set CUDA_HOME, or choose CPU as Device and {FIX_ENV}"), lines
     return "", "", lines
 
 

@@ -12,8 +12,10 @@ supported". The requirements carry PEP 508 markers; this interpreter keeps only 
 ``python_version``/``python_full_version`` comparisons joined by ``and``/``or`` and refuses any
 other marker). Prints one ``{"event": "env", ...}`` JSON line (python version and whether
 ``requires-python`` allows it, each applicable pin with the installed version, the torch build and
-whether CUDA works, whether ``backend`` imports and which commands it offers), then ``done``. The
-add-on turns that into the report shown in the preferences.
+whether CUDA works with the GPU's compute capability; for the cuda device also the compiler the
+set-up installed and gsplat's built kernels with the architectures read from the module itself;
+whether ``backend`` imports and which commands it offers), then ``done``. The add-on turns that
+into the report shown in the preferences.
 """
 
 from __future__ import annotations
@@ -21,14 +23,14 @@ from __future__ import annotations
 import argparse
 import importlib.metadata as md
 import json
-import os
 import re
-import shutil
+import struct
 import sys
 import time
 
-# What the "NVIDIA CUDA" device adds to the pinned set: gsplat's CUDA rasteriser (a pure-Python
-# wheel that compiles its kernels with the CUDA toolkit's nvcc on first use).
+# What the "NVIDIA CUDA" device adds to the pinned set: gsplat's CUDA rasteriser. Its PyPI wheel is
+# pure Python and would compile the kernels at first use with a CUDA toolkit; the set-up instead
+# builds them from its sdist with NVIDIA's compiler wheels (cuda_build.py).
 DEVICE_EXTRAS = {"cpu": [], "cuda": ["gsplat==1.5.3"]}
 DEVICES = tuple(DEVICE_EXTRAS)
 
@@ -201,16 +203,120 @@ def _fits(have: str, spec: str) -> bool:
         return have == spec[2:] if spec.startswith("==") else True
 
 
-def cuda_toolkit() -> str:
-    """The nvcc a JIT build (gsplat's kernels, through torch's cpp_extension) would use, '' if none."""
-    for var in ("CUDA_HOME", "CUDA_PATH"):
-        home = os.environ.get(var)
-        if home and os.path.isfile(os.path.join(home, "bin", "nvcc")):
-            return os.path.join(home, "bin", "nvcc")
-    found = shutil.which("nvcc")
-    if found:
-        return found
-    return "/usr/local/cuda/bin/nvcc" if os.path.isfile("/usr/local/cuda/bin/nvcc") else ""
+# -- gsplat's built kernels (the .nv_fatbin section of its extension module) ---------------------
+
+_FATBIN_MAGIC = 0xBA55ED50
+_FATBIN_PTX, _FATBIN_CUBIN = 1, 2
+
+
+def elf_section(path: str, name: str) -> bytes | None:
+    """The bytes of section ``name`` of a 64-bit little-endian ELF file (None when it has none).
+    Raises ValueError for a file that is no such ELF."""
+    with open(path, "rb") as f:
+        head = f.read(64)
+        if len(head) < 64 or head[:4] != b"\x7fELF" or head[4] != 2 or head[5] != 1:
+            raise ValueError(f"{path}: not a 64-bit little-endian ELF file")
+        (shoff,) = struct.unpack_from("<Q", head, 0x28)
+        shentsize, shnum, shstrndx = struct.unpack_from("<HHH", head, 0x3A)
+        f.seek(shoff)
+        table = f.read(shentsize * shnum)
+        if len(table) < shentsize * shnum or shstrndx >= shnum or shentsize < 40:
+            raise ValueError(f"{path}: truncated ELF section table")
+
+        def header(i: int) -> tuple[int, int, int]:  # (name offset, file offset, size)
+            fields = struct.unpack_from("<IIQQQQ", table, i * shentsize)
+            return fields[0], fields[4], fields[5]
+
+        _, str_off, str_size = header(shstrndx)
+        f.seek(str_off)
+        names = f.read(str_size)
+        for i in range(shnum):
+            name_off, off, size = header(i)
+            end = names.find(b"\0", name_off)
+            if names[name_off:end if end >= 0 else None] == name.encode():
+                f.seek(off)
+                return f.read(size)
+    return None
+
+
+def fatbin_archs(data: bytes) -> tuple[list[int], list[int]]:
+    """(SM versions with machine code, SM versions with PTX) of the CUDA fat binaries in ``data`` (an
+    ELF ``.nv_fatbin`` section: one fat binary per compiled file, each a 16-byte header, then entries
+    whose own header holds the kind at byte 0, its size at 4, the payload's size at 8 and the SM
+    version at 28): ([80, 89, 90], [90]) for sm_80, sm_89 and sm_90 plus compute_90 PTX."""
+    cubins, ptx = set(), set()
+    off = 0
+    while off + 16 <= len(data):
+        magic, _, head_size, fat_size = struct.unpack_from("<IHHQ", data, off)
+        if magic != _FATBIN_MAGIC:
+            off += 8  # fat binaries are 8-byte aligned; padding between them is zeros
+            continue
+        entry, end = off + head_size, min(off + head_size + fat_size, len(data))
+        while entry + 32 <= end:
+            kind, _, entry_head, payload = struct.unpack_from("<HHIQ", data, entry)
+            (sm,) = struct.unpack_from("<I", data, entry + 28)
+            if entry_head == 0:
+                break
+            (cubins if kind == _FATBIN_CUBIN else ptx if kind == _FATBIN_PTX else set()).add(sm)
+            entry += entry_head + payload
+        off = max(end, off + 8)
+    return sorted(cubins), sorted(ptx)
+
+
+def arch_text(sm: list[int], ptx: list[int]) -> str:
+    """"sm_80, sm_89, sm_90 (+PTX compute_90)"."""
+    text = ", ".join(f"sm_{v}" for v in sm) or "no machine code"
+    return text + (f" (+PTX {', '.join(f'compute_{v}' for v in ptx)})" if ptx else "")
+
+
+def runs_on(capability: int, sm: list[int], ptx: list[int]) -> bool:
+    """Whether kernels with machine code for ``sm`` and PTX for ``ptx`` run on a GPU of compute
+    capability ``capability`` (89 for 8.9): machine code runs on the same major version at the same
+    or a later minor one; PTX is compiled by the driver for any later GPU."""
+    return (any(v // 10 == capability // 10 and v <= capability for v in sm)
+            or any(v <= capability for v in ptx))
+
+
+def gsplat_kernels(load: bool) -> dict | None:
+    """gsplat's compiled extension (``gsplat.csrc``) in this environment, None when gsplat is not
+    installed: ``module`` (its path, '' when the installed gsplat has none: the PyPI wheel), ``sm``
+    and ``ptx`` (the architectures it was built for), ``error`` (why it cannot be read or loaded).
+    ``load`` also loads it (torch must be imported first: it links against torch's libraries)."""
+    try:
+        dist = md.distribution("gsplat")
+    except md.PackageNotFoundError:
+        return None
+    info = {"version": dist.version, "module": "", "sm": [], "ptx": [], "error": ""}
+    found = [f for f in dist.files or [] if re.fullmatch(r"gsplat/csrc(\.[^/]*)?\.(so|pyd)", str(f).replace("\\", "/"))]
+    if not found:
+        return info
+    path = str(dist.locate_file(found[0]))
+    info["module"] = path
+    try:
+        section = elf_section(path, ".nv_fatbin")
+        info["sm"], info["ptx"] = fatbin_archs(section or b"")
+        if load:
+            import importlib.util  # noqa: PLC0415
+
+            spec = importlib.util.spec_from_file_location("gsplat.csrc", path)
+            if spec is None or spec.loader is None:
+                raise ImportError(f"{path}: not an extension module")
+            spec.loader.exec_module(importlib.util.module_from_spec(spec))
+    except Exception as e:  # a broken build is what the user needs to see
+        info["error"] = (f"{type(e).__name__}: {e}".splitlines() or ["?"])[0]
+    return info
+
+
+def cuda_compiler() -> str:
+    """The nvcc the set-up installed in this environment (NVIDIA's nvidia-cuda-nvcc wheel), '' if none."""
+    try:
+        dist = md.distribution("nvidia-cuda-nvcc")
+    except md.PackageNotFoundError:
+        return ""
+    for f in dist.files or []:
+        if str(f).replace("\\", "/").endswith(("/bin/nvcc", "/bin/nvcc.exe")):
+            return str(dist.locate_file(f))
+    return ""
 
 
 def torch_info() -> dict | None:
@@ -219,8 +325,8 @@ def torch_info() -> dict | None:
         version = md.version("torch")
     except md.PackageNotFoundError:
         return None
-    info = {"version": version, "cuda": None, "cuda_available": False, "cuda_device": "", "cuda_error": "",
-            "error": ""}
+    info = {"version": version, "cuda": None, "cuda_available": False, "cuda_device": "", "cuda_capability": 0,
+            "cuda_error": "", "error": ""}
     try:
         import torch  # noqa: PLC0415 (only here: importing it takes seconds)
     except Exception as e:  # a broken install is what the user needs to see
@@ -233,6 +339,8 @@ def torch_info() -> dict | None:
             torch.cuda.init()  # raises with the reason (no driver, no GPU) where is_available() says False
             info["cuda_available"] = True
             info["cuda_device"] = torch.cuda.get_device_name(0)
+            major, minor = torch.cuda.get_device_capability(0)
+            info["cuda_capability"] = 10 * major + minor
         except Exception as e:
             # First sentence only: torch's no-driver message goes on with a download URL.
             info["cuda_error"] = (str(e).splitlines() or [type(e).__name__])[0].split(". ")[0].rstrip(".")
@@ -291,11 +399,13 @@ def main(argv: list[str] | None = None) -> int:
     emit("start", command="check-env", argv=argv if argv is not None else sys.argv[1:])
     packages = check_packages(applies)
     torch = torch_info()
+    cuda = args.device == "cuda"
+    kernels = gsplat_kernels(load=bool(torch and not torch["error"])) if cuda else None
     ok_backend, commands, err = backend_commands()
     emit("env", executable=sys.executable, python=sys.version.split()[0], python_ok=not problem,
          requires_python=requires_python, python_supported=supported_pythons(requires_python) if requires_python else [],
          device=args.device, packages=packages, not_applicable=skipped, torch=torch,
-         nvcc=cuda_toolkit() if args.device == "cuda" else "", backend=ok_backend, backend_error=err,
+         nvcc=cuda_compiler() if cuda else "", gsplat_kernels=kernels, backend=ok_backend, backend_error=err,
          commands=commands)
     emit("done", command="check-env", seconds=time.perf_counter() - t0)
     return 0

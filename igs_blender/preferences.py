@@ -7,6 +7,7 @@ from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from .addon_id import ADDON_ID
 from .backend_env import CPU_TORCH_INDEX
+from .cuda_build import DEFAULT_ARCHS
 from .errors import UserError
 
 # Download sizes measured with pip (wheels, Linux x86-64): torch 2.13.0+cpu (cp311) 192 MB and the
@@ -55,6 +56,14 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
         description="Which torch build 'Create Backend Environment' installs, and what 'Check Backend' expects",
         items=DEVICE_ITEMS,
         default="CPU",
+    )
+    cuda_archs: StringProperty(
+        name="CUDA Architectures",
+        description="NVIDIA CUDA: the GPU architectures 'Create Backend Environment' builds gsplat's kernels for "
+                    "when it sees no GPU (with a GPU, its own). Compute capabilities separated by ';' "
+                    "(8.6 = RTX 30xx, 8.9 = RTX 40xx, 9.0 = H100; +PTX adds code newer GPUs compile on first use). "
+                    "Each one adds minutes to the build",
+        default=DEFAULT_ARCHS,
     )
     torch_index: StringProperty(
         name="Torch Package Index",
@@ -109,6 +118,9 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
         sub = adv.row()
         sub.active = self.device == "CPU"  # the index is used for the CPU build only
         sub.prop(self, "torch_index")
+        sub = adv.row()
+        sub.active = self.device == "CUDA"  # the architectures are for the CUDA build only
+        sub.prop(self, "cuda_archs")
         adv.prop(self, "backend_root")
         adv.prop(self, "include_bpy")
 

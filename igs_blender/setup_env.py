@@ -3,16 +3,22 @@
 Run by the add-on with the base Python (Blender's own by default), never imported by Blender::
 
     python setup_env.py --venv DIR --requirements-json '["numpy==1.26.4; python_version < \\'3.12\\'", ...]' \\
-        [--requires-python '>=3.11,<3.15'] [--device cpu|cuda] [--torch-index URL] [--pip-arg ARG ...]
+        [--requires-python '>=3.11,<3.15'] [--device cpu|cuda] [--cuda-archs "8.0;8.6;8.9;9.0+PTX"] \\
+        [--torch-index URL] [--pip-arg ARG ...]
+    python setup_env.py --venv DIR --pyproject pyproject.toml --device cuda     (the command-line equivalent)
 
 Standard library only (the environment does not exist yet). The requirements carry PEP 508
 markers: the set for the environment's Python is chosen with check_env.py's evaluator (the file
 beside this one), plus the device's extras (gsplat for cuda). torch is installed first and on its
 own, from ``--torch-index`` when given (PyTorch's CPU index: the small CPU-only build; empty: PyPI,
 whose Linux wheels are the CUDA builds); the rest from PyPI. A torch of the other build is
-uninstalled first, since pip would keep it (``torch==2.13.0`` matches ``2.13.0+cpu`` too).
+uninstalled first, since pip would keep it (``torch==2.13.0`` matches ``2.13.0+cpu`` too). For
+cuda, cuda_build.py (beside this file) then installs NVIDIA's compiler wheels and builds gsplat's
+kernels in the environment, for the GPU present or ``--cuda-archs``; its C++ compiler and Python
+headers are checked before anything is downloaded.
 Speaks the backend's JSON-lines event protocol on stdout (stage, progress, log, output, done,
-error, cancelled) so the add-on shows it like any backend job. Exit codes: 0 ok, 2 failed,
+error, cancelled) so the add-on shows it like any backend job; on a terminal it prints progress
+lines instead and keeps pip's output in DIR/igs-setup.log. Exit codes: 0 ok, 2 failed,
 130 cancelled.
 """
 
@@ -24,19 +30,25 @@ import json
 import os
 import subprocess
 import sys
+import sysconfig
 import time
 import venv
 
+_human = None  # on a terminal: cuda_build.Reporter's lines instead of events (main sets it)
+
 
 def emit(event: str, **fields) -> None:
+    if _human is not None:
+        _human(event, **fields)
+        return
     sys.stdout.write(json.dumps({"event": event, **fields}) + "\n")
     sys.stdout.flush()
 
 
-def load_check_env():
-    """check_env.py from this script's folder (run with runpy, this folder is not on sys.path)."""
-    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "check_env.py")
-    spec = importlib.util.spec_from_file_location("igs_check_env", path)
+def load_script(name: str = "check_env"):
+    """``name``.py from this script's folder (run with runpy, this folder is not on sys.path)."""
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), f"{name}.py")
+    spec = importlib.util.spec_from_file_location(f"igs_{name}", path)
     if spec is None or spec.loader is None:
         raise RuntimeError(f"{path}: missing; reinstall the extension")
     module = importlib.util.module_from_spec(spec)
@@ -136,7 +148,7 @@ def run_pip(python: str, args: list[str], stage: str, step: int = 0, total: int 
             continue
         if "error" in line.lower():
             last_error = line
-        emit("log", message=line)
+        emit("log", message=line, tool=True)
     rc = proc.wait()
     if rc != 0:
         raise RuntimeError(f"pip {' '.join(args[:2])} failed (exit {rc})" + (f": {last_error}" if last_error else ""))
@@ -147,19 +159,33 @@ def run_pip(python: str, args: list[str], stage: str, step: int = 0, total: int 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--venv", required=True, help="folder of the environment to create or update")
-    parser.add_argument("--requirements-json", required=True,
+    parser.add_argument("--requirements-json",
                         help="JSON list of pinned requirements (PEP 508 python_version markers allowed)")
+    parser.add_argument("--pyproject", help="read requires-python and the dependencies from this pyproject.toml")
     parser.add_argument("--requires-python", default="", help="specifiers the base Python must satisfy")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="cpu: any torch build (the CPU one from --torch-index); cuda: a CUDA torch and gsplat")
+    parser.add_argument("--cuda-archs", default="",
+                        help="cuda: the GPU architectures to build gsplat's kernels for when no GPU is visible "
+                             "(default: cuda_build.py's)")
     parser.add_argument("--torch-index", default="", help="package index for the torch step only (empty: PyPI)")
     parser.add_argument("--pip-arg", action="append", default=[], help="extra argument for every pip install")
     args = parser.parse_args(argv)
+    global _human
+    if sys.stdout.isatty():  # run by hand: progress lines here, pip's output in the environment's log
+        _human = load_script("cuda_build").Reporter(None, os.path.join(args.venv, "igs-setup.log"))
     t0 = time.perf_counter()
     emit("start", command="setup-env", argv=argv if argv is not None else sys.argv[1:])
     python_full = ".".join(str(v) for v in sys.version_info[:3])
     try:
-        check = load_check_env()
+        check = load_script()
+        if args.requirements_json is not None:
+            reqs = json.loads(args.requirements_json)
+        elif args.pyproject:
+            requires_python, reqs = check.read_pyproject(args.pyproject)
+            args.requires_python = args.requires_python or requires_python
+        else:
+            raise ValueError("give the requirements: --requirements-json or --pyproject")
         problem = check.python_problem(python_full, args.requires_python)
         if problem:
             choices = check.choices_text(check.supported_pythons(args.requires_python))
@@ -167,7 +193,18 @@ def main(argv: list[str] | None = None) -> int:
         if args.device == "cuda" and not args.torch_index and sys.platform != "linux":
             raise ValueError(f"NVIDIA CUDA: PyPI has CUDA builds of torch only for Linux, not {sys.platform}; "
                              "choose CPU as Device")
-        reqs = json.loads(args.requirements_json)
+        build = None
+        if args.device == "cuda":  # what the kernels' build needs, before gigabytes are downloaded
+            build = load_script("cuda_build")
+            try:
+                archs = build.parse_archs(args.cuda_archs or build.DEFAULT_ARCHS)
+            except ValueError as e:
+                raise ValueError(f"--cuda-archs: {e}") from e
+            paths = sysconfig.get_paths()
+            problem = build.python_headers_problem(paths["include"], os.path.isfile(
+                os.path.join(paths["include"], "Python.h"))) or build.host_compiler_problem()
+            if problem:
+                raise ValueError(problem)
         if not isinstance(reqs, list) or not all(isinstance(r, str) for r in reqs):
             raise ValueError("--requirements-json: expected a JSON list of strings")
         applies, skipped = check.requirements_for(reqs, python_full, args.device)
@@ -202,6 +239,8 @@ def main(argv: list[str] | None = None) -> int:
         found = installed_torch(python) if torch else None
         if found:
             emit("log", message=f"torch {found[0]}: " + ("CUDA build" if found[1] else "CPU build"))
+        if build is not None:
+            build.setup_cuda(python, archs, args.pip_arg, build.Reporter(emit))
         emit("output", kind="interpreter", path=python)
     except KeyboardInterrupt:
         emit("cancelled", message="environment setup cancelled; run it again to finish")

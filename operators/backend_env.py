@@ -26,7 +26,8 @@ class IGS_OT_create_backend_env(BackendOperator, bpy.types.Operator):
         base = bpy.path.abspath(prefs.base_python) if prefs.base_python else ""
         self._env_dir = env_dir
         return backend_env.setup_job(base, env_dir, include_bpy=prefs.include_bpy, root=prefs.backend_root,
-                                     device=prefs.device, torch_index=prefs.torch_index)
+                                     device=prefs.device, torch_index=prefs.torch_index,
+                                     cuda_archs=prefs.cuda_archs)
 
     def finish(self, context, job: BackendJob) -> str:
         prefs = preferences.get(context)

@@ -9,12 +9,14 @@ setup command through the real operator when bpy is available.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
 import stat
 import subprocess
 import sys
+import tarfile
 import zipfile
 from pathlib import Path
 from types import SimpleNamespace
@@ -25,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import _addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
-from intrinsic_splats.igs_blender import backend_env, check_env  # noqa: E402
+from intrinsic_splats.igs_blender import backend_env, check_env, cuda_build  # noqa: E402
 from intrinsic_splats.igs_blender.client import BackendJob, parse_event  # noqa: E402
 from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
 
@@ -204,7 +206,7 @@ def report_for(env: dict) -> tuple[bool, list[str]]:
     """env_report_lines on a check event as check_env.py writes it (for what no machine here has)."""
     base = {"executable": "/env/bin/python", "python": "3.14.10", "python_ok": True, "requires_python": REQUIRES,
             "python_supported": ["3.11", "3.12", "3.13", "3.14"], "device": "cpu", "packages": [],
-            "not_applicable": [], "torch": None, "nvcc": "", "backend": True, "backend_error": "", "commands": ["info"]}
+            "not_applicable": [], "torch": None, "nvcc": "", "gsplat_kernels": None, "backend": True, "backend_error": "", "commands": ["info"]}
     job = SimpleNamespace(state=SimpleNamespace(other=[{"event": "env", **base, **env}]), report=lambda: "")
     return backend_env.env_report_lines(job)
 
@@ -213,20 +215,36 @@ CUDA_TORCH = {"version": "2.13.0", "cuda": "13.0", "cuda_available": True, "cuda
               "cuda_error": "", "error": ""}
 
 
+KERNELS = {"version": "1.5.3", "module": "/env/site/gsplat/csrc.so", "sm": [80, 89, 90], "ptx": [90], "error": ""}
+
+
 def test_the_first_line_names_the_cuda_problem_and_its_fix():
-    ok, lines = report_for({"device": "cuda", "torch": CUDA_TORCH, "nvcc": "/usr/local/cuda/bin/nvcc"})
+    nvcc = "/env/site/nvidia/cu13/bin/nvcc"
+    ready = {"device": "cuda", "torch": {**CUDA_TORCH, "cuda_capability": 90}, "nvcc": nvcc, "gsplat_kernels": KERNELS}
+    ok, lines = report_for(ready)
     assert ok and lines[0] == "Python 3.14.10: backend ready, torch 2.13.0 CUDA on NVIDIA H100"
     assert "torch 2.13.0: CUDA 13.0 build, CUDA usable on NVIDIA H100" in lines
-    ok, lines = report_for({"device": "cuda", "torch": CUDA_TORCH})
-    assert not ok and lines[0].startswith("no CUDA toolkit (nvcc) found, and gsplat compiles its kernels")
+    assert f"CUDA compiler: {nvcc}" in lines and "gsplat built for sm_80, sm_89, sm_90 (+PTX compute_90)" in lines
+    ok, lines = report_for({**ready, "torch": {**CUDA_TORCH, "cuda_capability": 120}})
+    assert ok, "compute_90 PTX runs on a newer GPU"
+    ok, lines = report_for({**ready, "torch": {**CUDA_TORCH, "cuda_capability": 75}})
+    assert not ok and lines[0] == ("gsplat is built for sm_80, sm_89, sm_90 (+PTX compute_90), not for this GPU "
+                                   f"(sm_75): {FIX}")
+    ok, lines = report_for({**ready, "nvcc": "", "gsplat_kernels": {**KERNELS, "module": "", "sm": [], "ptx": []}})
+    assert not ok and lines[0] == f"gsplat's CUDA kernels are not built: {FIX}"
+    assert "gsplat 1.5.3: its CUDA kernels are not built" in lines
+    assert "CUDA compiler: none in the environment (Create Backend Environment installs NVIDIA's from PyPI)" in lines
+    broken = {**KERNELS, "error": "ImportError: undefined symbol: _ZN3c10"}
+    ok, lines = report_for({**ready, "gsplat_kernels": broken})
+    assert not ok and lines[0] == f"gsplat's kernels do not load (ImportError: undefined symbol: _ZN3c10): {FIX}"
     no_driver = {**CUDA_TORCH, "cuda_available": False, "cuda_error": "Found no NVIDIA driver on your system."}
-    ok, lines = report_for({"device": "cuda", "torch": no_driver, "nvcc": "/usr/bin/nvcc"})
+    ok, lines = report_for({**ready, "torch": no_driver})
     assert not ok and lines[0] == ("CUDA is not usable (Found no NVIDIA driver on your system.): install the NVIDIA "
                                    f"driver, or choose CPU as Device and {FIX}")
     ok, lines = report_for({"device": "cpu", "torch": no_driver})  # a CUDA build is fine on the CPU
     assert ok and lines[0].endswith("torch 2.13.0 on the CPU")
     cpu = {**CUDA_TORCH, "version": "2.13.0+cpu", "cuda": None, "cuda_available": False, "cuda_device": ""}
-    ok, lines = report_for({"device": "cuda", "torch": cpu, "nvcc": "/usr/bin/nvcc",
+    ok, lines = report_for({"device": "cuda", "torch": cpu, "gsplat_kernels": None,
                             "packages": [{"name": "numpy", "want": "==2.4.6", "have": "1.26.4", "ok": False}]})
     assert not ok and lines[0] == ("numpy 1.26.4 where 2.4.6 is wanted and torch 2.13.0+cpu is a CPU-only build "
                                    f"where the Device is NVIDIA CUDA: {FIX}")
@@ -237,28 +255,34 @@ def test_the_first_line_names_the_cuda_problem_and_its_fix():
 # -- setup_env.py: the real venv + pip path, offline -------------------------------------------------
 
 
-def make_wheel(folder: Path, name: str, version: str, module: str = "", requires: tuple[str, ...] = ()) -> Path:
-    """A pure-Python wheel ``name version`` holding ``module`` as its package's __init__."""
+def make_wheel(folder: Path, name: str, version: str, module: str = "", requires: tuple[str, ...] = (),
+               files: dict[str, str] | None = None, extras: tuple[str, ...] = ()) -> Path:
+    """A pure-Python wheel ``name version`` holding ``module`` as its package's __init__ (or ``files``,
+    those under a bin/ folder executable), offering ``extras``."""
     folder.mkdir(parents=True, exist_ok=True)
     dist = f"{name.replace('-', '_')}-{version}"
     pkg = name.replace("-", "_")
-    meta = f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n" + "".join(f"Requires-Dist: {r}\n"
-                                                                                  for r in requires)
-    files = {f"{pkg}/__init__.py": module,
+    meta = (f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n" + "".join(f"Provides-Extra: {e}\n"
+                                                                                    for e in extras)
+            + "".join(f"Requires-Dist: {r}\n" for r in requires))
+    files = {**(files if files is not None else {f"{pkg}/__init__.py": module}),
              f"{dist}.dist-info/METADATA": meta,
              f"{dist}.dist-info/WHEEL": "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n"}
     record = "".join(f"{n},,\n" for n in files) + f"{dist}.dist-info/RECORD,,\n"
     whl = folder / f"{dist}-py3-none-any.whl"
     with zipfile.ZipFile(whl, "w") as z:
         for n, text in files.items():
-            z.writestr(n, text)
+            info = zipfile.ZipInfo(n)
+            info.external_attr = (stat.S_IFREG | (0o755 if "/bin/" in n else 0o644)) << 16
+            z.writestr(info, text)
         z.writestr(f"{dist}.dist-info/RECORD", record)
     return whl
 
 
 TORCH_CPU = "__version__ = '2.13.0+cpu'\nclass version:\n    cuda = None\n"
 TORCH_CUDA = ("__version__ = '2.13.0'\nclass version:\n    cuda = '13.0'\nclass cuda:\n    @staticmethod\n"
-              "    def init():\n        raise RuntimeError('Found no NVIDIA driver on your system. Please check.')\n")
+              "    def init():\n        raise RuntimeError('Found no NVIDIA driver on your system. Please check.')\n"
+              "    @staticmethod\n    def is_available():\n        return False\n")
 
 
 def simple_index(wheels: Path) -> str:
@@ -272,6 +296,82 @@ def simple_index(wheels: Path) -> str:
     return root.as_uri()
 
 
+# gsplat's sdist as cuda_build.py builds it, minus nvcc: a build backend that reports what its
+# environment holds, prints ninja's "[k/n]" lines, and compiles a real extension module gsplat.csrc
+# whose .nv_fatbin section lists TORCH_CUDA_ARCH_LIST's architectures the way nvcc's fat binaries do.
+STANDIN_GSPLAT_BACKEND = r'''
+import json, os, shutil, struct, subprocess, sysconfig, zipfile
+
+META = "Metadata-Version: 2.1\nName: gsplat\nVersion: 1.5.3\n"
+C = """#include <Python.h>
+__attribute__((used, section(".nv_fatbin"), aligned(8))) static const unsigned char fatbin[] = {%s};
+static struct PyModuleDef def = {PyModuleDef_HEAD_INIT, "csrc", NULL, -1, NULL};
+PyMODINIT_FUNC PyInit_csrc(void) { return PyModule_Create(&def); }
+"""
+
+
+def get_requires_for_build_wheel(config_settings=None):
+    return []
+
+
+def fatbin(archs):
+    body = b""
+    for arch in archs.split(";"):
+        sm = int(arch.split("+")[0].replace(".", ""))
+        for kind in ((2, 1) if arch.endswith("+PTX") else (2,)):
+            head = bytearray(64)
+            struct.pack_into("<HHIQ", head, 0, kind, 0x101, 64, 8)
+            struct.pack_into("<I", head, 28, sm)
+            body += bytes(head) + bytes(8)
+    return struct.pack("<IHHQ", 0xBA55ED50, 1, 16, len(body)) + body
+
+
+def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
+    links = [d for d in os.environ.get("LIBRARY_PATH", "").split(os.pathsep) if d]
+    seen = {k: os.environ.get(k) for k in ("CUDA_HOME", "TORCH_CUDA_ARCH_LIST", "MAX_JOBS", "CUDA_PATH")}
+    seen["nvcc"], seen["links"] = shutil.which("nvcc"), links
+    seen["cudart"] = [os.path.realpath(os.path.join(d, "libcudart.so")) for d in links
+                      if os.path.exists(os.path.join(d, "libcudart.so"))]
+    print("IGS-STANDIN-BUILD " + json.dumps(seen), flush=True)
+    print("[1/2] " + subprocess.run([seen["nvcc"]], capture_output=True, text=True).stdout.strip(), flush=True)
+    with open("csrc.c", "w") as f:
+        f.write(C % ",".join(str(b) for b in fatbin(seen["TORCH_CUDA_ARCH_LIST"])))
+    subprocess.run(["cc", "-shared", "-fPIC", "-I", sysconfig.get_paths()["include"], "csrc.c", "-o", "csrc.so"],
+                   check=True)
+    print("[2/2] c++ -shared -o csrc.so", flush=True)
+    with open("csrc.so", "rb") as f:
+        files = {"gsplat/__init__.py": b"", "gsplat/cuda/__init__.py": b"",
+                 "gsplat/cuda/_backend.py": b"from gsplat import csrc as _C\n", "gsplat/csrc.so": f.read(),
+                 "gsplat-1.5.3.dist-info/METADATA": META.encode(),
+                 "gsplat-1.5.3.dist-info/WHEEL": b"Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: false\n"
+                                                 b"Tag: py3-none-any\n"}
+    name = "gsplat-1.5.3-py3-none-any.whl"
+    with zipfile.ZipFile(os.path.join(wheel_directory, name), "w") as z:
+        for n, data in files.items():
+            z.writestr(n, data)
+        z.writestr("gsplat-1.5.3.dist-info/RECORD", "".join(n + ",,\n" for n in files)
+                   + "gsplat-1.5.3.dist-info/RECORD,,\n")
+    return name
+'''
+
+
+def make_sdist(folder: Path, name: str, version: str, backend: str) -> Path:
+    """A source distribution ``name version`` built by the in-tree PEP 517 ``backend``."""
+    top = f"{name}-{version}"
+    members = {f"{top}/pyproject.toml": '[build-system]\nrequires = []\nbuild-backend = "standin_backend"\n'
+                                        'backend-path = ["."]\n',
+               f"{top}/PKG-INFO": f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n",
+               f"{top}/standin_backend.py": backend}
+    path = folder / f"{top}.tar.gz"
+    with tarfile.open(path, "w:gz") as tar:
+        for member, text in members.items():
+            data = text.encode()
+            info = tarfile.TarInfo(member)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    return path
+
+
 @pytest.fixture(scope="module")
 def wheelhouses(tmp_path_factory) -> dict[str, Path]:
     """Stand-ins for the real pins of this Python only (asking for another Python's pin is a pip
@@ -282,9 +382,18 @@ def wheelhouses(tmp_path_factory) -> dict[str, Path]:
         if name != "torch":
             make_wheel(folders["rest"], name, version)
     make_wheel(folders["cpu_torch"], "torch", "2.13.0+cpu", TORCH_CPU)
-    make_wheel(folders["cuda"], "torch", "2.13.0", TORCH_CUDA, ("nvidia-cuda-runtime==13.0.96",))
+    make_wheel(folders["cuda"], "torch", "2.13.0", TORCH_CUDA, ("nvidia-cuda-runtime==13.0.96", "cuda-toolkit==13.0.3"))
     make_wheel(folders["cuda"], "nvidia-cuda-runtime", "13.0.96")
-    make_wheel(folders["cuda"], "gsplat", "1.5.3")
+    make_wheel(folders["cuda"], "gsplat", "1.5.3")  # PyPI's wheel: pure Python, no kernels
+    # NVIDIA's compiler as cuda_build.py asks for it: cuda-toolkit[cccl,nvcc]==13.0.3 and ninja.
+    make_wheel(folders["cuda"], "cuda-toolkit", "13.0.3", extras=("cccl", "nvcc"),
+               requires=("nvidia-cuda-nvcc==13.0.88; extra == 'nvcc'", "nvidia-cuda-cccl==13.0.85; extra == 'cccl'"))
+    make_wheel(folders["cuda"], "nvidia-cuda-nvcc", "13.0.88",
+               files={"nvidia/cu13/bin/nvcc": "#!/bin/sh\necho stand-in nvcc\n", "nvidia/cu13/lib/libcudart.so.13": ""})
+    make_wheel(folders["cuda"], "nvidia-cuda-cccl", "13.0.85", files={"nvidia/cu13/include/cccl/cub.h": ""})
+    make_wheel(folders["cuda"], "ninja", cuda_build.NINJA.split("==")[1])
+    make_wheel(folders["cuda"], "packaging", "26.4")  # gsplat imports it without declaring it
+    make_sdist(folders["cuda"], "gsplat", "1.5.3", STANDIN_GSPLAT_BACKEND)
     return folders
 
 
@@ -306,6 +415,7 @@ def pip_commands(job: BackendJob) -> list[str]:
     return [line for line in logs(job).splitlines() if line.startswith("$ ")]
 
 
+@pytest.mark.skipif(not (shutil.which("cc") and shutil.which("g++")), reason="the stand-in gsplat build needs a C compiler")
 def test_setup_env_installs_its_pythons_set_torch_first_and_switches_the_build(wheelhouses, tmp_path):
     env_dir = tmp_path / "venv"
     # torch from its own index (the only one that has it), the rest from another index.
@@ -332,20 +442,57 @@ def test_setup_env_installs_its_pythons_set_torch_first_and_switches_the_build(w
     ok, lines = backend_env.env_report_lines(check)
     assert lines[0] == f"gsplat missing and torch 2.13.0+cpu is a CPU-only build where the Device is NVIDIA CUDA: {FIX}"
 
-    # NVIDIA CUDA on the same environment: pip alone would keep 2.13.0+cpu (it matches ==2.13.0).
-    job = backend_env.setup_job(PYTHON, env_dir, root=str(ROOT), device="cuda", torch_index=torch_index)
-    local_pip(job, "--no-index", f"--find-links={wheelhouses['cuda']}", f"--find-links={wheelhouses['rest']}").start()
+    # NVIDIA CUDA on the same environment: pip alone would keep 2.13.0+cpu (it matches ==2.13.0). Then
+    # cuda_build.py: the compiler's stand-ins, gsplat's stand-in sdist built, a system nvcc on PATH unused.
+    system_bin = tmp_path / "usr-local-cuda" / "bin"
+    system_bin.mkdir(parents=True)
+    (system_bin / "nvcc").write_text("#!/bin/sh\necho system nvcc\n")
+    (system_bin / "nvcc").chmod(0o755)
+    job = backend_env.setup_job(PYTHON, env_dir, root=str(ROOT), device="cuda", torch_index=torch_index,
+                                cuda_archs="8.0;8.9;9.0+PTX")
+    local_pip(job, "--no-index", f"--find-links={wheelhouses['cuda']}", f"--find-links={wheelhouses['rest']}")
+    job.env["PATH"] = os.pathsep.join([str(system_bin), job.env.get("PATH", "")])
+    job.env.pop("MAX_JOBS", None)
+    job.start()
     assert job.wait(timeout=300) == 0, job.report() + logs(job)[-3000:]
     assert "torch 2.13.0+cpu is a CPU-only build, not the one for device 'cuda': replacing it" in logs(job)
     commands = pip_commands(job)
     assert " uninstall --yes torch" in commands[0] and commands[1].endswith(" torch==2.13.0")
     assert torch_index not in commands[1], "the CPU index is for the CPU build only"
     assert commands[2].endswith(" gsplat==1.5.3") and "torch 2.13.0: CUDA build" in logs(job)
+    assert commands[3].endswith(" cuda-toolkit[cccl,nvcc]==13.0.3 " + cuda_build.NINJA)
+    assert " wheel -v " in commands[4] and "--no-binary gsplat" in commands[4] and "--no-build-isolation" in commands[4]
+    assert "--force-reinstall" in commands[5] and commands[5].endswith("gsplat-1.5.3-py3-none-any.whl")
+    assert "no GPU visible: building for sm_80, sm_89, sm_90 (+PTX compute_90) (CUDA Architectures)" in logs(job)
+    seen = json.loads(next(line for line in logs(job).splitlines() if line.strip().startswith("IGS-STANDIN-BUILD "))
+                      .strip().split(" ", 1)[1])  # pip -v indents the build's output
+    site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                               capture_output=True, text=True, check=True).stdout.strip())
+    home = site / "nvidia" / "cu13"
+    assert seen["CUDA_HOME"] == str(home) and seen["nvcc"] == str(home / "bin" / "nvcc") and seen["CUDA_PATH"] is None
+    assert seen["TORCH_CUDA_ARCH_LIST"] == "8.0;8.9;9.0+PTX" and int(seen["MAX_JOBS"]) >= 1
+    assert seen["cudart"] == [str(home / "lib" / "libcudart.so.13")]
+    assert "[1/2] stand-in nvcc" in logs(job)
+    kernels = job.state.stages[cuda_build.STAGE]
+    assert (kernels.step, kernels.total, kernels.state) == (2, 2, "done")
+    assert any(line.startswith("gsplat built for sm_80, sm_89, sm_90 (+PTX compute_90) in ") for line in logs(job).splitlines())
+    assert not os.path.exists(seen["links"][0]), "the build's libcudart.so link was temporary"
+    assert (site / "gsplat" / "csrc.so").is_file()
+
     check = backend_env.check_job(str(python), str(ROOT), device="cuda").start()
     assert check.wait(timeout=120) == 0, check.report()
     ok, lines = backend_env.env_report_lines(check)
     assert not ok and lines[0].startswith("CUDA is not usable (Found no NVIDIA driver on your system): install")
     assert "torch 2.13.0: CUDA 13.0 build, CUDA not usable: Found no NVIDIA driver on your system" in lines
+    assert "gsplat built for sm_80, sm_89, sm_90 (+PTX compute_90)" in lines  # read from the module, which loads
+    assert f"CUDA compiler: {home / 'bin' / 'nvcc'}" in lines
+
+    # Again with the same architectures: the build that loads is kept, nothing is compiled.
+    again = backend_env.setup_job(PYTHON, env_dir, root=str(ROOT), device="cuda", cuda_archs="8.0;8.9;9.0+PTX")
+    local_pip(again, "--no-index", f"--find-links={wheelhouses['cuda']}", f"--find-links={wheelhouses['rest']}").start()
+    assert again.wait(timeout=300) == 0, again.report() + logs(again)[-3000:]
+    assert "gsplat's kernels are already built for sm_80, sm_89, sm_90 (+PTX compute_90) and load: kept" in logs(again)
+    assert not any(" wheel " in c or "cuda-toolkit" in c for c in pip_commands(again))
 
 
 def run_setup(*args: str) -> BackendJob:

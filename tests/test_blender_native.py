@@ -458,11 +458,11 @@ def test_the_capture_orbit_is_the_backends():
     """The add-on's orbit around the capture equals ``igs render --turntable``'s cameras."""
     import tempfile
 
-    from backend.capture.load import load_capture
-    from backend.eval.render_views import capture_orbit, capture_up, turntable
-
     from intrinsic_splats.igs_blender import cameras
     from intrinsic_splats.igs_blender import capture_orbit as orbit
+
+    from backend.capture.load import load_capture
+    from backend.eval.render_views import capture_orbit, capture_up, turntable
 
     with tempfile.TemporaryDirectory() as tmp:
         ws = Path(tmp) / "ws"
