@@ -227,8 +227,9 @@ class IGS_OT_import_splat_file(BackendOperator, bpy.types.Operator):
                                         radius_scale=props.radius_scale, source=ply)
         obj["igs_imported_from"] = str(source)
         obj.hide_viewport = obj.hide_render = False
-        for other in context.view_layer.objects.selected:
-            other.select_set(False)
+        for other in list(context.view_layer.objects.selected):
+            if other is not None:  # an object replaced by this import can linger as None until the next update
+                other.select_set(False)
         obj.select_set(True)
         context.view_layer.objects.active = obj
         msg = (f"Imported {len(layer):,} {layer.kind} Gaussians ({layer.space}) from {source.name} as "

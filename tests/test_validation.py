@@ -176,7 +176,7 @@ def test_an_unknown_camera_model_fails_before_frame_extraction(project, tmp_path
     (["render", "{ws}", "--turntable", "--height", "nan"], "--height"),
     (["render", "{ws}", "--turntable", "--size", "200000", "150000"], "--size"),
     (["render", "{ws}", "--turntable", "--center", "nan,0,0"], "--center"),
-    (["render", "{ws}", "--turntable", "--out", "{ws}/capture.json"], ("--out", "is a file")),
+    (["render", "{ws}", "--turntable", "--out", "{ws}/capture.json"], ("--out", "lies in the workspace")),
     (["import", "{ws}/images", "{ws}2", "--every", "0"], "--every"),
     (["edit", "bake", "{ws}", "--plane", "p.json", "--spawn-fraction", "2"], "--spawn-fraction"),
 ])

@@ -63,8 +63,20 @@ def run_locked(args: argparse.Namespace) -> Any:
         with workspace_lock.hold(root, label(args), wait=args.wait, create=args.lock_create) as created:
             return args.func(args)
     except (Cancelled, KeyboardInterrupt):
+        _drop_if_empty(root, created)
         raise
     except Exception:
         if created and args.lock_drop_new and not (root / CAPTURE_JSON).exists():
             shutil.rmtree(root, ignore_errors=True)  # a failed import leaves no folder behind
+        _drop_if_empty(root, created)
         raise
+
+
+def _drop_if_empty(root: Path, created: bool) -> None:
+    """Remove the folder the lock created when the command wrote nothing into it (e.g. an option refused
+    before any work): a refused command leaves no trace, and nothing written is ever removed."""
+    try:
+        if created and root.is_dir() and not any(root.iterdir()):
+            root.rmdir()
+    except OSError:
+        pass
