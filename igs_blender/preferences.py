@@ -13,14 +13,17 @@ from .errors import UserError
 # Download sizes measured with pip (wheels, Linux x86-64): torch 2.13.0+cpu (cp311) 192 MB and the
 # CPU set for Python 3.11 458 MB in all; the CUDA set for Python 3.14 2.96 GB (torch 527 MB, the
 # nvidia-*/triton CUDA 13 libraries 2.2 GB, the rest 229 MB); bpy 5.0.1 374 MB (+9 MB of its deps).
+# The CUDA device's compiler (cuda_build.py): nvidia-nvvm 61.6 MB, nvidia-cuda-nvcc 37.4 MB,
+# nvidia-cuda-cccl 3.1 MB, nvidia-cuda-crt 0.1 MB and ninja 0.2 MB, 102 MB; gsplat's sdist 4.7 MB.
 DEVICE_ITEMS = (
     ("CPU", "CPU",
      "CPU-only torch (2.13.0+cpu, 192 MB) from the Torch Package Index; about 0.46 GB of downloads in all "
      "for Python 3.11, plus 0.38 GB for bpy. Training runs on the CPU"),
     ("CUDA", "NVIDIA CUDA",
      "torch from PyPI, whose Linux wheels are the CUDA 13 builds, plus gsplat 1.5.3: about 3 GB of downloads "
-     "for Python 3.14 (torch 527 MB, NVIDIA CUDA libraries 2.2 GB). Needs an NVIDIA GPU and driver, and the CUDA toolkit "
-     "(nvcc): gsplat compiles its kernels on first use. Linux only"),
+     "for Python 3.14 (torch 527 MB, NVIDIA CUDA libraries 2.2 GB). No CUDA toolkit needed: NVIDIA's compiler "
+     "comes from PyPI (about 100 MB more) and builds gsplat's kernels during the set-up, for the GPU present "
+     "(three architectures took 19 min on 2 CPU cores). Needs an NVIDIA GPU and driver, and a C++ compiler (g++). Linux only"),
 )
 
 

@@ -13,7 +13,7 @@ from .job import BackendOperator
 
 
 class IGS_OT_create_backend_env(BackendOperator, bpy.types.Operator):
-    """Create a Python environment with the backend's pinned requirements for the chosen Device and use it (downloads about 0.5 GB for CPU, 3 GB for NVIDIA CUDA)"""
+    """Create a Python environment with the backend's pinned requirements for the chosen Device and use it (downloads about 0.5 GB for CPU; 3.1 GB for NVIDIA CUDA, which then builds gsplat's kernels with NVIDIA's compiler from PyPI: no CUDA toolkit needed)"""
 
     bl_idname = "igs.create_backend_env"
     bl_label = "Create Backend Environment"

@@ -83,9 +83,11 @@ echo "== downloading NVIDIA's compiler and gsplat's undeclared dependency (${com
 compiler_bytes=$(du -cb "$W"/nvidia_cuda_nvcc-* "$W"/nvidia_cuda_crt-* "$W"/nvidia_nvvm-* "$W"/nvidia_cuda_cccl-* \
   "$W"/cuda_toolkit-* "$W"/ninja-* | tail -1 | cut -f1)
 # Reading the sdist's metadata runs its setup.py, which asks torch for CUDA_HOME: the compiler's future place.
+# gsplat asks for any torch, and pip download ignores the installed one: the pin keeps it at ours.
 home=$("$E" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/nvidia/cu13
-CUDA_HOME=$home "${PIP[@]}" download -q --no-cache-dir --no-build-isolation --no-binary gsplat -d "$W" \
+CUDA_HOME=$home "${PIP[@]}" download -q --no-cache-dir --no-build-isolation --no-binary gsplat -d "$W" "$torch" \
   "$("$E" -c 'import sys; sys.path.insert(0, "igs_blender"); import cuda_build; print(cuda_build.GSPLAT)')"
+if [ "$(ls "$W"/torch-* | wc -l)" != 1 ]; then echo "gsplat-build: more than one torch downloaded: $(ls "$W"/torch-*)" >&2; exit 2; fi
 download_bytes=$(du -sb "$W" | cut -f1)
 env_before=$(du -sb "$DIR/env" | cut -f1)
 echo "== cuda_build.py: the compiler, then gsplat's kernels for $ARCHS"
