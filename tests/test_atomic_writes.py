@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _small_disk import fill, small_tmpfs  # noqa: E402
 from _train_scene import make_workspace
 
 from backend.commands.cli import main
@@ -27,23 +28,10 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture
 def small_disk(tmp_path):
     """A 1 MiB tmpfs (root only; skipped where the machine does not allow mounting one)."""
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs here ({r.stderr.decode().strip() or 'not root'})")
-    try:
+    with small_tmpfs(tmp_path / "disk", "1m") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def _fill(folder: Path, leave: int) -> None:
-    """Fill the file system of ``folder`` until about ``leave`` bytes are free."""
-    st = os.statvfs(folder)
-    free = st.f_bavail * st.f_frsize
-    with open(folder / "filler", "wb") as f:
-        f.write(b"\0" * max(free - leave, 0))
 
 
 def _tmp_files(folder: Path) -> list[Path]:
@@ -55,7 +43,7 @@ def test_a_full_disk_is_one_error_and_the_old_file_survives(small_disk):
     target = small_disk / "frame.png"
     write_image(target, np.full((8, 8, 3), 0.5))
     old = target.read_bytes()
-    _fill(small_disk, 64 * 1024)
+    fill(small_disk, 64 * 1024)
     with pytest.raises(IGSError, match=rf"{target}: could not write \(no space left on the device\)"):
         write_image(target, noise)
     assert target.read_bytes() == old and read_image(target).shape == (8, 8, 3)
@@ -79,7 +67,7 @@ def test_a_read_only_file_system_is_one_error(small_disk):
 def test_commands_on_a_full_or_read_only_disk_end_in_one_line(small_disk, condition, capsys):
     ws = make_workspace(small_disk / "ws", n_views=4, width=16, height=12)
     if condition == "full":
-        _fill(small_disk, 4 * 1024)
+        fill(small_disk, 4 * 1024)
     else:
         subprocess.run(["mount", "-o", "remount,ro", str(small_disk)], check=True)
     code = main(["train-3dgs", str(ws.root), "--iterations", "3", "--checkpoint-every", "1"])

@@ -2,11 +2,10 @@
 another's name, and a splat with its manifest appears whole or not at all (issue #50, reproducers
 2 and 3)."""
 
-import os
-import subprocess
 
 import pytest
 import torch
+from _small_disk import fill, small_tmpfs  # noqa: E402
 from _train_scene import make_layered_workspace
 
 from backend.commands.cli import main
@@ -91,23 +90,10 @@ def test_a_compressed_ply_may_be_named_ply(wl, tmp_path, capsys):
 @pytest.fixture
 def small_disk(tmp_path):
     """A 1 MiB tmpfs (root only; skipped where the machine does not allow mounting one)."""
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs here ({r.stderr.decode().strip() or 'not root'})")
-    try:
+    with small_tmpfs(tmp_path / "disk", "1m") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def fill(folder, leave: int) -> None:
-    """Fill the file system of ``folder`` until about ``leave`` bytes are free."""
-    (folder / "filler").unlink(missing_ok=True)
-    st = os.statvfs(folder)
-    with open(folder / "filler", "wb") as f:
-        f.write(b"\0" * max(st.f_bavail * st.f_frsize - leave, 0))
 
 
 def test_on_a_full_disk_a_splat_and_its_manifest_appear_together_or_not_at_all(tmp_path, small_disk, capsys):

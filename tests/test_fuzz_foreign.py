@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 from _fuzz import Tally, dump_json, mutate_bytes, mutate_json
 from _import_scene import write_capture
+from _small_disk import fill, small_tmpfs  # noqa: E402
 from _train_scene import make_layered_workspace, make_workspace
 
 from backend.capture.importer import ImportConfig, import_capture
@@ -366,22 +367,10 @@ def _assert(ok: bool, message: str) -> None:
 @pytest.fixture
 def small_disk(tmp_path):
     """A 2 MiB tmpfs (root only; skipped where the machine does not allow mounting one)."""
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs here ({r.stderr.decode().strip() or 'not root'})")
-    try:
+    with small_tmpfs(tmp_path / "disk", "2m") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def _fill(folder: Path, leave: int) -> None:
-    (folder / "filler").unlink(missing_ok=True)
-    st = os.statvfs(folder)
-    with open(folder / "filler", "wb") as f:
-        f.write(b"\0" * max(st.f_bavail * st.f_frsize - leave, 0))
 
 
 def _tree(root: Path) -> dict[str, bytes]:
@@ -401,7 +390,7 @@ def test_fuzz_full_disk(small_disk, sources, tmp_path, capfd):
     ws = make_workspace(small_disk / "ws", n_views=4, width=16, height=12, n_points=60, n_per_face=20).root
     layer = root / "layer.ply"
     for i in range(90):
-        _fill(small_disk, int(rng.integers(0, 64)) * 1024)
+        fill(small_disk, int(rng.integers(0, 64)) * 1024)
         before = _tree(small_disk)
         op = i % 6
         if op == 0:
