@@ -32,6 +32,9 @@ import numpy as np
 from . import compat, native_layers, preferences, scene_objects
 from .errors import UserError
 from .ply_io import FILTER, SplatLayer, read_splat_ply
+from .point_attributes import get_point_attribute, set_point_attribute
+
+WHAT = "a splat layer proxy"  # what a point cloud lacking an attribute is not, in the error
 
 LAYER_KINDS = ("albedo", "shading", "residual", "radiance")
 COLLECTION = native_layers.LAYERS_COLLECTION
@@ -123,25 +126,6 @@ def splat_material() -> bpy.types.Material:
     return mat
 
 
-def _set_attr(pc, name: str, dtype: str, values: np.ndarray, field: str) -> None:
-    attr = pc.attributes.get(name)
-    if attr is not None and (attr.data_type != dtype or attr.domain != "POINT"):
-        pc.attributes.remove(attr)
-        attr = None
-    if attr is None:
-        attr = pc.attributes.new(name, dtype, "POINT")
-    attr.data.foreach_set(field, np.ascontiguousarray(values).ravel())
-
-
-def _get_attr(pc, name: str, width: int, field: str, dtype=np.float32) -> np.ndarray:
-    attr = pc.attributes.get(name)
-    if attr is None:
-        raise UserError(f"point cloud '{pc.name}' has no '{name}' attribute; it is not a splat layer proxy")
-    n = len(pc.points)
-    out = np.empty(n * width, dtype=dtype)
-    attr.data.foreach_get(field, out)
-    return out.reshape(n, width) if width > 1 else out
-
 
 def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, radius_scale: float = 1.0,
                        source: Path | None = None, collection: bpy.types.Collection | None = None,
@@ -168,18 +152,18 @@ def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, rad
     pc = obj.data
     opac = sub.opacities
     rgba = np.concatenate([sub.display_colors(), opac[:, None]], axis=1)
-    _set_attr(pc, "radius", "FLOAT", display_radius(sub.scales) * radius_scale, "value")
-    _set_attr(pc, COLOR_ATTRIBUTE, "FLOAT_COLOR", rgba, "color")
-    _set_attr(pc, "opacity", "FLOAT", opac, "value")
-    _set_attr(pc, "scale", "FLOAT_VECTOR", sub.scales, "vector")
+    set_point_attribute(pc, "radius", "FLOAT", display_radius(sub.scales) * radius_scale, "value")
+    set_point_attribute(pc, COLOR_ATTRIBUTE, "FLOAT_COLOR", rgba, "color")
+    set_point_attribute(pc, "opacity", "FLOAT", opac, "value")
+    set_point_attribute(pc, "scale", "FLOAT_VECTOR", sub.scales, "vector")
     qtype = compat.quaternion_attribute_type()
-    _set_attr(pc, "rotation", qtype, sub.unit_quats, "value" if qtype == "QUATERNION" else "color")
-    _set_attr(pc, "f_dc", "FLOAT_VECTOR", sub.f_dc, "vector")
+    set_point_attribute(pc, "rotation", qtype, sub.unit_quats, "value" if qtype == "QUATERNION" else "color")
+    set_point_attribute(pc, "f_dc", "FLOAT_VECTOR", sub.f_dc, "vector")
     for k in range(sub.f_rest.shape[1]):
-        _set_attr(pc, f"f_rest_{k + 1:02d}", "FLOAT_VECTOR", sub.f_rest[:, k], "vector")
+        set_point_attribute(pc, f"f_rest_{k + 1:02d}", "FLOAT_VECTOR", sub.f_rest[:, k], "vector")
     if sub.eps2d is not None:
-        _set_attr(pc, FILTER, "FLOAT", sub.eps2d, "value")
-    _set_attr(pc, "igs_index", "INT", idx.astype(np.int32), "value")
+        set_point_attribute(pc, FILTER, "FLOAT", sub.eps2d, "value")
+    set_point_attribute(pc, "igs_index", "INT", idx.astype(np.int32), "value")
     pc.materials.clear()
     pc.materials.append(splat_material())
     _describe(obj, layer, total, source)
@@ -215,17 +199,17 @@ def layer_from_object(obj: bpy.types.Object) -> SplatLayer:
         return native_layers.layer_from_native(obj)
     pc = obj.data
     n = len(pc.points)
-    means = _get_attr(pc, "position", 3, "vector")
-    opac = np.clip(_get_attr(pc, "opacity", 1, "value").astype(np.float64), 1e-7, 1 - 1e-7)
-    scales = _get_attr(pc, "scale", 3, "vector").astype(np.float64)
+    means = get_point_attribute(pc, "position", 3, "vector", WHAT)
+    opac = np.clip(get_point_attribute(pc, "opacity", 1, "value", WHAT).astype(np.float64), 1e-7, 1 - 1e-7)
+    scales = get_point_attribute(pc, "scale", 3, "vector", WHAT).astype(np.float64)
     qtype = compat.quaternion_attribute_type()
-    quats = _get_attr(pc, "rotation", 4, "value" if qtype == "QUATERNION" else "color")
-    f_dc = _get_attr(pc, "f_dc", 3, "vector")
+    quats = get_point_attribute(pc, "rotation", 4, "value" if qtype == "QUATERNION" else "color", WHAT)
+    f_dc = get_point_attribute(pc, "f_dc", 3, "vector", WHAT)
     k1 = {0: 0, 1: 3, 2: 8, 3: 15}[int(obj.get("igs_sh_degree", 0))]
     f_rest = np.zeros((n, k1, 3), dtype=np.float32)
     for k in range(k1):
-        f_rest[:, k] = _get_attr(pc, f"f_rest_{k + 1:02d}", 3, "vector")
-    eps2d = _get_attr(pc, FILTER, 1, "value") if pc.attributes.get(FILTER) is not None else None
+        f_rest[:, k] = get_point_attribute(pc, f"f_rest_{k + 1:02d}", 3, "vector", WHAT)
+    eps2d = get_point_attribute(pc, FILTER, 1, "value", WHAT) if pc.attributes.get(FILTER) is not None else None
     return SplatLayer(str(obj["igs_layer"]), means, f_dc, f_rest,
                       np.log(opac / (1 - opac)).astype(np.float32), np.log(np.maximum(scales, 1e-30)).astype(np.float32),
                       quats, encoding=str(obj.get("igs_color", "sh")), space=str(obj.get("igs_space", "linear")),
@@ -277,12 +261,12 @@ def build_composite_object(albedo: SplatLayer, shading: SplatLayer, residual: Sp
         kwargs["collection"] = native_layers.field_collection("composite")
     obj = build_layer_object(object_name("composite"), albedo, **kwargs)
     pc = obj.data
-    idx = _get_attr(pc, "igs_index", 1, "value", dtype=np.int32)
+    idx = get_point_attribute(pc, "igs_index", 1, "value", WHAT, dtype=np.int32)
     rgb = composite_colors(albedo.subset(idx), shading, residual)
     if native:
         native_layers.recolor(obj, rgb)
     else:
-        rgba = _get_attr(pc, COLOR_ATTRIBUTE, 4, "color")
+        rgba = get_point_attribute(pc, COLOR_ATTRIBUTE, 4, "color", WHAT)
         rgba[:, :3] = rgb
         pc.attributes[COLOR_ATTRIBUTE].data.foreach_set("color", rgba.ravel())
     obj["igs_layer_display"] = "composite"

@@ -30,8 +30,10 @@ import bpy
 import numpy as np
 
 from . import compat, native_colors, scene_objects
-from .errors import UserError
 from .ply_io import FILTER, SplatLayer
+from .point_attributes import get_point_attribute, set_point_attribute
+
+WHAT = "a Gaussian splat layer"  # what a point cloud lacking an attribute is not, in the error
 
 LAYERS_COLLECTION = "IGS Layers"
 """The add-on's collection of layer objects (the fields' collections are inside it)."""
@@ -58,25 +60,6 @@ def field_collection_name(field: str) -> str:
 def imported_collection() -> bpy.types.Collection:
     return scene_objects.collection(IMPORTED)
 
-
-def _set(pc, name: str, dtype: str, values: np.ndarray, field: str) -> None:
-    attr = pc.attributes.get(name)
-    if attr is not None and (attr.data_type != dtype or attr.domain != "POINT"):
-        pc.attributes.remove(attr)
-        attr = None
-    if attr is None:
-        attr = pc.attributes.new(name, dtype, "POINT")
-    attr.data.foreach_set(field, np.ascontiguousarray(values, dtype=np.float32 if dtype != "INT" else np.int32).ravel())
-
-
-def _get(pc, name: str, width: int, field: str, dtype=np.float32) -> np.ndarray:
-    attr = pc.attributes.get(name)
-    if attr is None:
-        raise UserError(f"point cloud '{pc.name}' has no '{name}' attribute; it is not a Gaussian splat layer")
-    n = len(pc.points)
-    out = np.empty(n * width, dtype=dtype)
-    attr.data.foreach_get(field, out)
-    return out.reshape(n, width) if width > 1 else out
 
 
 def linear_material() -> bpy.types.Material:
@@ -139,14 +122,14 @@ def fill(obj: bpy.types.Object, layer: SplatLayer, idx: np.ndarray) -> None:
     pc = obj.data
     pc.type = "GAUSSIAN_SPLAT"
     dc, rest = native_colors.encode(layer.f_dc, layer.f_rest, layer.space)
-    _set(pc, "scale", "FLOAT_VECTOR", layer.scales, "vector")
-    _set(pc, "rotation", "QUATERNION", layer.unit_quats, "value")
-    _set(pc, BASE, "FLOAT4", np.concatenate([dc, layer.opacities[:, None]], axis=1), "vector")
+    set_point_attribute(pc, "scale", "FLOAT_VECTOR", layer.scales, "vector")
+    set_point_attribute(pc, "rotation", "QUATERNION", layer.unit_quats, "value")
+    set_point_attribute(pc, BASE, "FLOAT4", np.concatenate([dc, layer.opacities[:, None]], axis=1), "vector")
     for k in range(rest.shape[1]):
-        _set(pc, REST.format(k), "FLOAT_VECTOR", rest[:, k], "vector")
+        set_point_attribute(pc, REST.format(k), "FLOAT_VECTOR", rest[:, k], "vector")
     if layer.eps2d is not None:
-        _set(pc, FILTER, "FLOAT", layer.eps2d, "value")
-    _set(pc, "igs_index", "INT", idx, "value")
+        set_point_attribute(pc, FILTER, "FLOAT", layer.eps2d, "value")
+    set_point_attribute(pc, "igs_index", "INT", idx, "value")
     pc.materials.clear()
     if layer.kind in PLAIN_KINDS:
         pc.materials.append(linear_material())
@@ -181,19 +164,19 @@ def layer_from_native(obj: bpy.types.Object) -> SplatLayer:
     n = len(pc.points)
     kind = str(obj.get("igs_layer", "radiance"))
     space = str(obj.get("igs_space", "linear" if "igs_layer" in obj else "srgb"))
-    means = _get(pc, "position", 3, "vector")
-    base = _get(pc, BASE, 4, "vector")
-    scales = _get(pc, "scale", 3, "vector").astype(np.float64)
-    quats = _get(pc, "rotation", 4, "value")
+    means = get_point_attribute(pc, "position", 3, "vector", WHAT)
+    base = get_point_attribute(pc, BASE, 4, "vector", WHAT)
+    scales = get_point_attribute(pc, "scale", 3, "vector", WHAT).astype(np.float64)
+    quats = get_point_attribute(pc, "rotation", 4, "value", WHAT)
     k1 = rest_count(pc)
     rest = np.zeros((n, k1, 3), dtype=np.float32)
     for k in range(k1):
-        rest[:, k] = _get(pc, REST.format(k), 3, "vector")
+        rest[:, k] = get_point_attribute(pc, REST.format(k), 3, "vector", WHAT)
     if kind not in ("residual", "radiance"):
         rest = rest[:, :0]
     f_dc, f_rest = native_colors.decode(base[:, :3], rest, space)
     opac = np.clip(base[:, 3].astype(np.float64), 1e-7, 1 - 1e-7)
-    eps2d = _get(pc, FILTER, 1, "value") if pc.attributes.get(FILTER) is not None else None
+    eps2d = get_point_attribute(pc, FILTER, 1, "value", WHAT) if pc.attributes.get(FILTER) is not None else None
     encoding = str(obj.get("igs_color", {"albedo": "rgb01", "shading": "rgb"}.get(kind, "sh")))
     return SplatLayer(kind, means, f_dc, f_rest, np.log(opac / (1 - opac)).astype(np.float32),
                       np.log(np.maximum(scales, 1e-30)).astype(np.float32), quats, encoding=encoding, space=space,
@@ -203,7 +186,7 @@ def layer_from_native(obj: bpy.types.Object) -> SplatLayer:
 def recolor(obj: bpy.types.Object, linear_rgb: np.ndarray) -> None:
     """Give the splats of ``obj`` the (N, 3) linear colours ``linear_rgb`` (the composite preview)."""
     pc = obj.data
-    base = _get(pc, BASE, 4, "vector")
+    base = get_point_attribute(pc, BASE, 4, "vector", WHAT)
     f_dc = ((np.asarray(linear_rgb, dtype=np.float64) - 0.5) / native_colors.C0).astype(np.float32)
     base[:, :3], _ = native_colors.encode(f_dc, np.zeros((len(f_dc), 0, 3), np.float32), "linear")
     pc.attributes[BASE].data.foreach_set("vector", base.ravel())
