@@ -75,9 +75,10 @@ class IGS_AddonPreferences(bpy.types.AddonPreferences):
         default=CPU_TORCH_INDEX,
     )
     include_bpy: BoolProperty(
-        name="Include bpy (Python 3.11 only)",
-        description="Also install the bpy module (Blender 5.0.1) in the backend environment, to render "
-                    "synthetic demo captures: 383 MB with its dependencies; exists only for Python 3.11",
+        name="Include bpy (Python 3.11 and 3.13)",
+        description="Also install the bpy module in the backend environment, to render synthetic demo "
+                    "captures: Blender 5.3.0 on Python 3.13 (408 MB), 5.0.1 on Python 3.11 (383 MB); none "
+                    "exists for other Pythons",
         default=True,
     )
     native_splats: BoolProperty(
