@@ -49,6 +49,7 @@ C0 = 0.28209479177387814
 FILTER_VARIANCE = {"default": 0.173, "box": 1.0 / 12.0}
 """Per-axis variance (px^2) of Cycles' pixel filter: Blackman-Harris 1.5 px (Blender's default) or a 1 px box."""
 OUTPUTS = ("Albedo", "Shading", "Residual", "Image")
+PARTS = ("agreement", "kernel", "order", "timing")
 LAYER_KEYS = {"Albedo": "A", "Shading": "S", "Residual": "R", "Image": "A*S+R"}
 
 
@@ -76,6 +77,8 @@ class BenchConfig:
     """Projected widths (pixels) of the kernel's single splats."""
     threads: int = 2
     """Render threads."""
+    parts: list[str] = field(default_factory=lambda: list(PARTS))
+    """What to measure (a subset of :data:`PARTS`)."""
 
 
 # -- Blender and the add-on ------------------------------------------------------------------------------------------
@@ -438,12 +441,12 @@ def run(ws: Path, cfg: BenchConfig, log=print) -> dict[str, Any]:
             log(why)
     with tempfile.TemporaryDirectory(prefix="bench_blender_native-") as tmp:
         tmp = Path(tmp)
-        rows = agreement(addon, ws, engines, cfg, tmp, log)
+        rows = agreement(addon, ws, engines, cfg, tmp, log) if "agreement" in cfg.parts else []
         result["agreement_views"] = rows
         result["agreement"] = mean_table(rows)
-        result["kernel"] = {e: kernel(addon, e, cfg, tmp) for e in engines}
-        result["ordering"] = {e: ordering(addon, e, cfg, tmp) for e in engines if e == "cycles"}
-        result["timing"] = [row for e in engines for row in timing(addon, e, cfg, tmp, log)]
+        result["kernel"] = {e: kernel(addon, e, cfg, tmp) for e in engines if "kernel" in cfg.parts}
+        result["ordering"] = {e: ordering(addon, e, cfg, tmp) for e in engines if e == "cycles" and "order" in cfg.parts}
+        result["timing"] = [row for e in engines if "timing" in cfg.parts for row in timing(addon, e, cfg, tmp, log)]
     return result
 
 
@@ -500,16 +503,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--counts", default=",".join(map(str, d.counts)), help="splats of the timed frames")
     ap.add_argument("--size", default="x".join(map(str, d.size)), help="WIDTHxHEIGHT of the timed frames")
     ap.add_argument("--threads", type=int, default=d.threads, help="render threads")
+    ap.add_argument("--parts", default=",".join(PARTS), help="what to measure: " + ",".join(PARTS))
     args = ap.parse_args(argv)
     try:
         engines = [e for e in args.engines.split(",") if e]
         if not engines or any(e not in ("cycles", "eevee") for e in engines):
             raise IGSError(f"--engines: a comma list of cycles, eevee; got {args.engines!r}")
         w, h = _list(args.size.lower().replace("x", ","), int, "--size", 1)
+        parts = [p for p in args.parts.split(",") if p]
+        if not parts or any(p not in PARTS for p in parts):
+            raise IGSError(f"--parts: a comma list of {', '.join(PARTS)}; got {args.parts!r}")
         cfg = BenchConfig(views=args.views, eevee_views=args.eevee_views, scales=_list(args.scales, int, "--scales", 1),
                           engines=engines, samples=args.samples, eevee_samples=args.eevee_samples,
                           pixel_filter=args.pixel_filter, counts=_list(args.counts, int, "--counts", 1), size=(w, h),
-                          threads=args.threads)
+                          threads=args.threads, parts=parts)
         if min(cfg.views, cfg.samples, cfg.eevee_samples, cfg.threads) < 1 or cfg.eevee_views < 0:
             raise IGSError("--views, --samples, --eevee-samples and --threads must be >= 1")
         if not args.workspace.is_dir():
