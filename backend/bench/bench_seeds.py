@@ -56,11 +56,13 @@ from backend.edit.fit import FitConfig
 from backend.edit.surface_points import GROW_ON
 from backend.eval.layer_metrics import headline_metrics
 from backend.render import BACKENDS
+from backend.render.types import RASTER_MODES, RasterMode
 from backend.synth.run import synthesize
 from backend.synth.settings import PRESETS
 from backend.train.device import add_device_argument
 from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.run import METRICS_KEY, decompose
+from backend.train.loop import TrainConfig
 
 ROOM = "room"
 """The --scene-seeds label of the fixed room (synthesize without scene_seed)."""
@@ -91,7 +93,7 @@ DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_ps
 # decomposition metrics the printed aggregate leaves to the JSON (SSIM, LPIPS)
 JSON_ONLY = ("_ssim", "_lpips")
 DECOMPOSITION_SETTINGS = ("preset", "views", "seed", "iterations", "downscale", "max_gaussians", "residual_points",
-                          "single_set", "backend", "device")
+                          "single_set", "backend", "device", "raster_mode")
 """The settings of the capture and its decomposition (steps 1-3): the rest only change the edits."""
 EDIT_TABLE = ("image", "image_interior", "image_border", "image_bleed", "albedo", "albedo_interior",
               "albedo_border", "albedo_bleed", "lead_image_db", "lead_image_interior_db")
@@ -118,6 +120,8 @@ class SeedSettings:
     """Also run the single-set baseline (about 3x the decomposition's time on the CPU)."""
     backend: str = "auto"
     device: str = "auto"
+    raster_mode: RasterMode = TrainConfig.raster_mode
+    """The rasterisation mode of 3DGS, the three fields and so of the bakes (``--raster-mode``)."""
     edits: tuple[str, ...] | None = None
     """gt_edit edits to bench (None: all of each scene's)."""
     bake_iterations: int = BakeConfig.iterations
@@ -235,7 +239,7 @@ def ensure_albedo(ws: Path, s: SeedSettings, before: tuple[int, int, int] | None
     if now is not None and now != before:
         return "reused: bench_decompose's three-set run"
     _, dec_cfg = bench_decompose.configs(s.iterations, s.downscale, s.max_gaussians, s.backend,
-                                         s.residual_points, s.device)
+                                         s.residual_points, s.device, raster_mode=s.raster_mode)
     decompose(str(ws), dec_cfg, stages=("albedo",), resume=False)
     return "trained: albedo stage (bench_decompose left none)"
 
@@ -338,7 +342,7 @@ def run_seed(root: Path, scene_seed: int | None, s: SeedSettings, where: str = "
         before = file_version(ws / "layers" / "albedo.ply")
         dec = _timed(seconds, "bench_decompose", where, lambda: bench_decompose.run(
             str(ws), s.iterations, s.downscale, s.max_gaussians, s.backend, s.residual_points,
-            single_set=s.single_set, device=s.device))
+            single_set=s.single_set, device=s.device, raster_mode=s.raster_mode))
         write_json(ws / "bench_decompose.json", dec)
         decomposition = decomposition_headline(dec, three_set_entry(ws))
         source = _timed(seconds, "albedo_layer", where, lambda: ensure_albedo(ws, s, before))
@@ -476,6 +480,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--residual-points", type=int, default=d.residual_points)
     p.add_argument("--single-set", action="store_true", help="also run the single-set baseline (slow)")
     p.add_argument("--backend", default=d.backend, choices=BACKENDS)
+    p.add_argument("--raster-mode", default=d.raster_mode, choices=RASTER_MODES,
+                   help=f"rasterisation mode of every trained field (default {d.raster_mode})")
     add_device_argument(p)
     p.add_argument("--edits", default=None, help="comma list of gt_edit edits (default: every edit of each scene)")
     p.add_argument("--bake-iterations", type=int, default=d.bake_iterations)
@@ -497,7 +503,7 @@ def settings_from(args: argparse.Namespace) -> SeedSettings:
     return SeedSettings(preset=args.preset, views=args.views, seed=args.seed, iterations=args.iterations,
                         downscale=args.downscale, max_gaussians=args.max_gaussians,
                         residual_points=args.residual_points, single_set=args.single_set, backend=args.backend,
-                        device=args.device, edits=edits, bake_iterations=args.bake_iterations,
+                        device=args.device, raster_mode=args.raster_mode, edits=edits, bake_iterations=args.bake_iterations,
                         bake_views=args.bake_views, capture_views=args.capture_views, anchor_views=args.anchor_views,
                         edit_filter=args.edit_filter, margin=args.margin, ring=args.ring,
                         min_selected=args.min_selected, grow_on=args.grow_on,
