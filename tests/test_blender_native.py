@@ -25,7 +25,7 @@ import _addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the
 from test_blender_addon import MOD, addon, attr, ext_zip, make_tiny_workspace, sub  # noqa: E402, F401
 
 from backend.core.cameras import Camera  # noqa: E402
-from backend.core.imageio import linear_to_srgb  # noqa: E402
+from backend.core.imageio import srgb_psnr  # noqa: E402
 from backend.render import render_layers  # noqa: E402
 from backend.splats.gaussians import GaussianSet  # noqa: E402
 from backend.splats.ply import read_ply, write_ply  # noqa: E402
@@ -108,27 +108,9 @@ def cycles(scene, samples: int = 256) -> None:
 
 
 def render_outputs(scene, folder: Path, outputs=("Image", "Albedo", "Shading", "Residual")) -> dict[str, np.ndarray]:
-    """F12 with a File Output node on the group's outputs: linear (H, W, 3) images by output name."""
-    tree = bpy.data.node_groups["IGS Render"]
-    node = tree.nodes.new("CompositorNodeOutputFile")
-    node.directory = str(folder) + "/"
-    node.file_name = ""
-    node.format.media_type = "IMAGE"
-    node.format.file_format = "OPEN_EXR"
-    node.format.color_depth = "32"
-    group = tree.nodes["IGS Composite"]
-    for name in outputs:
-        node.file_output_items.new("RGBA", name)
-        tree.links.new(group.outputs[name], node.inputs[name])
-    try:
-        bpy.ops.render.render(write_still=False)
-    finally:
-        tree.nodes.remove(node)
-    out = {}
-    for name in outputs:
-        path = next(folder.glob(f"{name}*.exr"))
-        out[name] = sub("images").pixels(bpy.data.images.load(str(path)))[..., :3].astype(np.float64)
-    return out
+    """F12 of ``scene`` with the composite group's outputs read back (the add-on's own helper)."""
+    assert bpy.context.scene == scene
+    return sub("native_outputs").render_outputs(folder, tuple(outputs))
 
 
 def reference(scene, sets: dict[str, GaussianSet]) -> dict[str, np.ndarray]:
@@ -141,12 +123,6 @@ def reference(scene, sets: dict[str, GaussianSet]) -> dict[str, np.ndarray]:
         outs = render_layers([layer_splats(sets[k]) for k in ("albedo", "shading", "residual")], cam)
     a, s, r = (o.color.clamp_min(0).numpy().astype(np.float64) for o in outs)
     return {"Albedo": a, "Shading": s, "Residual": r, "Image": a * s + r}
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR in sRGB of two linear images, each clipped to [0, 1] as igs render writes it."""
-    x, y = (linear_to_srgb(np.clip(v, 0.0, 1.0)) for v in (a, b))
-    return float(-10 * np.log10(max(np.mean((x - y) ** 2), 1e-12)))
 
 
 # -- the colours ---------------------------------------------------------------------------------------------------
@@ -304,7 +280,7 @@ def test_f12_renders_the_composite_that_igs_render_renders(scene, tmp_path):
     got = render_outputs(scene, tmp_path / "f12")
     want = reference(scene, sets)
     assert got["Image"].shape == (SIZE[1], SIZE[0], 3)
-    scores = {k: psnr(got[k], want[k]) for k in want}
+    scores = {k: srgb_psnr(got[k], want[k]) for k in want}
     for k, floor in {"Albedo": 32.0, "Shading": 28.0, "Residual": 35.0, "Image": 28.0}.items():
         assert scores[k] > floor, scores
     # the composite is the group's product of what it was given: A*S + R exactly
@@ -383,7 +359,7 @@ def test_the_edit_preview_shows_the_proxy_over_the_albedo_then_the_baked_albedo(
     np.testing.assert_allclose(got["Image"], got["Albedo"] * got["Shading"] + got["Residual"], atol=1e-5)
     plain = reference(scene, sets)["Albedo"]
     corner = (slice(0, 4), slice(0, 4))
-    assert psnr(got["Albedo"][corner], plain[corner]) > 24  # elsewhere the albedo is the field's
+    assert srgb_psnr(got["Albedo"][corner], plain[corner]) > 24  # elsewhere the albedo is the field's
     # baked: the edit's own albedo layer replaces the field (a baked albedo of uniform blue here)
     baked = wall("albedo", 300, 1, color=lambda rng, m: np.tile([0.1, 0.2, 0.9], (m, 1)))
     ply = ws / "edits" / "decal" / "albedo.ply"
@@ -396,7 +372,7 @@ def test_the_edit_preview_shows_the_proxy_over_the_albedo_then_the_baked_albedo(
     assert bpy.data.objects["IGS albedo"].hide_render and not item.albedo.hide_render
     got = render_outputs(scene, tmp_path / "baked", ("Albedo",))
     sets["albedo"] = baked
-    assert psnr(got["Albedo"], reference(scene, sets)["Albedo"]) > 27
+    assert srgb_psnr(got["Albedo"], reference(scene, sets)["Albedo"]) > 27
 
 
 def test_render_turntable_is_an_animated_camera_blender_renders_to_png_and_mp4(scene, tmp_path):
@@ -491,7 +467,7 @@ def test_eevee_renders_the_composite_where_egl_works(scene, tmp_path):
     except RuntimeError as e:  # no GPU context: EGL (or a display) missing
         pytest.skip(f"EEVEE cannot render here: {e}")
     want = reference(scene, sets)
-    scores = {k: psnr(got[k], want[k]) for k in want}
+    scores = {k: srgb_psnr(got[k], want[k]) for k in want}
     for k, floor in {"Albedo": 27.0, "Shading": 23.0, "Residual": 30.0, "Image": 24.0}.items():
         assert scores[k] > floor, scores
 

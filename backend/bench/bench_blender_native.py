@@ -41,6 +41,7 @@ import numpy as np
 
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.core.imageio import srgb_psnr
 
 Engine = Literal["cycles", "eevee"]
 ROOT = Path(__file__).resolve().parents[2]
@@ -63,6 +64,8 @@ class BenchConfig:
     """Of those, how many EEVEE renders (Mesa's llvmpipe is slow)."""
     scales: list[int] = field(default_factory=lambda: [1, 4])
     """Output sizes as multiples of the capture's."""
+    noise_scales: list[int] | None = None
+    """Scales at which Cycles' noise is measured (one frame rendered again with another seed); None: all."""
     engines: list[Engine] = field(default_factory=lambda: ["cycles", "eevee"])
     samples: int = 64
     """Cycles samples per pixel (adaptive sampling and denoising off)."""
@@ -133,38 +136,9 @@ def set_engine(scene, engine: Engine, cfg: BenchConfig) -> None:
         scene.eevee.taa_render_samples = cfg.eevee_samples
 
 
-def render_outputs(addon: Addon, scene, folder: Path, outputs=OUTPUTS) -> dict[str, np.ndarray]:
-    """F12 with a File Output node on the composite group's outputs: linear (H, W, 3) float64 by output."""
-    bpy = addon.bpy
-    tree = bpy.data.node_groups[addon.native_render.TREE]
-    node = tree.nodes.new("CompositorNodeOutputFile")
-    node.directory = str(folder) + "/"
-    node.file_name = ""
-    node.format.media_type = "IMAGE"
-    node.format.file_format = "OPEN_EXR"
-    node.format.color_depth = "32"
-    group = tree.nodes[addon.native_render.GROUP]
-    for name in outputs:
-        node.file_output_items.new("RGBA", name)
-        tree.links.new(group.outputs[name], node.inputs[name])
-    try:
-        bpy.ops.render.render()
-    finally:
-        tree.nodes.remove(node)
-    out = {}
-    for name in outputs:
-        image = bpy.data.images.load(str(next(folder.glob(f"{name}*.exr"))))
-        out[name] = addon.images.pixels(image)[..., :3].astype(np.float64)
-        bpy.data.images.remove(image)
-    return out
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR in sRGB of two linear images, each clipped to [0, 1] as igs render writes it."""
-    from backend.core.imageio import linear_to_srgb
-
-    x, y = (linear_to_srgb(np.clip(v, 0.0, 1.0)) for v in (a, b))
-    return float(-10 * np.log10(max(float(np.mean((x - y) ** 2)), 1e-12)))
+def render_outputs(addon: Addon, folder: Path, outputs=OUTPUTS) -> dict[str, np.ndarray]:
+    """F12 with the composite group's ``outputs`` read back: linear (H, W, 3) float64 by output."""
+    return addon.native_outputs.render_outputs(folder, tuple(outputs))
 
 
 def engine_works(addon: Addon, engine: Engine, cfg: BenchConfig) -> str | None:
@@ -224,18 +198,19 @@ def agreement(addon: Addon, ws: Path, engines: list[Engine], cfg: BenchConfig, t
                 addon.camera_objects.use_frame_camera(scene, obj)
                 scene.render.resolution_percentage = 100 * scale
                 t0 = time.perf_counter()
-                got = render_outputs(addon, scene, tmp / f"{engine}-{scale}-{i}")
+                got = render_outputs(addon, tmp / f"{engine}-{scale}-{i}")
                 seconds = time.perf_counter() - t0
                 want = reference(layers, cam.scaled(scale))
                 row = {"engine": engine, "scale": scale, "view": cam.name, "size": list(got["Image"].shape[1::-1]),
                        "seconds": round(seconds, 2),
-                       "psnr": {LAYER_KEYS[k]: round(psnr(got[k], want[k]), 2) for k in OUTPUTS}}
-                if engine == "cycles" and i == views[0]:
+                       "psnr": {LAYER_KEYS[k]: round(srgb_psnr(got[k], want[k]), 2) for k in OUTPUTS}}
+                noise = cfg.noise_scales is None or scale in cfg.noise_scales
+                if engine == "cycles" and i == views[0] and noise:
                     # Cycles' noise alone: the same frame with another seed, against the first
                     scene.cycles.seed = 1
-                    again = render_outputs(addon, scene, tmp / f"{engine}-{scale}-{i}-seed1")
+                    again = render_outputs(addon, tmp / f"{engine}-{scale}-{i}-seed1")
                     scene.cycles.seed = 0
-                    row["noise_psnr"] = {LAYER_KEYS[k]: round(psnr(got[k], again[k]), 2) for k in OUTPUTS}
+                    row["noise_psnr"] = {LAYER_KEYS[k]: round(srgb_psnr(got[k], again[k]), 2) for k in OUTPUTS}
                 log(f"{engine} x{scale} {cam.name}: " + ", ".join(f"{k} {v:.2f}" for k, v in row["psnr"].items())
                     + f" dB ({seconds:.1f} s)")
                 rows.append(row)
@@ -369,7 +344,7 @@ def ordering(addon: Addon, engine: Engine, cfg: BenchConfig, tmp: Path) -> dict[
         addon.layers.build_layer_object(addon.layers.object_name("albedo"), layer)
         addon.native_render.setup(scene)
         addon.edits.apply_visibility()
-        got = render_outputs(addon, scene, tmp / f"order-{engine}-{name}", ("Albedo",))["Albedo"]
+        got = render_outputs(addon, tmp / f"order-{engine}-{name}", ("Albedo",))["Albedo"]
         import torch
 
         from backend.render import render_layers
@@ -377,7 +352,7 @@ def ordering(addon: Addon, engine: Engine, cfg: BenchConfig, tmp: Path) -> dict[
 
         with torch.no_grad():
             want = render_layers([layer_splats(as_gaussians(layer))], backend_camera(addon, scene))[0]
-        out[name] = round(psnr(got, want.color.clamp_min(0).numpy().astype(np.float64)), 2)
+        out[name] = round(srgb_psnr(got, want.color.clamp_min(0).numpy().astype(np.float64)), 2)
     return out
 
 
@@ -495,6 +470,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=d.views, help="capture cameras compared (evenly spaced)")
     ap.add_argument("--eevee-views", type=int, default=d.eevee_views, help="of those, how many EEVEE renders")
     ap.add_argument("--scales", default=",".join(map(str, d.scales)), help="output sizes, times the capture's")
+    ap.add_argument("--noise-scales", default=None,
+                    help="scales at which Cycles' noise is measured (a second seed's frame); default: every scale")
     ap.add_argument("--engines", default=",".join(d.engines), help="cycles,eevee")
     ap.add_argument("--samples", type=int, default=d.samples, help="Cycles samples per pixel")
     ap.add_argument("--eevee-samples", type=int, default=d.eevee_samples)
@@ -516,7 +493,9 @@ def main(argv: list[str] | None = None) -> int:
         cfg = BenchConfig(views=args.views, eevee_views=args.eevee_views, scales=_list(args.scales, int, "--scales", 1),
                           engines=engines, samples=args.samples, eevee_samples=args.eevee_samples,
                           pixel_filter=args.pixel_filter, counts=_list(args.counts, int, "--counts", 1), size=(w, h),
-                          threads=args.threads, parts=parts)
+                          threads=args.threads, parts=parts,
+                          noise_scales=None if args.noise_scales is None else _list(args.noise_scales, int,
+                                                                                    "--noise-scales", 1))
         if min(cfg.views, cfg.samples, cfg.eevee_samples, cfg.threads) < 1 or cfg.eevee_views < 0:
             raise IGSError("--views, --samples, --eevee-samples and --threads must be >= 1")
         if not args.workspace.is_dir():

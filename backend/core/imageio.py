@@ -52,6 +52,12 @@ def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
 
 
+def srgb_psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR (dB) of two linear images in sRGB, each clipped to [0, 1] as a PNG of it would hold it."""
+    x, y = (linear_to_srgb(v).astype(np.float64) for v in (a, b))
+    return float(-10 * np.log10(max(float(np.mean((x - y) ** 2)), 1e-12)))
+
+
 MAX_SIDE = 32768  # pixels; larger declared sizes are corrupt headers, not photos
 
 
