@@ -24,7 +24,8 @@ from backend.bench.bench_blender_native import Addon  # noqa: E402  (the add-on 
 from backend.core.errors import IGSError  # noqa: E402
 
 
-def build_scene(addon: Addon, ws: Path, edit: str, samples: int, frames: int):
+def build_scene(addon: Addon, ws: Path, edit: str, samples: int, frames: int,
+                mesh_at: tuple[float, float, float]):
     """The scene as the artist leaves it before Render Turntable."""
     bpy = addon.bpy
     scene = addon.fresh()
@@ -39,12 +40,12 @@ def build_scene(addon: Addon, ws: Path, edit: str, samples: int, frames: int):
     props.edits_index = names.index(edit)
     props.render_edit = True
     addon.edits.apply_visibility()
-    # a mesh beside the capture's centre: in front of the walls, behind the room's middle from some views
-    bpy.ops.mesh.primitive_monkey_add(size=0.5, location=(0.45, 0.35, 0.22), rotation=(0.0, 0.0, 2.4))
+    # a mesh on the floor: in front of the walls, behind the room's middle from the far side
+    bpy.ops.mesh.primitive_monkey_add(size=0.5, location=mesh_at, rotation=(0.0, 0.0, 2.4))
     monkey = bpy.context.active_object
     bpy.ops.object.shade_smooth()
     material = bpy.data.materials.new("Monkey")
-    material.use_nodes = True
+    addon.compat.use_nodes(material)
     bsdf = material.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (0.85, 0.45, 0.08, 1.0)
     bsdf.inputs["Roughness"].default_value = 0.35
@@ -77,10 +78,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--columns", type=int, default=4)
     ap.add_argument("--samples", type=int, default=32, help="Cycles samples per pixel")
+    ap.add_argument("--mesh-at", default="-0.95,0.35,0.25", help="X,Y,Z of the monkey (Blender world)")
     args = ap.parse_args(argv)
     try:
         addon = Addon()
-        scene = build_scene(addon, args.workspace, args.edit, args.samples, args.frames)
+        try:
+            mesh_at = tuple(float(v) for v in args.mesh_at.split(","))
+        except ValueError:
+            mesh_at = ()
+        if len(mesh_at) != 3:
+            raise IGSError(f"--mesh-at: expected X,Y,Z, got {args.mesh_at!r}")
+        scene = build_scene(addon, args.workspace, args.edit, args.samples, args.frames, mesh_at)
         if addon.bpy.ops.igs.render_sequence(mode="TURNTABLE") != {"FINISHED"}:
             raise IGSError(f"render turntable: {scene.igs.last_report}")
         report = scene.igs.last_report
