@@ -79,10 +79,11 @@ class TrainConfig:
     """Write a resumable checkpoint every this many iterations (and at the end and on cancel)."""
     backend: Backend = "auto"
     """Renderer backend: auto, cpu, reference or gsplat."""
-    raster_mode: RasterMode = "classic"
+    raster_mode: RasterMode = "antialiased"
     """Screen-space low-pass the Gaussians are trained, written (``igs_raster``) and rendered with:
-    classic (3DGS's 0.3 px^2 dilation) or antialiased (0.17 px^2 with the opacity compensated, as
-    Blender 5.3 draws splats; see docs/rendering.md)."""
+    antialiased (0.17 px^2 with the opacity compensated, as Blender 5.3 draws splats; the default,
+    chosen on bench_decompose, bench_edit and bench_seeds, docs/rendering.md) or classic (3DGS's
+    0.3 px^2 dilation, what most viewers draw)."""
     lambda_dssim: float = 0.2
     """Weight of the D-SSIM term in the photometric loss."""
     lambda_depth: float = 0.0
