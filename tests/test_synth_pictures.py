@@ -18,11 +18,11 @@ from backend.synth.family.parts import EDITS, WALL_NAMES
 from backend.synth.family.poster import CONTENTS, LIGHT_GAP, _distance_to
 
 SEEDS = (0, 1, 2, 100, 101, 102, 103, 104, *range(3, 40))
-SCALE = 128
-"""Pixels along the long side the criterion looks at: about 1 cm each on a poster, as the `paper`
-preset sees it from 1.5-2 m; finer detail (grain, hairlines) averages away and does not count."""
-MIN_HIGH_PASS = 0.075
-"""Smallest RMS (sRGB) of the detail a 1.5-px Gaussian removes at :data:`SCALE`."""
+SCALE = 64
+"""Pixels along the long side the criterion looks at: 1.2-1.8 cm each on a poster, about what the
+`demo` preset sees from 2-3 m; finer detail (grain, hairlines) averages away and does not count."""
+MIN_HIGH_PASS = 0.08
+"""Smallest RMS (sRGB) of the detail a 1-px Gaussian removes at :data:`SCALE`."""
 MIN_HUES = 4
 """Fewest 30-degree hue bins each holding at least 2 % of the picture in saturated pixels."""
 MIN_SATURATED = 0.4
@@ -36,9 +36,9 @@ def _at_scale(img: np.ndarray) -> np.ndarray:
 
 
 def high_pass(img: np.ndarray) -> float:
-    """RMS of the image minus its 1.5-px Gaussian blur at :data:`SCALE`, sRGB units."""
+    """RMS of the image minus its 1-px Gaussian blur at :data:`SCALE`, sRGB units."""
     im = _at_scale(img)
-    return float(np.sqrt(((im - cv2.GaussianBlur(im, (0, 0), 1.5)) ** 2).mean()))
+    return float(np.sqrt(((im - cv2.GaussianBlur(im, (0, 0), 1.0)) ** 2).mean()))
 
 
 def hue_spread(img: np.ndarray) -> tuple[int, float]:

@@ -9,7 +9,8 @@ bands, drawn with OpenCV's ``putText``). Nothing is downloaded.
 Each function returns an ``(height, width, 3) uint8`` sRGB-encoded image, top row first, like
 :mod:`backend.synth.textures` (which re-exports them, so the Blender-binary worker can ask for them
 by name). Detail is sized as a fraction of the picture's long side: on a poster about a metre
-wide, stripes and checks repeat every 2-6 cm, a few pixels at the `demo` preset. Every value lies in
+wide, checks, dots and stripes repeat every 4-10 cm, a few pixels at the `demo` preset from 2-3 m
+(finer detail would only blur to its mean colour there). Every value lies in
 :data:`PRINT_RANGE`, so the linear albedo stays within 0.005-0.89, inside the family's range (no
 pure black, no pure white).
 """
@@ -95,7 +96,7 @@ PATTERN_KINDS = ("stripes", "checks", "dots", "zigzag", "rings", "plaid")
 
 def patterns(rng: np.random.Generator, width: int = 512, height: int = 384) -> np.ndarray:
     """A patchwork poster: a grid of cells, each a pattern of :data:`PATTERN_KINDS` in two or three
-    saturated hues of its own, repeating every 2-5 % of the long side, between thin dark bars."""
+    saturated hues of its own, repeating every 4.5-9 % of the long side, between thin dark bars."""
     y, x, long = _grid(height, width)
     cols, rows = int(rng.integers(3, 6)), int(rng.integers(2, 5))
     xs = np.sort(rng.uniform(0.15, 0.85, cols - 1)) if cols > 1 else np.zeros(0)
@@ -106,7 +107,7 @@ def patterns(rng: np.random.Generator, width: int = 512, height: int = 384) -> n
         for c in range(cols):
             cell = (row == r) & (col == c)
             kind = PATTERN_KINDS[int(rng.integers(len(PATTERN_KINDS)))]
-            labels = _pattern(kind, y, x, float(rng.uniform(0.02, 0.05)), float(rng.uniform(0, np.pi)))
+            labels = _pattern(kind, y, x, float(rng.uniform(0.045, 0.09)), float(rng.uniform(0, np.pi)))
             pal = _hues(rng, 3)
             img[cell] = pal[labels[cell] % 3]
     bar = 0.006
@@ -136,7 +137,8 @@ def _fit_scale(text: str, font: int, thickness: int, width_px: float) -> float:
 
 def typography(rng: np.random.Generator, width: int = 512, height: int = 384) -> np.ndarray:
     """A typographic poster: four to six horizontal bands of saturated colour, a headline across the
-    top band and lines of smaller text in other hues on the rest, plus a row of coloured squares."""
+    top band and lines of smaller text in other hues on the rest, a row of coloured squares and a
+    checkered strip along the top and the bottom."""
     img = np.zeros((height, width, 3), np.uint8)
     n_bands = int(rng.integers(4, 7))
     cuts = np.r_[0, (np.arange(1, n_bands) + rng.uniform(-0.3, 0.3, n_bands - 1)) / n_bands, 1.0] * height
@@ -145,6 +147,11 @@ def typography(rng: np.random.Generator, width: int = 512, height: int = 384) ->
     light, dark = np.array([0.95, 0.93, 0.88]), np.array([0.08, 0.07, 0.07])
     for b in range(n_bands):
         img[int(cuts[b]):int(cuts[b + 1])] = (band_cols[b] * 255).astype(np.uint8)
+    cell = max(3, int(0.03 * max(width, height)))  # a checkered strip along the top and the bottom, two hues
+    pair = (_hues(rng, 2) * 255).astype(np.uint8)
+    ys, xs = np.mgrid[0:cell, 0:width]
+    strip = pair[((xs // cell) + (ys // cell)) % 2]
+    img[:cell], img[height - cell:] = strip, strip
     side = max(4, int(0.04 * max(width, height)))  # a row of squares along the bottom, one per hue, under the text
     for i, col in enumerate(_hues(rng, 8)):
         x0 = int(0.03 * width) + i * int(1.4 * side)
@@ -221,11 +228,11 @@ def _still_life(rng: np.random.Generator, height: int, width: int) -> np.ndarray
     y, x, long = _grid(height, width)
     H, W = height / long, width / long
     wall_a, wall_b, cloth_a, cloth_b = _hues(rng, 4, s=(0.55, 0.9), v=(0.65, 0.95))
-    per = rng.uniform(0.03, 0.05)
+    per = rng.uniform(0.045, 0.07)
     dots = np.hypot((x / per) % 1 - 0.5, ((y / per) + 0.5 * np.floor(x / per)) % 1 - 0.5) < 0.25
     img = np.where(dots[..., None], wall_b, wall_a)
     table = H * rng.uniform(0.55, 0.68)
-    gp = rng.uniform(0.025, 0.045)
+    gp = rng.uniform(0.04, 0.07)
     u, v = x / gp, (y - table) / gp
     gingham = ((np.floor(u) % 2) + (np.floor(v) % 2)).astype(int)  # 0, 1, 2: light, mid, dark
     cloth = np.stack([np.full(3, 0.93, np.float32), cloth_a, cloth_b])[gingham]
@@ -234,7 +241,7 @@ def _still_life(rng: np.random.Generator, height: int, width: int) -> np.ndarray
     vtop = table - H * rng.uniform(0.3, 0.45)
     vase = (np.abs(x - vx) < vw / 2 * (0.7 + 0.3 * np.sin(np.pi * np.clip((y - vtop) / (table - vtop), 0, 1)))) & \
         (y > vtop) & (y < table + 0.01)
-    stripes = _hues(rng, 3)[(np.floor((y - vtop) / rng.uniform(0.015, 0.03)) % 3).astype(int)]
+    stripes = _hues(rng, 3)[(np.floor((y - vtop) / rng.uniform(0.025, 0.04)) % 3).astype(int)]
     img = np.where(vase[..., None], stripes * (0.6 + 0.4 * np.cos((x - vx) / vw * np.pi))[..., None], img)
     for _ in range(int(rng.integers(5, 9))):  # fruit: shaded discs, lit from the upper left
         r = rng.uniform(0.04, 0.08)
