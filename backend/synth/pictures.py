@@ -50,9 +50,13 @@ def _finish(img: np.ndarray) -> np.ndarray:
 
 
 def _grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Pixel centres (y, x), each (H, W) float32 in units of the long side, and the long side in pixels."""
+    """Pixel centres (y, x), each (H, W) float64 in units of the long side, and the long side in pixels.
+
+    Float64, so that numpy 1 and 2 compute the same picture: with float32 coordinates a numpy scalar
+    (a cosine, a cut) would keep float32 under numpy 1 and promote to float64 under numpy 2 (NEP 50).
+    """
     long = float(max(height, width))
-    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
     return (y + 0.5) / long, (x + 0.5) / long, long
 
 
