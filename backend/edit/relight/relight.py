@@ -142,8 +142,9 @@ class LightRig:
         return self.shading(view_geometry(splats, cam, self.cfg.normals, self.cfg.backend, self.cfg.normal_smooth,
                                           rendered))
 
-    def shading(self, geom: ViewGeometry) -> dict[str, Tensor]:
-        """{light name: (H, W, 3) float32 S_new of that light}, 0 where the view has no surface."""
+    def shading(self, geom: ViewGeometry, shadows: bool = True) -> dict[str, Tensor]:
+        """{light name: (H, W, 3) float32 S_new of that light}, 0 where the view has no surface;
+        ``shadows`` False: every point sees the whole light."""
         h, w = geom.valid.shape
         pts = geom.points[geom.valid]
         nrm = geom.normals[geom.valid]
@@ -152,6 +153,8 @@ class LightRig:
             maps = self.maps[light.name]
 
             def visible(k: int, p: Tensor, n: Tensor, maps=maps) -> Tensor:
+                if not shadows:
+                    return torch.ones(len(p), dtype=torch.float64)
                 return visibility(maps[k], p, n, self.cfg.pcf, self.cfg.normal_offset, self.cfg.depth_bias,
                                   self.cfg.min_cos)
 
@@ -160,6 +163,21 @@ class LightRig:
                 s[geom.valid] = shading(light, pts, nrm, visible, self.cfg.area_cells,
                                         self.cfg.area_samples).to(torch.float32)
             out[light.name] = s
+        return out
+
+    def visibility(self, geom: ViewGeometry) -> dict[str, Tensor]:
+        """{light name: (H, W) float32 fraction of the light's maps that see each pixel's point} (an area
+        light: the mean over its cells' maps), 0 where the view has no surface."""
+        h, w = geom.valid.shape
+        pts, nrm = geom.points[geom.valid], geom.normals[geom.valid]
+        out = {}
+        for light in self.lights:
+            v = torch.zeros(h, w, dtype=torch.float32)
+            if len(pts):
+                maps = self.maps[light.name]
+                v[geom.valid] = (sum(visibility(m, pts, nrm, self.cfg.pcf, self.cfg.normal_offset, self.cfg.depth_bias,
+                                                self.cfg.min_cos) for m in maps) / len(maps)).to(torch.float32)
+            out[light.name] = v
         return out
 
     def total_shading(self, geom: ViewGeometry) -> Tensor:
