@@ -94,7 +94,8 @@ def run_scene(root: Path, scene_seed: int | None, s: SeedSettings, ev: EvalSetti
 def flat(entry: dict[str, Any]) -> dict[str, float | None]:
     """{"<method>_<region>": PSNR, lead and gap keys} of one scene, the numbers aggregated over scenes."""
     out: dict[str, float | None] = {f"{m}_{r}": entry["psnr"][m][r] for m in METHODS for r in REGIONS}
-    return {**out, **entry["leads"]}
+    angles = {f"normal_error_{m}_median_deg": v["median"] for m, v in entry.get("normal_error_deg", {}).items()}
+    return {**out, **entry["leads"], **angles}
 
 
 def document(scenes: dict[str, Any], requested: list[str], settings: dict[str, Any]) -> dict[str, Any]:
@@ -145,6 +146,9 @@ def parser() -> argparse.ArgumentParser:
                    help=f"pixels each side of the shadows' boundary in the edges region (default {ev.edge_band})")
     p.add_argument("--normals", default=rc.normals, choices=NORMAL_SOURCES,
                    help=f"normals of ours and sh_strip (default {rc.normals})")
+    p.add_argument("--figures", action="store_true",
+                   help="also write <ws>/bench_relight/<view>.png per held-out view: a row per light of the "
+                        "capture, Cycles with the light, ours, sh_strip and ceiling")
     p.add_argument("--shadow-size", type=int, default=rc.shadow_size,
                    help=f"texels on a side of a shadow map face (default {rc.shadow_size})")
     return p
@@ -163,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
             raise IGSError("--lit-threshold must be > 0 and --edge-band >= 0")
         relight = replace(RelightConfig(), normals=args.normals, shadow_size=args.shadow_size, backend=args.backend)
         relight.check()
-        ev = EvalSettings(lit_threshold=args.lit_threshold, edge_band=args.edge_band, relight=relight)
+        ev = EvalSettings(lit_threshold=args.lit_threshold, edge_band=args.edge_band, relight=relight,
+                          figures=args.figures)
         settings = {"capture_and_decomposition": s.decomposition_json(), "lights": args.lights,
                     "evaluation": {**{k: v for k, v in asdict(ev).items() if k != "relight"},
                                    "relight": asdict(relight)}}

@@ -40,10 +40,24 @@ from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.core.imageio import linear_to_srgb, luminance, read_depth, read_exr, read_image, srgb_to_linear
+from backend.core.imageio import (
+    linear_to_srgb,
+    luminance,
+    read_depth,
+    read_exr,
+    read_image,
+    srgb_to_linear,
+    write_image,
+)
 from backend.core.workspace import Workspace
 from backend.edit.relight.lights import Light, load_lights
-from backend.edit.relight.relight import LightRig, RelightConfig, ViewGeometry, geometry_from_depth
+from backend.edit.relight.relight import (
+    LightRig,
+    RelightConfig,
+    ViewGeometry,
+    geometry_from_depth,
+    view_geometry,
+)
 from backend.render import Splats, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply
@@ -65,6 +79,9 @@ class EvalSettings:
     """Pixels on each side of the visibility boundary in the ``edges`` region."""
     truth_voxel: float = 0.02
     """Spacing (m) of the truth field's Gaussians (one per voxel of the views' depth points)."""
+    figures: bool = False
+    """Also write ``<ws>/bench_relight/<view>.png``: a row per light of the capture, Cycles with the light,
+    ours, sh_strip and ceiling (sRGB)."""
     relight: RelightConfig = field(default_factory=RelightConfig)
 
 
@@ -167,10 +184,11 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
         rig_truth = LightRig(lights, truth, cfg, "shadow maps: true depth")
         scores = _Scores()
         no_light = {"se": 0.0, "n": 0}
+        angles: dict[str, list] = {"ours": [], "sh_strip": []}
         with events.stage("relight views", len(views), unit="view") as bar:
             for name in views:
                 _score_view(ws, frames[name].camera, lights, s, (albedo, shading_l, residual), (radiance, dc),
-                            radiance_file.space, (rig_ours, rig_sh, rig_truth), scores, no_light)
+                            radiance_file.space, (rig_ours, rig_sh, rig_truth), scores, no_light, angles)
                 bar.update(1)
     psnr = scores.psnr()
     leads = {f"lead_{b}_{r}_db": _diff(psnr["ours"][r], psnr[b][r]) for b in LEAD_OVER for r in REGIONS}
@@ -180,8 +198,17 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
             "per_light": {li.name: {"psnr": scores.psnr(li.name), "pixels": scores.pixels(li.name)} for li in lights},
             "ours_without_light_psnr": round(10 * math.log10(no_light["n"] / no_light["se"]), 3)
             if no_light["se"] > 0 else None,
+            "normal_error_deg": {k: _angle_summary(v) for k, v in angles.items()},
             "gaussians": {"albedo": len(albedo), "radiance": len(radiance), "truth": len(truth)},
             "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def _angle_summary(parts: list[torch.Tensor]) -> dict[str, float | None]:
+    """Median and mean of the angles (degrees) between a method's normals and those of ``gt/depth``."""
+    a = torch.cat(parts) if parts else torch.zeros(0)
+    if a.numel() == 0:
+        return {"median": None, "mean": None}
+    return {"median": round(float(a.median()), 2), "mean": round(float(a.mean()), 2)}
 
 
 def _diff(a: float | None, b: float | None) -> float | None:
@@ -190,21 +217,24 @@ def _diff(a: float | None, b: float | None) -> float | None:
 
 def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings, ours: tuple[Splats, ...],
                 sh: tuple[Splats, Splats], sh_space: str, rigs: tuple[LightRig, LightRig, LightRig],
-                scores: _Scores, no_light: dict[str, float]) -> None:
+                scores: _Scores, no_light: dict[str, float], angles: dict[str, list]) -> None:
     stem = Path(cam.name).stem
     a_gt = srgb_to_linear(read_image(ws.gt_pass("albedo") / cam.name))
     i_orig = a_gt * read_exr(ws.gt_pass("shading") / f"{stem}.exr")[..., :3] + \
         read_exr(ws.gt_pass("residual") / f"{stem}.exr")[..., :3]
     rig_ours, rig_sh, rig_truth = rigs
     a, sh_o, r = _render(list(ours), cam, s.relight.backend)
-    s_ours = rig_ours.view_shading(ours[0], cam, (a.depth, a.alpha))
+    cfg = s.relight
+    geom_ours = view_geometry(ours[0], cam, cfg.normals, cfg.backend, cfg.normal_smooth, (a.depth, a.alpha))
+    s_ours = rig_ours.shading(geom_ours)
     A, S, R = (o.color.clamp_min(0).numpy() for o in (a, sh_o, r))
     model = A * S + R
     err = (_display(model) - _display(i_orig)) ** 2
     no_light["se"] += float(err.mean(-1).sum())
     no_light["n"] += err.shape[0] * err.shape[1]
     full, base = _render(list(sh), cam, s.relight.backend)
-    s_sh = rig_sh.view_shading(sh[0], cam, (full.depth, full.alpha))
+    geom_sh = view_geometry(sh[0], cam, cfg.normals, cfg.backend, cfg.normal_smooth, (full.depth, full.alpha))
+    s_sh = rig_sh.shading(geom_sh)
 
     def as_linear(x: torch.Tensor) -> np.ndarray:
         x = x.clamp_min(0).numpy()
@@ -213,9 +243,14 @@ def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings
     i_3dgs, dc = as_linear(full.color), as_linear(base.color)
     depth = torch.from_numpy(read_depth(ws.gt_pass("depth") / f"{stem}.npy"))
     truth_geom: ViewGeometry = geometry_from_depth(depth, (depth > 0).float(), cam, smooth=0.0)
+    for key, geom in (("ours", geom_ours), ("sh_strip", geom_sh)):
+        both = geom.valid & truth_geom.valid
+        cos = (geom.normals[both] * truth_geom.normals[both]).sum(-1).clamp(-1.0, 1.0)
+        angles[key].append(torch.rad2deg(torch.arccos(cos)).to(torch.float32))
     s_truth = rig_truth.shading(truth_geom)
     reach = rig_truth.shading(truth_geom, shadows=False)
     vis = rig_truth.visibility(truth_geom)
+    rows = []
     for light in lights:
         i_light = read_exr(ws.gt_light / light.name / "images" / f"{stem}.exr")[..., :3]
         target = i_orig + i_light
@@ -227,3 +262,7 @@ def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings
                  "ceiling": i_orig + a_gt * s_truth[light.name].numpy()}
         for method, pred in preds.items():
             scores.add(light.name, method, pred, target, masks)
+        rows.append([i_orig, target, preds["ours"], preds["sh_strip"], preds["ceiling"]])
+    if s.figures:
+        grid = np.concatenate([np.concatenate([_display(x) for x in row], 1) for row in rows], 0)
+        write_image(ws.root / "bench_relight" / f"{stem}.png", grid)
