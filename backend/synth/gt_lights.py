@@ -20,7 +20,8 @@ EXR here and in ``gt/`` is linear: add them before any sRGB encoding, never the 
 
 ``gt_light/lights.json`` is the lights file (:mod:`igs_contract.light_json`: ``igs render --light``
 reads it as it is) with the views rendered. Rendering resumes: a view whose four files exist is
-skipped. Other lights or views than a workspace already holds are an error (``--force`` starts over).
+skipped. Other lights or views than a workspace already holds are an error (delete ``gt_light/``, or
+``--force`` renders the whole capture again).
 """
 
 from __future__ import annotations
@@ -98,7 +99,8 @@ def prepare_lights(ws: Workspace, lights: list[dict], views: list[str], which: L
             raise IGSError(f"{path}: this workspace holds other added lights or views "
                            f"({', '.join(light['name'] for light in old.get('lights', []))}; "
                            f"{len(old.get('views', []))} views); repeat the same --lights and --light-views "
-                           "to resume, or pass --force to delete gt_light/ and start over")
+                           f"to resume, or delete {ws.gt_light} to render others (--force renders the whole "
+                           "capture again)")
         shutil.rmtree(ws.gt_light, ignore_errors=True)
     write_json(path, doc)
 
