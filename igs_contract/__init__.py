@@ -7,6 +7,8 @@
   its one validator; ``layer_values`` checks the values read (numpy, which both sides have).
 - ``camera_json``: the cameras.json the add-on writes for ``igs render --cameras`` and the
   workspace's transforms.json the add-on reads its cameras from.
+- ``light_json``: the lights file the add-on writes for ``igs render --light`` (and ``igs synth
+  --lights`` reads and writes).
 - ``workspace_lock``: the lock file a writing command holds in a workspace, and the line naming
   its holder that both sides show.
 

@@ -100,6 +100,8 @@ def test_multi_view_lead_is_the_difference_in_region_psnr():
     assert bench_edit.multi_view_lead({}) == none
     interior = {"multi_view/image_interior": 50.0, "single_view/image_interior": 41.0}
     assert bench_edit.multi_view_lead(interior) == {**none, "image_interior": 9.0}
+    ours = {"multi_view/image_decomposed": 28.7, "single_view/image_decomposed": 25.9}  # our own S and R
+    assert bench_edit.multi_view_lead(ours) == {**none, "image_decomposed": pytest.approx(2.8)}
 
 
 def _edits(tmp_path, names):
@@ -141,3 +143,4 @@ def test_table_has_the_ring_columns_the_lead_and_failed_edits():
     assert "| decal | multi_view | 26.00 | - | - | - | - | 20.50 | - | - | - | 40.25 |" in text
     assert "| rug | failed: plane fit: too few points |" in text
     assert "| decal | 1.00 | - |" in text and "| rug | - | - |" in text
+    assert "| image, decomposed S and R |" in text

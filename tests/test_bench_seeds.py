@@ -126,7 +126,7 @@ def test_decomposition_headline_takes_3dgs_from_the_bench_and_the_rest_from_the_
         "3dgs_full_psnr": 27.0, "full_vs_3dgs_db": 0.25, "3dgs_full_psnr_fg": 28.0, "full_vs_3dgs_fg_db": 0.5,
         "time_vs_3dgs": 1.7, "single_set_albedo_psnr": 29.5,
         "full_psnr": 27.25, "full_ssim": 0.7, "albedo_psnr": 31.0, "albedo_psnr_fg": 32.0, "full_psnr_fg": 28.5,
-        "foreground_fraction": 0.9, "leakage": 0.2, "leakage_gt": 0.05}
+        "foreground_fraction": 0.9, "leakage": 0.2, "leakage_gt": 0.05, "leakage_vs_gt": 0.15}
 
 
 def test_scene_seeds_and_settings_are_checked(tmp_path, capsys):
@@ -152,6 +152,37 @@ def test_tables_show_each_seed_and_the_spread():
     text = bench_seeds.aggregate_table(aggregate(seeds))
     assert "| full_psnr | 3 | 28.00 ± 1.00 | 27.00..29.00 |" in text
     assert "| decal | failed | 1 |" in text
+
+
+def _issue_entry(leak: float, full_vs: float, ratio: float, ours: float, true: float) -> dict:
+    """A per-seed entry with the headline's numbers (made up)."""
+    result = {"psnr": {"multi_view/image": true, "multi_view/image_decomposed": ours, "single_view/image": true - 5,
+                       "single_view/image_decomposed": ours - 3, "oracle/image_decomposed": ours + 1}}
+    return {"decomposition": {"leakage": leak, "leakage_gt": -0.02, "leakage_vs_gt": round(leak + 0.02, 4),
+                              "full_vs_3dgs_db": full_vs, "time_vs_3dgs": ratio},
+            "edits": {"poster_recolor": bench_seeds.edit_headline(result)}, "seconds": {"total": 5.0}}
+
+
+def test_headline_table_has_leakage_vs_gt_3dgs_time_and_the_repaint_with_our_s_and_r():
+    """The headline per seed and as mean ± std: leakage beside the ground truth's, ours − 3DGS, time ÷
+    3DGS, and the bake's image under the true and the decomposed S and R with its lead under each; a
+    lead missing from an older bench_edit result is computed from its PSNRs."""
+    seeds = {"100": _issue_entry(-0.20, 0.5, 1.9, 28.7, 40.0), "101": _issue_entry(0.10, 0.3, 1.7, 30.7, 42.0)}
+    edit = seeds["100"]["edits"]["poster_recolor"]["metrics"]
+    assert edit["lead_image_decomposed_db"] == pytest.approx(3.0) and edit["lead_image_db"] == pytest.approx(5.0)
+    assert edit["single_view_image_decomposed"] == pytest.approx(25.7)
+    text = bench_seeds.headline_table(seeds, aggregate(seeds))
+    lines = text.splitlines()
+    assert lines[0] == "| seed | leakage | leakage GT | leakage − GT | ours − 3DGS dB | time ÷ 3DGS |"
+    assert "| 100 | -0.20 | -0.02 | -0.18 | 0.50 | 1.90 |" in lines
+    assert "| mean ± std | -0.05 ± 0.21 | -0.02 ± 0.00 | -0.03 ± 0.21 | 0.40 ± 0.14 | 1.80 ± 0.14 |" in lines
+    assert ("| seed | edit | image, true S and R | image, our S and R | oracle, our S and R | lead, true S and R | "
+            "lead, our S and R |") in lines
+    assert "| 101 | poster_recolor | 42.00 | 30.70 | 31.70 | 5.00 | 3.00 |" in lines
+    assert "| mean ± std | poster_recolor | 41.00 ± 1.41 | 29.70 ± 1.41 | 30.70 ± 1.41 | 5.00 ± 0.00 | 3.00 ± 0.00 |" in lines
+    failed = {**seeds, "102": {"decomposition": {}, "edits": {"poster_recolor": {"metrics": {}, "error": "no fit"}}}}
+    text = bench_seeds.headline_table(failed, aggregate(failed))
+    assert "| 102 | - | - | - | - | - |" in text and "| 102 | poster_recolor | failed: no fit |" in text
 
 
 def test_tiny_run_end_to_end_on_the_test_room(tmp_path):
@@ -184,6 +215,12 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path):
         assert isinstance(wall[key], float) and math.isfinite(wall[key])
     assert result["aggregate"]["decomposition"]["full_psnr"]["std"] is None  # one seed
     assert "| room | wall_decal |" in result["tables"]["per_seed"]
+    assert dec["leakage_vs_gt"] == pytest.approx(dec["leakage"] - dec["leakage_gt"], abs=1e-3)
+    assert "| room | wall_decal |" in result["tables"]["headline"] and "| mean ± std |" in result["tables"]["headline"]
+    # the repaint under the decomposed S and R (the user's render), beside the true S and R, and its lead
+    assert isinstance(wall["image_decomposed"], float) and isinstance(wall["single_view_image_decomposed"], float)
+    assert wall["lead_image_decomposed_db"] == pytest.approx(
+        wall["image_decomposed"] - wall["single_view_image_decomposed"], abs=1e-3)
     # the outer ring split where the proxy wins the depth test and the rest: the counts add up to the ring
     res = json.loads((ws / "bench_edit.json").read_text())["results"]["wall_decal"]
     if "psnr" in res:

@@ -22,7 +22,7 @@ def test_the_contract_imports_neither_side_nor_torch_nor_bpy():
     """Standard library only, but for layer_values' numpy (both sides have it)."""
     probe = ("import json, sys; top = lambda: {m.split('.')[0] for m in sys.modules}; start = top(); "
              "import igs_contract.events, igs_contract.exit_codes, igs_contract.ply_header, igs_contract.layer_ply, "
-             "igs_contract.camera_json; plain = top() - start; import igs_contract.layer_values; "
+             "igs_contract.camera_json, igs_contract.light_json; plain = top() - start; import igs_contract.layer_values; "
              "print(json.dumps([sorted(plain), sorted(top() - start)]))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, check=True)
     plain, with_values = json.loads(out.stdout)

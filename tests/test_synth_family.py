@@ -110,7 +110,8 @@ def test_layouts_vary_with_the_seed_and_cameras_see_every_edit():
         walls = L.walls()
         centres = {"canvas_recolor": walls[L.picture.canvas.wall].point(L.picture.canvas.s, L.picture.canvas.z),
                    "dark_recolor": walls[L.panel.item.wall].point(L.panel.item.s, L.panel.item.z),
-                   "decal": np.array([*L.decal.center, 0.0])}
+                   "decal": np.array([*L.decal.center, 0.0]),
+                   "poster_recolor": walls[L.poster.canvas.wall].point(L.poster.canvas.s, L.poster.canvas.z)}
         cams = camera_path(L, 16, 64, 48, seed=0)
         for name, p in centres.items():
             seen = 0
@@ -132,7 +133,7 @@ def test_scene_descriptions_differ(captures):
         assert {"SUN", "AREA", "POINT"} <= {light["type"] for light in d["built_lights"]}
     assert a["room"] != b["room"]
     assert a["lights"] != b["lights"] and a["sun"] != b["sun"]
-    assert a["picture"] != b["picture"] and a["pieces"] != b["pieces"]
+    assert a["picture"] != b["picture"] and a["pieces"] != b["pieces"] and a["poster"] != b["poster"]
     meta = json.loads((captures[1] / "capture.json").read_text())
     assert meta["source"]["scene_seed"] == 1 and meta["source"]["settings"]["scene_seed"] == 1
     assert meta["edits"] == list(EDITS)
@@ -216,6 +217,20 @@ def test_edits_change_only_their_region(captures, k):
         assert abs(views.image_over_model() - 1) < 0.08, (edit_name, views.image_over_model())
 
 
+@pytest.mark.parametrize("k", SEEDS)
+def test_poster_recolour_changes_only_the_poster(captures, k):
+    """The poster's edit covers the poster alone: its mask meets no other wall item's, and inside it the
+    many-coloured picture gives way to the flat colour (nearly every interior pixel's albedo changed)."""
+    ws = captures[k]
+    edit = json.loads((ws / "gt_edit" / "poster_recolor" / "edit.json").read_text())
+    views = edited_views(ws, "poster_recolor", edit["color"])
+    assert views.seen >= 2 and min(views.changed) > 0.9, views.changed
+    for name in frame_names(ws):
+        poster = read_image(ws / "gt_edit" / "poster_recolor" / "mask" / name)[..., 0] > 0.5
+        for other in ("canvas_recolor", "dark_recolor"):
+            assert not (poster & (read_image(ws / "gt_edit" / other / "mask" / name)[..., 0] > 0.5)).any()
+
+
 def test_resume_and_refuse_another_scene(captures, tmp_path):
     ws = captures[0]
     again = synthesize(ws, preset="test", scene_seed=0)
@@ -224,6 +239,14 @@ def test_resume_and_refuse_another_scene(captures, tmp_path):
         synthesize(ws, preset="test", scene_seed=1)
     with pytest.raises(IGSError, match="scene_seed=0 \\(now None\\)"):  # the room is another scene too
         synthesize(ws, preset="test")
+    settings = ws / "gt" / "synth_settings.json"
+    saved = json.loads(settings.read_text())
+    assert saved["family_version"] == FAMILY_VERSION
+    older = tmp_path / "older"  # a capture of an earlier family version holds another scene: not resumed
+    (older / "gt").mkdir(parents=True)
+    (older / "gt" / "synth_settings.json").write_text(json.dumps({**saved, "family_version": FAMILY_VERSION - 1}))
+    with pytest.raises(IGSError, match=f"family_version={FAMILY_VERSION - 1} \\(now {FAMILY_VERSION}\\)"):
+        synthesize(older, preset="test", scene_seed=0)
     with pytest.raises(IGSError, match="--scene-seed"):
         SynthSettings.from_preset("test", scene_seed=-1)
     room = SynthSettings.from_preset("test")

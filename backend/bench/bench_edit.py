@@ -32,7 +32,7 @@ the held-out views (index % 8 == 0) are compared with the Cycles ground truth of
   edge) and on the outer ring (the mask dilated by ``--ring`` minus the mask, where the edited ground
   truth equals the original: an edit spilling past its edge), see :func:`edit_region.ring_masks`;
 - ``multi_view_lead_db``: per edit, the multi-view bake's PSNR in the region minus the single-view
-  bake's (image and albedo).
+  bake's (image and albedo, the region and its interior, and the image under the decomposed S and R).
 
 PSNR aggregates the squared error over all pixels of all held-out views (peak 1, sRGB-encoded).
 For ``column_decal`` the row "plane_forced" bakes a plane fitted to the same rectangle with the
@@ -320,9 +320,10 @@ def load_lighting(ws_root: Path) -> dict[str, GaussianSet] | None:
     return {k: read_ply(p, kind=k)[0] for k, p in files.items()}
 
 
-LEAD_MEASURES = ("image", "albedo", "image_interior", "albedo_interior")
+LEAD_MEASURES = ("image", "albedo", "image_interior", "albedo_interior", "image_decomposed")
 """The measures the multi-view lead is given for: the region, and its interior (without the border ring,
-where both bakes meet the albedo field's own edge)."""
+where both bakes meet the albedo field's own edge), and the region's image under the decomposed S and R
+(the user's render)."""
 
 
 def multi_view_lead(psnr: dict[str, float]) -> dict[str, float | None]:
@@ -414,7 +415,7 @@ def table(results: dict[str, Any]) -> str:
             cells = [_cell(p.get(f"{m}/{k}")) for k in ("image", "image_decomposed", "albedo", "outside", *rings)]
             rows.append(f"| {name} | {m} | " + " | ".join(cells) + " |")
     rows += ["", "| edit | multi-view lead over single view: image dB | albedo dB | image, interior | "
-             "albedo, interior |", "|---|---|---|---|---|"]
+             "albedo, interior | image, decomposed S and R |", "|---|---|---|---|---|---|"]
     for name, r in results.items():
         lead = r.get("multi_view_lead_db") or {}
         rows.append(f"| {name} | " + " | ".join(_cell(lead.get(m)) for m in LEAD_MEASURES) + " |")

@@ -21,7 +21,10 @@ The headline numbers of each seed (the decomposition's as
 multi-view bake's PSNR in each edit's region and rings, and its lead over the single-view bake),
 their aggregate over the seeds (mean, sample standard deviation, min and max:
 :mod:`backend.bench.seed_stats`), the settings, date, machine and the seconds of each step go to
-``--out`` (default ``<root>/bench_seeds.json``), rewritten after every seed. Run again, a seed whose
+``--out`` (default ``<root>/bench_seeds.json``), rewritten after every seed. Its tables (printed)
+start with the headline (:mod:`backend.bench.seed_headline`): leakage against the ground truth's,
+the full image against 3DGS, the time ratio, and each edit's image under the true and under the
+decomposed S and R with the multi-view bake's lead under each. Run again, a seed whose
 entry there has the same settings is not rerun (``--force`` reruns it); one whose capture and
 decomposition settings are the same, and whose layers are still the files it trained, reruns only
 the synth (which resumes) and bench_edit.
@@ -46,6 +49,7 @@ import torch
 from backend.bench import bench_decompose, bench_edit
 from backend.bench.bench_cli import error
 from backend.bench.bench_edit import PROXY_SOURCES, ProxySource
+from backend.bench.seed_headline import headline_table, leakage_vs_gt
 from backend.bench.seed_stats import aggregate, cell, markdown, spread_cells
 from backend.core import events
 from backend.core.atomic_io import write_json
@@ -76,6 +80,8 @@ EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image",
     ("outside", "multi_view/outside"),
     ("single_view_image", "single_view/image"),
     ("single_view_albedo", "single_view/albedo"),
+    # the single-view bake under the decomposed S and R: the other side of lead_image_decomposed_db
+    ("single_view_image_decomposed", "single_view/image_decomposed"),
     # the unedited field's error in the outer ring: the floor under the bake's albedo_bleed
     ("unedited_albedo_bleed", "unedited/albedo_bleed"),
     # the outer ring split where the proxy wins the composite's depth test over the unedited field, and the rest
@@ -257,7 +263,8 @@ def decomposition_headline(bench: dict[str, Any], entry: dict[str, Any]) -> dict
     """{metric: value} of one seed's decomposition: from the bench_decompose result ``bench`` 3DGS's
     full-image PSNR, the decomposition's lead over it (``full_vs_3dgs_db``), the time ratio and, when it
     ran, the single set's albedo PSNR; then every number of the three-set metrics.json ``entry`` as
-    :func:`headline_metrics` flattens it (``<layer>_<psnr|ssim|lpips>[_fg]``, ``leakage``, ...)."""
+    :func:`headline_metrics` flattens it (``<layer>_<psnr|ssim|lpips>[_fg]``, ``leakage``, ...), and
+    ``leakage_vs_gt``, the leakage minus the ground-truth shading's."""
     flat = headline_metrics(entry)
     vanilla, ours = bench["vanilla_3dgs"]["full"].get("psnr"), flat.get("full_psnr")
     vanilla_fg, ours_fg = (bench["vanilla_3dgs"].get("full_foreground") or {}).get("psnr"), flat.get("full_psnr_fg")
@@ -269,17 +276,21 @@ def decomposition_headline(bench: dict[str, Any], entry: dict[str, Any]) -> dict
         "time_vs_3dgs": bench["three_set"].get("time_vs_3dgs")}
     if bench.get("single_set") is not None:
         out["single_set_albedo_psnr"] = ((bench["single_set"]["layers"].get("albedo") or {}).get("psnr"))
-    return {**out, **flat}
+    out = {**out, **flat}
+    out["leakage_vs_gt"] = leakage_vs_gt(out)
+    return out
 
 
 def edit_headline(result: dict[str, Any]) -> dict[str, Any]:
     """{"metrics", "error", "seconds"} of one bench_edit edit: the multi-view bake's PSNR in the region,
-    its interior, border and bleed rings (image and albedo), outside, the single-view bake's region
-    PSNR, the unedited field's albedo bleed, and the multi-view lead (``lead_<measure>_db`` for each of
-    :data:`bench_edit.LEAD_MEASURES`)."""
+    its interior, border and bleed rings (image and albedo), outside, the image under the decomposed S
+    and R, the single-view bake's region PSNR, the unedited field's albedo bleed, and the multi-view
+    lead (``lead_<measure>_db`` for each of :data:`bench_edit.LEAD_MEASURES`)."""
     if "error" in result:
         return {"metrics": {}, "error": result["error"], "seconds": result.get("seconds")}
-    psnr, lead = result["psnr"], result.get("multi_view_lead_db") or {}
+    # a lead missing from an older bench_edit result (under the decomposed S and R) comes from its PSNRs
+    psnr = result["psnr"]
+    lead = {**bench_edit.multi_view_lead(psnr), **(result.get("multi_view_lead_db") or {})}
     metrics = {key: psnr.get(src) for key, src in EDIT_MEASURES}
     metrics.update({f"lead_{m}_db": lead.get(m) for m in bench_edit.LEAD_MEASURES})
     pixels = result.get("bleed_pixels") or {}
@@ -389,7 +400,8 @@ def document(s: SeedSettings, requested: Sequence[str], seeds: dict[str, Any]) -
     return {"benchmark": "bench_seeds", "date": _now(), "machine": machine(), "settings": s.as_json(),
             "scene_seeds": list(requested), "seeds": seeds, "aggregate": agg,
             "spread": "sample standard deviation (n - 1) over the seeds with a finite value; null below 2 seeds",
-            "tables": {"per_seed": per_seed_table(done), "aggregate": aggregate_table(agg)}}
+            "tables": {"headline": headline_table(done, agg), "per_seed": per_seed_table(done),
+                       "aggregate": aggregate_table(agg)}}
 
 
 def run(root: Path, scene_seeds: Sequence[int | None], s: SeedSettings, out: Path | None = None,
@@ -518,7 +530,7 @@ def main(argv: list[str] | None = None) -> int:
                      Path(args.out) if args.out else None, args.force)
     except IGSError as e:
         return error("bench_seeds", e)
-    print(result["tables"]["per_seed"] + "\n\n" + result["tables"]["aggregate"])
+    print("\n\n".join(result["tables"][t] for t in ("headline", "per_seed", "aggregate")))
     print(f"wrote {Path(args.out) if args.out else root / 'bench_seeds.json'}", file=sys.stderr)
     return 0
 

@@ -33,8 +33,16 @@ OPTIONS = (
            nargs=2, metavar=("W", "H")),
     Option("--fov", "fov", "turntable horizontal field of view in degrees (default: the capture's)",
            type=opt.number(0, 180, lo_open=True, hi_open=True)),
-    Option("--layers", "layers", "comma list of A, S, R, full (default all)"),
-    Option("--out", "out", "output folder (default <ws>/renders/<edit or 'layers'>)"),
+    Option("--layers", "layers", "comma list of A, S, R, full and, with --light, light: the shading the lights add "
+           "(default A,S,R,full, and light with --light)"),
+    Option("--out", "out", "output folder (default <ws>/renders/<edit or 'layers'>, with --light "
+           "<ws>/renders/<edit or 'layers'>_lit)"),
+    Option("--light", "light", "lights JSON file (docs/relighting.md, e.g. written by the add-on): add its point, "
+           "spot, sun and area lights to the scene, I = A * (S + S_new) + R"),
+    Option("--light-normals", "light_normals", "normals the added lights shade: from the albedo field's rendered "
+           "depth (default) or its Gaussians' shortest axes"),
+    Option("--shadow-size", "shadow_size", "texels on a side of each shadow map face of the added lights "
+           "(default 256)", type=opt.integer(16, 8192)),
     Option("--mp4", "mp4", "also write OUT/<layer>.mp4"),
     Option("--fps", "fps", "video frame rate (default 24)", type=opt.number(0, 1000, lo_open=True)),
     shared.backend(),

@@ -8,6 +8,7 @@ from backend.commands import locking
 from backend.commands import options as opt
 from backend.core import events
 from backend.synth.blender import RENDERERS
+from backend.synth.gt_lights import LIGHT_VIEWS
 from backend.synth.run import synthesize
 from backend.synth.settings import PRESETS
 
@@ -37,6 +38,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="module: Blender's bpy module in this Python; binary: run the Blender of --blender "
                         "(for a Python without bpy, e.g. 3.13/3.14); auto (default): the module when "
                         "`import bpy` works, else the binary")
+    p.add_argument("--lights", default=None, metavar="default|FILE",
+                   help="add lights to the ground truth, each rendered alone into gt_light/<name>/: 'default' (a "
+                        "hard-shadow spot, a point grazing a wall and a soft area light, placed from the scene) "
+                        "or a lights JSON file (docs/relighting.md)")
+    p.add_argument("--light-views", choices=LIGHT_VIEWS, default="held",
+                   help="views the added lights are rendered for: held (default: the held-out views, every 8th) "
+                        "or all")
     p.add_argument("--blender", default=None, metavar="PATH",
                    help="the Blender binary for --renderer binary/auto (default: $IGS_BLENDER)")
     locking.writes(p, locking.workspace_arg, create=True)
@@ -46,5 +54,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> None:
     summary = synthesize(args.workspace, preset=args.preset, seed=args.seed, views=args.views,
                          samples=args.samples, force=args.force, threads=args.threads,
-                         renderer=args.renderer, blender=args.blender, scene_seed=args.scene_seed)
+                         renderer=args.renderer, blender=args.blender, scene_seed=args.scene_seed,
+                         lights=args.lights, light_views=args.light_views)
     events.output("workspace", summary["workspace"])

@@ -72,6 +72,11 @@ class Workspace:
         return self.root / "gt_edit"
 
     @property
+    def gt_light(self) -> Path:
+        """Light-only renders of lights added to a synthetic capture (``igs synth --lights``)."""
+        return self.root / "gt_light"
+
+    @property
     def layers(self) -> Path:
         return self.root / "layers"
 

@@ -37,6 +37,7 @@ from backend.core.cameras import Camera, check_pose_values, from_blender_matrix_
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
 from backend.core.paths import plain_name
+from backend.edit.relight.relight import LightRig
 from backend.eval.video import Mp4Writer
 from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
@@ -45,9 +46,10 @@ from backend.splats.ply import read_ply
 from backend.train.intrinsic.composite import compose
 from backend.train.intrinsic.stages import layer_splats
 
-LAYERS = ("A", "S", "R", "full")
+LAYERS = ("A", "S", "R", "full", "light")
 MAX_SIDE = 16384  # pixels: larger images would not fit a render buffer
-NEEDS = {"A": ("albedo",), "S": ("shading",), "R": ("residual",), "full": ("albedo", "shading", "residual")}
+NEEDS = {"A": ("albedo",), "S": ("shading",), "R": ("residual",), "full": ("albedo", "shading", "residual"),
+         "light": ("albedo",)}
 GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
 
@@ -238,10 +240,15 @@ def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, 
 
 
 def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: list[str], out: Path,
-                 backend: Backend = "auto", mp4: bool = False, fps: float = 24.0) -> dict[str, Any]:
-    """Render ``wanted`` layers for every camera into ``out``; returns what was written."""
+                 backend: Backend = "auto", mp4: bool = False, fps: float = 24.0,
+                 rig: LightRig | None = None) -> dict[str, Any]:
+    """Render ``wanted`` layers for every camera into ``out``; returns what was written.
+
+    With ``rig`` (added lights, :mod:`backend.edit.relight`) the shading S is S + S_new and the full image
+    A * (S + S_new) + R, S_new being the lights' shading on the albedo field's geometry (layer ``light``)."""
     kinds = [k for k in ("albedo", "shading", "residual") if k in layers]
     splats = [layers[k] for k in kinds]
+    geometry = layer_splats(layers["albedo"]) if rig is not None else None
     written: dict[str, list[str]] = {w: [] for w in wanted}
     writers: dict[str, Mp4Writer] = {}
     for w in wanted:
@@ -253,8 +260,16 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
                 with torch.no_grad():
                     outs = render_layers([layer_splats(g) for g in splats], cam, backend=backend)
                 img = {k: o.color.clamp_min(0).numpy() for k, o in zip(kinds, outs)}
+                if rig is not None:
+                    albedo = outs[kinds.index("albedo")]
+                    added = rig.view_shading(geometry, cam, (albedo.depth, albedo.alpha))
+                    img["light"] = sum(added.values()).numpy()
+                    if "shading" in img:
+                        img["shading"] = img["shading"] + img["light"]
                 for w in wanted:
-                    if w == "full":
+                    if w == "light":
+                        lin = img["light"]
+                    elif w == "full":
                         lin = compose(img["albedo"], img["shading"], img["residual"])
                     else:
                         lin = img[NEEDS[w][0]]

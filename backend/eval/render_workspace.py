@@ -17,6 +17,9 @@ from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
+from backend.edit.relight.geometry import NormalSource
+from backend.edit.relight.lights import load_lights
+from backend.edit.relight.relight import LightRig, RelightConfig
 from backend.eval.render_views import (
     LAYERS,
     NEEDS,
@@ -29,6 +32,9 @@ from backend.eval.render_views import (
     turntable,
 )
 from backend.render import Backend
+from backend.train.intrinsic.stages import layer_splats
+
+DEFAULT_LAYERS = "A,S,R,full"
 
 
 @dataclass
@@ -57,10 +63,17 @@ class RenderConfig:
     """Turntable image size (width, height); None: the capture's."""
     fov: float | None = None
     """Turntable horizontal field of view in degrees; None: the capture's."""
-    layers: str = "A,S,R,full"
-    """Comma list of the layers to write: A, S, R, full."""
+    layers: str = DEFAULT_LAYERS
+    """Comma list of the layers to write: A, S, R, full, and with ``light`` also light (the shading the
+    lights add); the default with ``light``: A, S, R, full, light."""
     out: str | None = None
-    """Output folder; None: ``<ws>/renders/<edit or 'layers'>``."""
+    """Output folder; None: ``<ws>/renders/<edit or 'layers'>``, ``..._lit`` with ``light``."""
+    light: str | None = None
+    """A lights file (docs/relighting.md): add its lights, I = A * (S + S_new) + R."""
+    light_normals: NormalSource = RelightConfig.normals
+    """The added lights' normals: from the albedo field's rendered depth, or its Gaussians' shortest axes."""
+    shadow_size: int = RelightConfig.shadow_size
+    """Texels on a side of each shadow map face of the added lights."""
     mp4: bool = False
     """Also write ``OUT/<layer>.mp4``."""
     fps: float = 24.0
@@ -86,10 +99,16 @@ def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]
         plain_name(cfg.edit, "--edit")  # a folder under <ws>/edits and <ws>/renders, never a path
     if cfg.out and Path(cfg.out).exists() and not Path(cfg.out).is_dir():
         raise IGSError(f"--out {cfg.out}: is a file; give a folder (the images go to OUT/<layer>/)")
-    wanted = [w.strip() for w in cfg.layers.split(",") if w.strip()]
+    layers_text = cfg.layers + ",light" if cfg.light and cfg.layers == DEFAULT_LAYERS else cfg.layers
+    wanted = [w.strip() for w in layers_text.split(",") if w.strip()]
     bad = [w for w in wanted if w not in LAYERS]
     if bad or not wanted:
         raise IGSError(f"--layers must be a comma list of {', '.join(LAYERS)}, got {cfg.layers!r}")
+    if "light" in wanted and not cfg.light:
+        raise IGSError("--layers light: the added lights' shading needs --light FILE")
+    relight = RelightConfig(normals=cfg.light_normals, shadow_size=cfg.shadow_size, backend=cfg.backend)
+    relight.check()
+    lights = load_lights(cfg.light) if cfg.light else None
     sources = sum(x is not None and x is not False for x in (cfg.cameras, cfg.path, cfg.turntable or None))
     if sources != 1:
         raise IGSError("give exactly one of --cameras cams.json, --turntable or --path transforms.json")
@@ -116,9 +135,14 @@ def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]
         events.log(f"render: turntable around {np.round(center, 3).tolist()}, radius {radius:.3g}, height "
                    f"{height:.3g} along up {np.round(up, 3).tolist()}")
         cams = turntable(center, radius, height, cfg.frames, template, cfg.fov, up)
-    needed = set().union(*(NEEDS[w] for w in wanted))
+    needed = set().union(*(NEEDS[w] for w in wanted)) | ({"albedo"} if lights else set())
     layers = load_layers(ws.root, cfg.edit, needed)
-    out = Path(cfg.out) if cfg.out else ws.renders / (plain_name(cfg.edit, "--edit") if cfg.edit else "layers")
-    result = render_views(cams, layers, wanted, out, cfg.backend, cfg.mp4, cfg.fps)
+    name = plain_name(cfg.edit, "--edit") if cfg.edit else "layers"
+    out = Path(cfg.out) if cfg.out else ws.renders / (f"{name}_lit" if lights else name)
+    rig = None
+    if lights:
+        events.log(f"render: adding {len(lights)} light(s) from {cfg.light}: {', '.join(li.name for li in lights)}")
+        rig = LightRig(lights, layer_splats(layers["albedo"]), relight)
+    result = render_views(cams, layers, wanted, out, cfg.backend, cfg.mp4, cfg.fps, rig)
     events.log(f"render: {len(cams)} views x {', '.join(wanted)} -> {out}")
     return {"out": str(out), "views": len(cams), "layers": wanted, "videos": result["videos"]}

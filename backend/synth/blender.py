@@ -249,6 +249,11 @@ class BlenderScene(SynthScene):
         assert self.worker is not None
         self.worker.call({"cmd": "set_edit", "name": name}, f"while showing the edit {name}")
 
+    def set_light(self, light: dict[str, Any] | None) -> None:
+        assert self.worker is not None
+        what = "the scene's own lights" if light is None else f"the added light {light['name']}"
+        self.worker.call({"cmd": "set_light", "light": light}, f"while showing {what}")
+
 
 class BinaryRenderer:
     """:class:`backend.synth.module_renderer.Renderer`'s interface over a :class:`BlenderWorker`."""

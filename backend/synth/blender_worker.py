@@ -12,6 +12,7 @@ descriptor N is one end of a socket pair; the backend holds the other (see
   the room for ``seed``, or family scene ``scene_seed`` (:mod:`family`) when that is not null;
 - ``{"cmd": "setup", "params"}`` -> ``{"ok"}``: sets Cycles up (:class:`CyclesParams` fields);
 - ``{"cmd": "set_edit", "name"}`` -> ``{"ok"}``: shows one edit (or none) to camera rays;
+- ``{"cmd": "set_light", "light"}`` -> ``{"ok"}``: only that added light on (null: the scene's own);
 - ``{"cmd": "render", "camera", "border"}`` -> ``{"ok", "layer"}`` + ``exr`` (the file's bytes);
 - ``{"cmd": "quit"}``, or the backend closing its end: the worker returns and Blender exits.
 
@@ -123,6 +124,12 @@ class Worker:
             return {"ok": True, "description": self.scene.description, "edits": items}, arrays
         if cmd == "set_edit":
             self._need(self.scene, "build").set_edit(msg["name"])
+            return {"ok": True}, {}
+        if cmd == "set_light":
+            from backend.synth.light_rig import show_light
+
+            self._need(self.scene, "build")
+            show_light(msg["light"])
             return {"ok": True}, {}
         if cmd == "setup":
             scene = self._need(self.scene, "build")

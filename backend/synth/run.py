@@ -25,6 +25,9 @@ each light pass already divided by its colour pass per pixel, so ``albedo * shad
 equals Combined per pixel up to float rounding whatever the pixel filter or sample count.
 Denoising, adaptive sampling, light clamping and the view transform are all off/neutral.
 
+With ``--lights``, lights added to the ground truth are rendered alone into ``gt_light/``
+(:mod:`~backend.synth.gt_lights`).
+
 Edits (``gt_edit/<edit>/images``, ``albedo``, ``shading`` and ``residual``) only differ where camera rays
 hit the edit region
 (see :mod:`backend.synth.scene`), so each edited view renders just the bounding box of its
@@ -57,6 +60,14 @@ from backend.synth import room
 from backend.synth.blender import BlenderWorker, choose_blender
 from backend.synth.family.build import build_family_scene
 from backend.synth.gt_edits import choose_edit_view, render_edits, write_edit_definitions, write_edit_json
+from backend.synth.gt_lights import PASSES as LIGHT_PASSES
+from backend.synth.gt_lights import (
+    LightViews,
+    light_view_indices,
+    prepare_lights,
+    render_lights,
+    resolve_lights,
+)
 from backend.synth.module_renderer import Renderer, ViewRenderer, blender_output_captured, cycles_params
 from backend.synth.scene import SynthScene
 from backend.synth.settings import SynthSettings
@@ -69,7 +80,8 @@ SYNTH_KEYS = ("schema", "source", "frames", "size", "priors", "gt", "edits", "re
 
 def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: int | None = None,
                samples: int | None = None, force: bool = False, threads: int | None = None,
-               renderer: str = "auto", blender: str | None = None, scene_seed: int | None = None) -> dict[str, Any]:
+               renderer: str = "auto", blender: str | None = None, scene_seed: int | None = None,
+               lights: str | None = None, light_views: LightViews = "held") -> dict[str, Any]:
     """Render (or finish rendering) a synthetic capture into ``ws_path``; logs and returns a summary.
 
     ``scene_seed`` None renders the room of :mod:`backend.synth.room` (``seed`` varies its
@@ -83,6 +95,10 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     binary ``blender`` (default ``$IGS_BLENDER``) as one worker process
     (:mod:`backend.synth.blender`), "auto" the module when this Python has one, else the binary.
 
+    ``lights``: add lights to the ground truth (:mod:`backend.synth.gt_lights`): ``"default"`` (the
+    scene's three, :mod:`backend.synth.added_lights`) or a lights file (:mod:`igs_contract.light_json`),
+    each rendered alone for the views ``light_views`` picks (``held``: the held-out views, ``all``).
+
     Re-running with the same settings resumes: views and edits whose files all exist are skipped.
     Different settings on a partly or fully written workspace raise :class:`IGSError` unless
     ``force`` (which deletes the previous synthetic outputs first).
@@ -90,6 +106,7 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     t_start = time.perf_counter()
     cpu_start = _cpu_seconds()
     settings = SynthSettings.from_preset(preset, seed, views, samples, scene_seed)
+    light_indices = light_view_indices(settings.views, light_views)
     binary = choose_blender(renderer, blender)
     ws = Workspace(Path(ws_path))
     _prepare_workspace(ws, settings, force)
@@ -111,6 +128,9 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
             render = worker.renderer(cycles_params(settings, threads))
             blender_version = worker.version
         cameras = settings.cameras()
+        added = [] if lights is None else resolve_lights(lights, settings, scene.description)
+        if added:
+            prepare_lights(ws, added, [cameras[i].name for i in light_indices], light_views, force)
         timings["build_scene"] = time.perf_counter() - t
         write_edit_definitions(ws, scene)
 
@@ -121,6 +141,9 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
             t = time.perf_counter()
             n_edits = render_edits(ws, scene, render, cameras, Path(tmp))
             timings["render_edits"] = time.perf_counter() - t
+            t = time.perf_counter()
+            n_lights = render_lights(ws, scene, render, cameras, added, light_indices, Path(tmp)) if added else 0
+            timings["render_lights"] = time.perf_counter() - t
 
     t = time.perf_counter()
     n_points = write_sparse(ws, cameras)
@@ -138,9 +161,10 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
         "threads": threads, "edits": [e.name for e in scene.edits],
         "rendered_views": n_views, "rendered_edit_views": n_edits,
         "skipped_views": settings.views - n_views, "points3D": n_points,
+        "added_lights": [light["name"] for light in added], "rendered_light_views": n_lights,
         "seconds": {k: round(v, 3) for k, v in timings.items()},
         "cpu_seconds": round(_cpu_seconds() - cpu_start, 3),
-        "files": _count_files(ws, scene),
+        "files": _count_files(ws, scene, added),
     }
     _write_capture_json(ws, settings, cameras, scene, summary, blender_version, "module" if binary is None else "binary")
     write_json(ws.root / "gt" / "scene.json", scene.description)
@@ -168,6 +192,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"{summary['rendered_edit_views']} edited views; {summary['points3D']} points3D",
         f"  seconds: scene {s['build_scene']:.1f}, views {s['render_views']:.1f}, edits {s['render_edits']:.1f}, "
         f"points+metadata {s['points_and_metadata']:.1f}, total {s['total']:.1f} (cpu {summary['cpu_seconds']:.1f})",
+        *([f"  added lights {', '.join(summary['added_lights'])}: rendered {summary['rendered_light_views']} "
+           f"light-only views in {s['render_lights']:.1f} s -> gt_light/"] if summary.get("added_lights") else []),
         "  files: " + ", ".join(f"{k} {v}" for k, v in summary["files"].items()),
     ]
     return "\n".join(lines)
@@ -205,14 +231,14 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
         elif not force:
             return
     if force:
-        for sub in ("images", "gt", "gt_edit", "sparse"):
+        for sub in ("images", "gt", "gt_edit", "gt_light", "sparse"):
             shutil.rmtree(ws.root / sub, ignore_errors=True)
         for f in (ws.transforms_json, ws.capture_json):
             f.unlink(missing_ok=True)
     write_json(settings_path, settings.as_dict())
 
 
-def _count_files(ws: Workspace, scene: SynthScene) -> dict[str, int]:
+def _count_files(ws: Workspace, scene: SynthScene, lights: list[dict]) -> dict[str, int]:
     def count(folder: Path) -> int:
         return sum(1 for p in folder.iterdir() if not p.name.startswith(".")) if folder.exists() else 0
 
@@ -222,6 +248,9 @@ def _count_files(ws: Workspace, scene: SynthScene) -> dict[str, int]:
     for e in scene.edits:
         for sub in ("images", "albedo", "shading", "residual", "mask"):
             out[f"gt_edit/{e.name}/{sub}"] = count(ws.gt_edit / e.name / sub)
+    for light in lights:
+        for sub in LIGHT_PASSES:
+            out[f"gt_light/{light['name']}/{sub}"] = count(ws.gt_light / light["name"] / sub)
     return out
 
 

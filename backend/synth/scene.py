@@ -100,6 +100,13 @@ class SynthScene:
         for edit, node in self._switches.items():
             node.outputs[0].default_value = 1.0 if edit == name else 0.0
 
+    def set_light(self, light: dict[str, Any] | None) -> None:
+        """Render only the added ``light`` (a canonical light of :mod:`igs_contract.light_json`), the
+        scene's own lights and world off; None: the scene as built (:mod:`backend.synth.light_rig`)."""
+        from backend.synth.light_rig import show_light
+
+        show_light(light)
+
     def edit(self, name: str) -> EditSpec:
         return next(e for e in self.edits if e.name == name)
 

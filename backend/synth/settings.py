@@ -10,6 +10,7 @@ from backend.core.errors import IGSError
 from backend.synth import room
 from backend.synth.family.layout import camera_path as family_camera_path
 from backend.synth.family.layout import family_layout
+from backend.synth.family.parts import FAMILY_VERSION
 
 SCENE_SEED_MAX = 2**32 - 1  # numpy's seeds are 32-bit
 HOLD_EVERY = 8  # views with index % 8 == 0 are held out (as in load_capture's split); edit views avoid them
@@ -73,6 +74,9 @@ class SynthSettings:
     """Views of a full loop of the camera path (0: ``views``); see :class:`SynthPreset`."""
     scene_seed: int | None = None
     """Family scene (:mod:`backend.synth.family`); None: the room of :mod:`backend.synth.room`."""
+    family_version: int | None = None
+    """:data:`~backend.synth.family.parts.FAMILY_VERSION` of a family scene (None for the room): a
+    workspace rendered by another version of the family holds another scene, so it is not resumed."""
 
     @staticmethod
     def from_preset(preset: str, seed: int = 0, views: int | None = None, samples: int | None = None,
@@ -90,16 +94,18 @@ class SynthSettings:
         p = PRESETS[preset]
         return SynthSettings(preset, int(seed), views or p.views, p.width, p.height, samples or p.samples,
                              p.bounces, p.points_per_view, loop_views=p.loop_views,
-                             scene_seed=None if scene_seed is None else int(scene_seed))
+                             scene_seed=None if scene_seed is None else int(scene_seed),
+                             family_version=None if scene_seed is None else FAMILY_VERSION)
 
     def as_dict(self) -> dict[str, Any]:
-        """The settings as saved; ``loop_views`` and ``scene_seed`` only when set, so full-loop captures of
-        the room keep their old files (and resume)."""
+        """The settings as saved; ``loop_views``, ``scene_seed`` and ``family_version`` only when set, so
+        full-loop captures of the room keep their old files (and resume)."""
         d = asdict(self)
         if not self.loop_views:
             del d["loop_views"]
-        if self.scene_seed is None:
-            del d["scene_seed"]
+        for key in ("scene_seed", "family_version"):
+            if d[key] is None:
+                del d[key]
         return d
 
     def cameras(self) -> list[Camera]:

@@ -3,13 +3,19 @@
 Every texture is an ``(H, W, 3) uint8`` sRGB-encoded image, top row first, so the same array
 goes into Blender (as a byte image in the sRGB colour space) and into a PNG beside an edit's
 JSON. The patterns are deliberately high-frequency (stripes, tiles, lattices a few centimetres
-wide) so that albedo detail is visible at the preset resolutions.
+wide) so that albedo detail is visible at the preset resolutions. The family's posters (photographs,
+pattern patchworks, typography) are in :mod:`backend.synth.pictures`, re-exported here.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+
+# The family's posters, reachable here by name: the Blender-binary worker asks for ``textures.<name>``.
+from backend.synth.pictures import patterns as patterns
+from backend.synth.pictures import photo as photo
+from backend.synth.pictures import typography as typography
 
 
 def _smooth_noise(rng: np.random.Generator, size: int, cells: int) -> np.ndarray:

@@ -7,7 +7,10 @@ family scenes instead cannot memorise one layout. Scene K varies, from K alone:
   skylight (a hole in the ceiling), the floor (wood or tiles), which wall is wallpapered, wall colours
   (sometimes one saturated wall), the world's gradient (clear, hazy or dusk);
 - the wall pieces: a framed picture (a hard-edged canvas inside a raised frame of gilt metal, black
-  lacquer or varnished wood) and a near-black panel, each on its own wall, at seeded places and sizes;
+  lacquer or varnished wood) and a near-black panel, each on its own wall, at seeded places and sizes,
+  and a poster of saturated, high-frequency, many-coloured content (a procedural photograph, a
+  patchwork of patterns or typography: :mod:`backend.synth.pictures`), flat or in a thin frame, on a
+  free spot of a closed wall (:mod:`~backend.synth.family.poster`);
 - the floor: a rug with hard borders, a textured decal region crossed by the sun's shadow edge, a
   table or a painted block in the middle with two or three things on it, and a column, a plinth with
   a metal vase or torus and one or two more pieces (a black cabinet, a glossy floor vase, a second
@@ -21,17 +24,20 @@ or frame) and saturated ones (objects, rug, canvas), glossy (diffuse + GGX), Pri
 metallic surfaces (a metal's Diffuse Color is 0: it lives in the residual), spheres, cylinders, a
 torus or vase, and hard shadows across textured surfaces.
 
-The three edits (``gt_edit/<edit>``, all on planes, so :class:`PlaneSurface`):
+The four edits (``gt_edit/<edit>``, all on planes, so :class:`PlaneSurface`):
 
 - ``canvas_recolor``: the picture's whole canvas, exactly to its border, to a flat light colour;
 - ``dark_recolor``: the whole near-black panel to a light grey or pastel (the shading where the
   albedo was dark is then in plain view);
-- ``decal``: a texture on the floor, crossed by the sun's hard shadow edge.
+- ``decal``: a texture on the floor, crossed by the sun's hard shadow edge;
+- ``poster_recolor``: the whole poster, exactly to its border, to a flat colour (light, or a saturated
+  red or blue): a shading that kept the poster's texture shows it as a ghost in the repaint.
 
 :func:`~backend.synth.family.layout.family_layout` draws the layout (pure numpy; the camera path
 needs only it): what a layout is made of is :mod:`~backend.synth.family.parts`, the seeded draws of
 numbers, colours and finishes :mod:`~backend.synth.family.draws`, the floor pieces
-:mod:`~backend.synth.family.pieces` and the lights :mod:`~backend.synth.family.lights`.
+:mod:`~backend.synth.family.pieces`, the lights :mod:`~backend.synth.family.lights` and the poster
+:mod:`~backend.synth.family.poster` (drawn last, from streams of its own).
 :func:`~backend.synth.family.build.build_family_scene` builds it in bpy. Textures come from a second
 random stream, in a fixed order, through :mod:`backend.synth.textures` (which the Blender-binary
 worker forwards to the backend).

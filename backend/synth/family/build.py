@@ -22,6 +22,7 @@ from backend.synth.family.parts import (
     Wall,
     WallItem,
 )
+from backend.synth.family.poster import poster_texture_seed
 from backend.synth.scene import EditSpec, PlaneSurface, SynthScene
 
 
@@ -40,6 +41,7 @@ def build_family_scene(scene_seed: int) -> SynthScene:
     _shell(b, layout, trng, edits["decal"], switches)
     _picture_build(b, layout, trng, edits["canvas_recolor"], switches)
     _panel_build(b, layout, edits["dark_recolor"], switches)
+    _poster_build(b, layout, edits["poster_recolor"], switches)
     _rug_build(b, layout, trng)
     for i, piece in enumerate(layout.pieces):
         _piece_build(b, piece, f"{piece.kind}_{i}")
@@ -55,7 +57,7 @@ def build_family_scene(scene_seed: int) -> SynthScene:
 
 
 def _edit_specs(layout: FamilyLayout, trng: np.random.Generator) -> dict[str, EditSpec]:
-    """The three edits; the decal's texture is the first texture drawn."""
+    """The four edits; the decal's texture is the first texture drawn."""
     walls = layout.walls()
     up = (0.0, 0.0, 1.0)
 
@@ -69,7 +71,9 @@ def _edit_specs(layout: FamilyLayout, trng: np.random.Generator) -> dict[str, Ed
     return {"decal": EditSpec("decal", "decal", decal, texture=getattr(tex, layout.decal_texture)(trng)),
             "canvas_recolor": EditSpec("canvas_recolor", "recolor", on_wall(layout.picture.canvas),
                                        color=layout.picture.recolor),
-            "dark_recolor": EditSpec("dark_recolor", "recolor", on_wall(layout.panel.item), color=layout.panel.recolor)}
+            "dark_recolor": EditSpec("dark_recolor", "recolor", on_wall(layout.panel.item), color=layout.panel.recolor),
+            "poster_recolor": EditSpec("poster_recolor", "recolor", on_wall(layout.poster.canvas),
+                                       color=layout.poster.recolor)}
 
 
 def _material(b: Builder, name: str, f: Finish):
@@ -131,25 +135,44 @@ def _wall_box(b: Builder, name: str, wall: Wall, s: float, z: float, width: floa
 
 def _picture_build(b: Builder, layout: FamilyLayout, trng: np.random.Generator, edit: EditSpec,
                    switches: dict[str, Any]) -> None:
-    """The canvas (one copy of its texture, exactly the edit's rectangle) inside a raised frame whose
-    inner edges are the canvas' border."""
+    """The picture: its canvas (a texture of the second stream) inside a raised frame."""
     p = layout.picture
-    c = p.canvas
-    wall = layout.walls()[c.wall]
+    switches["canvas_recolor"] = _canvas_build(b, layout.walls()[p.canvas.wall], p.canvas, "canvas",
+                                               getattr(tex, p.texture)(trng), edit)
+    _frame_build(b, layout.walls()[p.canvas.wall], p.canvas, "frame", _material(b, "frame", p.frame),
+                 p.frame_width, p.frame_depth)
+
+
+def _poster_build(b: Builder, layout: FamilyLayout, edit: EditSpec, switches: dict[str, Any]) -> None:
+    """The poster: flat on its wall or in a thin frame; its texture from a stream of its own, so the
+    other textures are those of family version 1."""
+    p = layout.poster
+    wall = layout.walls()[p.canvas.wall]
+    image = getattr(tex, p.content)(np.random.default_rng(poster_texture_seed(layout.scene_seed)), *p.texture_size)
+    switches["poster_recolor"] = _canvas_build(b, wall, p.canvas, "poster", image, edit)
+    if p.frame is not None:
+        _frame_build(b, wall, p.canvas, "poster_frame", _material(b, "poster_frame", p.frame), p.frame_width,
+                     p.frame_depth)
+
+
+def _canvas_build(b: Builder, wall: Wall, c: WallItem, name: str, image: np.ndarray, edit: EditSpec):
+    """A quad of one copy of ``image``, exactly the edit's rectangle; returns the edit's switch."""
     corner = wall.point(c.s - c.width / 2, c.z - c.height / 2, CANVAS_OFFSET)
-    mat, switches["canvas_recolor"] = b.textured_material(
-        "canvas", getattr(tex, p.texture)(trng), origin=tuple(map(float, corner)), u_axis=wall.right,
-        v_axis=(0, 0, 1), tile=(c.width, c.height), edit=edit)
+    mat, switch = b.textured_material(name, image, origin=tuple(map(float, corner)), u_axis=wall.right,
+                                      v_axis=(0, 0, 1), tile=(c.width, c.height), edit=edit)
     quad = [wall.point(c.s + ds * c.width / 2, c.z + dz * c.height / 2, CANVAS_OFFSET)
             for ds, dz in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    b.quad("canvas", [tuple(map(float, q)) for q in quad], mat)
-    frame = _material(b, "frame", p.frame)
-    fw, fd = p.frame_width, p.frame_depth
+    b.quad(name, [tuple(map(float, q)) for q in quad], mat)
+    return switch
+
+
+def _frame_build(b: Builder, wall: Wall, c: WallItem, name: str, material, fw: float, fd: float) -> None:
+    """Four boxes ``fw`` wide standing ``fd`` out of the wall, whose inner edges are the canvas' border."""
     outer_w = c.width + 2 * fw
     for dz, part in ((-1, "bottom"), (1, "top")):
-        _wall_box(b, f"frame_{part}", wall, c.s, c.z + dz * (c.height + fw) / 2, outer_w, fw, fd, frame)
+        _wall_box(b, f"{name}_{part}", wall, c.s, c.z + dz * (c.height + fw) / 2, outer_w, fw, fd, material)
     for ds, part in ((-1, "left"), (1, "right")):
-        _wall_box(b, f"frame_{part}", wall, c.s + ds * (c.width + fw) / 2, c.z, fw, c.height, fd, frame)
+        _wall_box(b, f"{name}_{part}", wall, c.s + ds * (c.width + fw) / 2, c.z, fw, c.height, fd, material)
 
 
 def _panel_build(b: Builder, layout: FamilyLayout, edit: EditSpec, switches: dict[str, Any]) -> None:

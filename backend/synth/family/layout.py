@@ -35,13 +35,15 @@ from backend.synth.family.parts import (
     room_walls,
 )
 from backend.synth.family.pieces import draw_pieces
+from backend.synth.family.poster import draw_poster
 
 
 def family_layout(scene_seed: int) -> FamilyLayout:
-    """Draw family scene ``scene_seed``: room, wall pieces, floor pieces, sun and lights.
+    """Draw family scene ``scene_seed``: room, wall pieces, floor pieces, sun, lights and the poster.
 
-    One random stream, drawn in a fixed order (so the order is part of the scene); textures come from
-    another stream at build time, so the layout (and the camera path) needs no textures.
+    One random stream, drawn in a fixed order (so the order is part of the scene); the poster comes
+    from a stream of its own, last (:mod:`~backend.synth.family.poster`); textures come from other
+    streams at build time, so the layout (and the camera path) needs no textures.
     """
     rng = np.random.default_rng([int(scene_seed), 1])
     hx, hy, h = u(rng, 2.6, 3.6), u(rng, 2.2, 3.0), u(rng, 2.6, 3.2)
@@ -75,12 +77,14 @@ def family_layout(scene_seed: int) -> FamilyLayout:
     floor.keep_out.append((decal, 0.15))
     rug = _rug(rng, floor)
     for item, margin in ((picture.canvas, picture.frame_width + 0.3), (panel.item, 0.3)):
-        floor.keep_out.append((_front_zone(walls[item.wall], item, margin), 0.0))
+        floor.keep_out.append((walls[item.wall].front_zone(item, margin), 0.0))
     pieces = draw_pieces(rng, floor, rug)
     lights = draw_lights(rng, walls, closed, panel, pieces, hx, hy, h, skylight)
+    rug_texture, decal_texture = pick(rng, ["kilim", "bands"]), pick(rng, ["poster", "label"])
+    poster = draw_poster(scene_seed, walls, closed, h, picture, panel.item, pieces, lights)
     return FamilyLayout(int(scene_seed), hx, hy, h, open_wall, parapet, skylight, sky, world, floor_texture,
                         floor_tile, wallpaper_wall, wall_colors, ceiling_color, picture, panel, rug,
-                        pick(rng, ["kilim", "bands"]), decal, pick(rng, ["poster", "label"]), sun, lights, pieces)
+                        rug_texture, decal, decal_texture, sun, lights, pieces, poster)
 
 
 def _picture(rng: np.random.Generator, wall: Wall, room_h: float) -> Picture:
@@ -102,13 +106,6 @@ def _panel(rng: np.random.Generator, wall: Wall, room_h: float) -> Panel:
     z = min(u(rng, 1.15, 1.5), room_h - 0.3 - hgt / 2)
     recolor = pick(rng, LIGHT_RECOLORS)
     return Panel(WallItem(wall.name, u(rng, -span, span), z, w, hgt), near_black(rng), recolor)
-
-
-def _front_zone(wall: Wall, item: WallItem, margin: float, depth: float = 1.1) -> Rect:
-    """The floor in front of a wall item, which floor pieces keep clear so that the cameras see it."""
-    a = wall.point(item.s - item.width / 2 - margin, 0.0)
-    b = wall.point(item.s + item.width / 2 + margin, 0.0, depth)
-    return Rect(min(a[0], b[0]), min(a[1], b[1]), max(a[0], b[0]), max(a[1], b[1]))
 
 
 def _sun_and_decal(rng: np.random.Generator, wall: Wall, room_h: float) -> tuple[Sun, Rect]:

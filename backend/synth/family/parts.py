@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-FAMILY_VERSION = 1
-"""Bumped whenever the same scene seed would build a different scene."""
-EDITS = ("canvas_recolor", "dark_recolor", "decal")
+FAMILY_VERSION = 2
+"""Bumped whenever the same scene seed would build a different scene (2: the poster)."""
+EDITS = ("canvas_recolor", "dark_recolor", "decal", "poster_recolor")
 WALL_NAMES = ("north", "east", "south", "west")
 EYE_RADIUS = 0.5
 """The camera's eye ellipse, as a fraction of the room's half extents."""
@@ -48,6 +48,13 @@ class Wall:
         s0 = -self.length / 2 if s0 is None else s0
         s1 = self.length / 2 if s1 is None else s1
         return [tuple(self.point(s, z)) for s, z in ((s0, z0), (s1, z0), (s1, z1), (s0, z1))]
+
+    def front_zone(self, item: WallItem, margin: float, depth: float = 1.1) -> Rect:
+        """The floor in front of ``item`` (``margin`` metres wider on each side, ``depth`` deep), which
+        floor pieces keep clear so that the cameras see it."""
+        a = self.point(item.s - item.width / 2 - margin, 0.0)
+        b = self.point(item.s + item.width / 2 + margin, 0.0, depth)
+        return Rect(min(a[0], b[0]), min(a[1], b[1]), max(a[0], b[0]), max(a[1], b[1]))
 
 
 @dataclass(frozen=True)
@@ -123,6 +130,24 @@ class Picture:
     frame: Finish
     recolor: tuple[float, float, float]
     """canvas_recolor's linear albedo."""
+
+
+@dataclass(frozen=True)
+class Poster:
+    """A picture of saturated, high-frequency, many-coloured content (:mod:`backend.synth.pictures`):
+    flat on its wall, or inside a thin frame."""
+
+    canvas: WallItem
+    content: str
+    """The textures function of the canvas: "photo", "patterns" or "typography"."""
+    texture_size: tuple[int, int]
+    """(width, height) of the texture, pixels: the canvas' aspect, 512 on the long side."""
+    frame_width: float
+    """0: a poster flat on the wall."""
+    frame_depth: float
+    frame: Finish | None
+    recolor: tuple[float, float, float]
+    """poster_recolor's linear albedo."""
 
 
 @dataclass(frozen=True)
@@ -205,6 +230,8 @@ class FamilyLayout:
     sun: Sun
     lights: list[LightSpec]
     pieces: list[Piece]
+    poster: Poster
+    """Drawn from a stream of its own after the rest, so the other draws are those of version 1."""
 
     def walls(self) -> dict[str, Wall]:
         return room_walls(self.half_x, self.half_y)
