@@ -22,18 +22,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from dataclasses import asdict, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from backend.bench import bench_decompose
-from backend.bench.bench_cli import error
+from backend.bench.bench_cli import error, timed_step
 from backend.bench.bench_seeds import ROOM, SeedSettings, label, machine, parse_scene_seeds
 from backend.bench.relight_eval import LEAD_OVER, METHODS, REGIONS, EvalSettings, evaluate_scene
 from backend.bench.seed_stats import aggregate_metrics, cell, markdown, spread_cells
-from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.edit.relight.geometry import NORMAL_SOURCES
@@ -76,14 +74,7 @@ def run_scene(root: Path, scene_seed: int | None, s: SeedSettings, ev: EvalSetti
     where = f"seed {label(scene_seed)}"
 
     def step(name: str, fn):
-        events.log(f"bench_relight: {where}: {name}")
-        t = time.perf_counter()
-        try:
-            return fn()
-        except IGSError as e:
-            raise IGSError(f"{where}: {name}: {e}") from e
-        finally:
-            seconds[name] = round(time.perf_counter() - t, 1)
+        return timed_step("bench_relight", seconds, name, where, fn)
 
     step("synth", lambda: synth_scene(ws, scene_seed, s, lights))
     layers = step("decompose", lambda: decompose_scene(ws, s))

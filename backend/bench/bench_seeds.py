@@ -47,7 +47,7 @@ from typing import Any, TypeVar
 import torch
 
 from backend.bench import bench_decompose, bench_edit
-from backend.bench.bench_cli import error
+from backend.bench.bench_cli import error, timed_step
 from backend.bench.bench_edit import PROXY_SOURCES, ProxySource
 from backend.bench.seed_headline import headline_table, leakage_vs_gt
 from backend.bench.seed_stats import aggregate, cell, markdown, spread_cells
@@ -300,15 +300,7 @@ def edit_headline(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def _timed(seconds: dict[str, float], step: str, where: str, fn: Callable[[], T]) -> T:
-    """``fn()``, its seconds stored under ``step``; an IGSError names the seed and step."""
-    events.log(f"bench_seeds: {where}: {step}")
-    t = time.perf_counter()
-    try:
-        return fn()
-    except IGSError as e:
-        raise IGSError(f"{where}: {step}: {e}") from e
-    finally:
-        seconds[step] = round(time.perf_counter() - t, 1)
+    return timed_step("bench_seeds", seconds, step, where, fn)
 
 
 def layer_versions(ws: Path) -> dict[str, list[int] | None]:
