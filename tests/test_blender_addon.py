@@ -71,7 +71,8 @@ def addon(ext_zip, tmp_path_factory):
 
 
 def sub(name: str):
-    return sys.modules[f"{MOD}.igs_blender.{name}"]
+    """The add-on's module ``igs_blender.<name>`` (imported if nothing in the add-on has yet)."""
+    return importlib.import_module(f"{MOD}.igs_blender.{name}")
 
 
 @pytest.fixture

@@ -66,7 +66,9 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert [st[s]["iterations"] for s in ("albedo", "shading", "residual")] == [50, 24, 48]
 
     # each stage learned: held-out albedo vs its first iteration, held-out A*S vs the initial shading
-    assert st["albedo"]["held_out"]["psnr"] > st["albedo"]["held_out_initial"]["psnr"] + 3.0
+    # (+2.7 dB in the antialiased mode at these 50 iterations, over 3 in the classic one: at this tiny size most
+    # Gaussians are under a pixel wide, and the antialiased kernel fades them until they grow)
+    assert st["albedo"]["held_out"]["psnr"] > st["albedo"]["held_out_initial"]["psnr"] + 2.0
     assert st["shading"]["held_out"]["psnr"] > st["shading"]["held_out_initial"]["psnr"] + 1.0
     # ground-truth mode: layers compared directly, priors recorded
     assert m["priors"]["albedo"] == "gt" and m["priors"]["depth"] == "gt"

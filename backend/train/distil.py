@@ -40,6 +40,7 @@ from backend.core.errors import IGSError
 from backend.core.paths import plain_name
 from backend.core.workspace import Capture, Workspace, split_frames
 from backend.render import Backend, render
+from backend.render.types import RasterMode
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyConfig, DensifyStrategy, scene_extent
@@ -114,9 +115,10 @@ def layer_paths(ws: Workspace, edit: str | None) -> dict[str, Path]:
     return paths
 
 
-def composite_colours(g: GaussianSet, views: list[View], backend: Backend) -> tuple[torch.Tensor, torch.Tensor]:
+def composite_colours(g: GaussianSet, views: list[View], backend: Backend,
+                      raster_mode: RasterMode | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Per Gaussian of ``g``: the weighted mean (N, 3) of ``views``' images over the pixels it draws in,
-    and its summed blending weight (N,).
+    and its summed blending weight (N,), drawn in ``raster_mode`` (default: ``g``'s own).
 
     The render of features ``f`` (N, C) is linear in them, ``I(p) = sum_i w_i(p) f_i``, so the gradient
     of ``sum_p <I(p), T(p)>`` with respect to ``f_i`` is ``sum_p w_i(p) T(p)``: one backward per view
@@ -129,7 +131,7 @@ def composite_colours(g: GaussianSet, views: list[View], backend: Backend) -> tu
         for v in views:
             feats = torch.zeros(len(g), 4, device=g.device, requires_grad=True)
             out = render(args["means"], args["quats"], args["log_scales"], opacities, feats, v.camera,
-                         log_scales=True, backend=backend, raster_mode=g.raster_mode)
+                         log_scales=True, backend=backend, raster_mode=raster_mode or g.raster_mode)
             target = torch.cat([v.image, torch.ones_like(v.image[..., :1])], dim=-1)
             (out.color * target).sum().backward()
             acc += feats.grad
@@ -143,15 +145,18 @@ def composite_colours(g: GaussianSet, views: list[View], backend: Backend) -> tu
 
 def initial_student(albedo: GaussianSet, views: list[View], cfg: DistilConfig, backend: Backend) -> GaussianSet:
     """The albedo Gaussians' geometry (without a per-Gaussian low-pass: other viewers use 3DGS's),
-    coloured by :func:`composite_colours`, at most ``cfg.init_max`` of them (those that draw most)."""
-    rgb, weight = composite_colours(albedo, views, backend)
+    coloured by :func:`composite_colours`, at most ``cfg.init_max`` of them (those that draw most).
+    The student is in the mode it is trained in (``cfg.train.raster_mode``), and is coloured in it:
+    the albedo's own mode may be the other one."""
+    mode = cfg.train.raster_mode
+    rgb, weight = composite_colours(albedo, views, backend, mode)
     rows = torch.arange(len(albedo), device=albedo.device)
     if len(albedo) > cfg.init_max:
         rows = torch.topk(weight, cfg.init_max).indices.sort().values  # kept in file order
     p = albedo.params
     return GaussianSet.from_activated("radiance", p["means"].detach()[rows], rgb[rows],
                                       p["log_scales"].detach()[rows], albedo.opacities.detach()[rows],
-                                      p["quats"].detach()[rows], sh_degree=cfg.sh_degree)
+                                      p["quats"].detach()[rows], sh_degree=cfg.sh_degree, raster_mode=mode)
 
 
 def distil_cameras(capture: Capture, cfg: DistilConfig) -> tuple[list[Camera], list[Camera], list[Camera],
