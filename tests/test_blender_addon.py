@@ -1089,6 +1089,10 @@ def test_flow_4b_fit_a_cylinder_paint_over_the_projected_albedo_and_bake(addon, 
     # the label; the fit wants more of the column around it
     edit = _region_around_gt_rect(scene, flow, "column_decal", (7, 3, 7, 24))
     scene.igs.edit_name = "label"
+    # 10 iterations leave the column's Gaussians near their SfM points; in the antialiased mode on bpy
+    # 5.0.1's capture the automatic distance (up to 8% of the selection) kept 9 of 32 of them, one short
+    # of a cylinder fit: the artist's fix the error names, a wider Inlier Distance
+    scene.igs.fit_threshold = 0.06
     assert bpy.ops.igs.fit_proxy(primitive="cylinder") == {"FINISHED"}, scene.igs.last_report
     proxy = bpy.data.objects["IGS proxy [label]"]
     fitted = json.loads((ws / "edits" / "label" / "edit.json").read_text())["cylinder"]

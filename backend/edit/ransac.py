@@ -417,7 +417,8 @@ def fit_cylinder_ransac(points, normals=None, threshold: float | None = None, it
     ratio = float(inl_all.mean())
     if inl_all.sum() < MIN_CYLINDER_POINTS or ratio < min_inlier_ratio:
         raise IGSError(f"{what}: only {int(inl_all.sum())} of the {len(p_all)} selected points ({ratio:.1%}) lie within "
-                       f"{thr:.3g} of one cylinder (need {min_inlier_ratio:.0%}); select a cleaner region or raise --threshold")
+                       f"{thr:.3g} of one cylinder (need {MIN_CYLINDER_POINTS} points and {min_inlier_ratio:.0%}); "
+                       "select a larger or cleaner region or raise --threshold")
     q = p_all[inl_all]
     h = (q - point) @ axis
     point = point + h.mean() * axis  # centre the axis point on the inliers
