@@ -43,6 +43,7 @@ COMMAND_MODULES: list[str] = [
     "backend.commands.decompose",
     "backend.commands.edit",
     "backend.commands.render",
+    "backend.commands.light_bake",
     "backend.commands.distil",
     "backend.commands.export",
     "backend.commands.convert",

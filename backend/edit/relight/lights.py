@@ -63,8 +63,14 @@ class Light:
 
 def load_lights(path: str | Path, flag: str = "--light") -> list[Light]:
     """The lights of a lights file; any problem is one IGSError naming ``flag``, the file and the field."""
+    return [Light.from_canonical(d) for d in read_canonical(path, flag)]
+
+
+def read_canonical(path: str | Path, flag: str = "--light") -> list[dict]:
+    """The lights of a lights file in the contract's canonical form (:func:`load_lights`' errors), for
+    copying them on (the light bake's ``light.json``)."""
     try:
-        return [Light.from_canonical(d) for d in read_lights(path)]
+        return read_lights(path)
     except ContractError as e:
         raise IGSError(f"{flag} {e}") from None
 

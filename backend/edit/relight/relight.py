@@ -146,10 +146,24 @@ class LightRig:
         """{light name: (H, W, 3) float32 S_new of that light}, 0 where the view has no surface;
         ``shadows`` False: every point sees the whole light."""
         h, w = geom.valid.shape
-        pts = geom.points[geom.valid]
-        nrm = geom.normals[geom.valid]
+        per_point = self.point_shading(geom.points[geom.valid], geom.normals[geom.valid], shadows)
         out = {}
         for light in self.lights:
+            s = torch.zeros(h, w, 3, dtype=torch.float32)
+            s[geom.valid] = per_point[light.name].to(torch.float32)
+            out[light.name] = s
+        return out
+
+    def point_shading(self, points: Tensor, normals: Tensor, shadows: bool = True,
+                      names: list[str] | None = None) -> dict[str, Tensor]:
+        """{light name: (N, 3) float64 S_new of that light} at world ``points`` (N, 3) with unit ``normals``
+        (N, 3), both float64: the per-pixel path's shading and the light bake's per Gaussian
+        (:mod:`~backend.edit.relight.light_bake`); ``shadows`` False: every point sees the whole light;
+        ``names``: only these lights (default all)."""
+        out = {}
+        for light in self.lights:
+            if names is not None and light.name not in names:
+                continue
             maps = self.maps[light.name]
 
             def visible(k: int, p: Tensor, n: Tensor, maps=maps) -> Tensor:
@@ -158,10 +172,9 @@ class LightRig:
                 return visibility(maps[k], p, n, self.cfg.pcf, self.cfg.normal_offset, self.cfg.depth_bias,
                                   self.cfg.min_cos)
 
-            s = torch.zeros(h, w, 3, dtype=torch.float32)
-            if len(pts):
-                s[geom.valid] = shading(light, pts, nrm, visible, self.cfg.area_cells,
-                                        self.cfg.area_samples).to(torch.float32)
+            s = torch.zeros(len(points), 3, dtype=torch.float64)
+            if len(points):
+                s = shading(light, points, normals, visible, self.cfg.area_cells, self.cfg.area_samples)
             out[light.name] = s
         return out
 
