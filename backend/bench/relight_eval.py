@@ -85,15 +85,17 @@ class EvalSettings:
     relight: RelightConfig = field(default_factory=RelightConfig)
 
 
-class _Scores:
-    """Squared errors and pixel counts pooled per (method, region) and per light."""
+class Scores:
+    """Squared errors and pixel counts pooled per (method, region) and per light; ``methods``: those
+    reported, the first the one whose pixels are counted."""
 
-    def __init__(self) -> None:
+    def __init__(self, methods: tuple[str, ...] = METHODS) -> None:
+        self.methods = methods
         self.se: dict[tuple[str, str, str], float] = defaultdict(float)
         self.n: dict[tuple[str, str, str], int] = defaultdict(int)
 
     def add(self, light: str, method: str, pred: np.ndarray, target: np.ndarray, masks: dict[str, np.ndarray]) -> None:
-        err = ((_display(pred) - _display(target)) ** 2).mean(-1)
+        err = ((display(pred) - display(target)) ** 2).mean(-1)
         for region, m in masks.items():
             for key in ((light, method, region), ("*", method, region)):
                 self.se[key] += float(err[m].sum())
@@ -101,7 +103,7 @@ class _Scores:
 
     def psnr(self, light: str = "*") -> dict[str, dict[str, float | None]]:
         out: dict[str, dict[str, float | None]] = {}
-        for method in METHODS:
+        for method in self.methods:
             out[method] = {}
             for region in REGIONS:
                 n = self.n.get((light, method, region), 0)
@@ -111,10 +113,11 @@ class _Scores:
         return out
 
     def pixels(self, light: str = "*") -> dict[str, int]:
-        return {r: self.n.get((light, "ours", r), 0) for r in REGIONS}
+        return {r: self.n.get((light, self.methods[0], r), 0) for r in REGIONS}
 
 
-def _display(linear: np.ndarray) -> np.ndarray:
+def display(linear: np.ndarray) -> np.ndarray:
+    """A linear image as it is compared: clipped to [0, 1] and sRGB-encoded."""
     return linear_to_srgb(np.clip(linear, 0.0, 1.0))
 
 
@@ -182,7 +185,7 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
         rig_sh = LightRig(lights, radiance, cfg, "shadow maps: 3DGS")
         truth = truth_field(ws, [f.camera for f in capture.frames], s.truth_voxel)
         rig_truth = LightRig(lights, truth, cfg, "shadow maps: true depth")
-        scores = _Scores()
+        scores = Scores()
         no_light = {"se": 0.0, "n": 0}
         angles: dict[str, list] = {"ours": [], "sh_strip": []}
         with events.stage("relight views", len(views), unit="view") as bar:
@@ -217,7 +220,7 @@ def _diff(a: float | None, b: float | None) -> float | None:
 
 def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings, ours: tuple[Splats, ...],
                 sh: tuple[Splats, Splats], sh_space: str, rigs: tuple[LightRig, LightRig, LightRig],
-                scores: _Scores, no_light: dict[str, float], angles: dict[str, list]) -> None:
+                scores: Scores, no_light: dict[str, float], angles: dict[str, list]) -> None:
     stem = Path(cam.name).stem
     a_gt = srgb_to_linear(read_image(ws.gt_pass("albedo") / cam.name))
     i_orig = a_gt * read_exr(ws.gt_pass("shading") / f"{stem}.exr")[..., :3] + \
@@ -229,7 +232,7 @@ def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings
     s_ours = rig_ours.shading(geom_ours)
     A, S, R = (o.color.clamp_min(0).numpy() for o in (a, sh_o, r))
     model = A * S + R
-    err = (_display(model) - _display(i_orig)) ** 2
+    err = (display(model) - display(i_orig)) ** 2
     no_light["se"] += float(err.mean(-1).sum())
     no_light["n"] += err.shape[0] * err.shape[1]
     full, base = _render(list(sh), cam, s.relight.backend)
@@ -264,5 +267,5 @@ def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings
             scores.add(light.name, method, pred, target, masks)
         rows.append([i_orig, target, preds["ours"], preds["sh_strip"], preds["ceiling"]])
     if s.figures:
-        grid = np.concatenate([np.concatenate([_display(x) for x in row], 1) for row in rows], 0)
+        grid = np.concatenate([np.concatenate([display(x) for x in row], 1) for row in rows], 0)
         write_image(ws.root / "bench_relight" / f"{stem}.png", grid)
