@@ -248,3 +248,33 @@ def test_the_workspace_lock_is_respected(box, tmp_path, capsys):
     finally:
         proc.kill()
         proc.wait()
+
+
+def test_edit_takes_the_geometry_of_the_edits_albedo(box, tmp_path, capsys):
+    """An edit whose albedo holds a panel between the lamp and the +x wall: the wall is in its shadow."""
+    from backend.splats.gaussians import GaussianSet
+    from backend.splats.ply import write_ply
+
+    albedo, _ = read_ply(box / "layers" / "albedo.ply")
+    a = torch.linspace(-0.5, 0.5, 26)
+    y, z = torch.meshgrid(a, a, indexing="ij")
+    n = y.numel()
+    panel = GaussianSet.from_activated(
+        "albedo", torch.stack([torch.full((n,), 1.8), y.reshape(-1), z.reshape(-1)], 1), torch.full((n, 3), 0.5),
+        torch.log(torch.tensor([0.002, 0.03, 0.03])).expand(n, 3).clone(), torch.full((n,), 0.99))
+    (box / "edits" / "panel").mkdir(parents=True, exist_ok=True)
+    write_ply(box / "edits" / "panel" / "albedo.ply", GaussianSet.concat([albedo, panel]))
+    lights = _lights(tmp_path / "lights.json")
+    assert _bake(box, lights, "--edit", "panel") == 0
+    lit = box / "layers" / "lit"
+    doc = json.loads((lit / "light.json").read_text())
+    assert doc["edit"] == "panel" and doc["baked_from"]["albedo"]["file"] == "edits/panel/albedo.ply"
+    m = read_ply(box / "layers" / "shading.ply")[0].means.detach()
+    behind = (m[:, 0] > 0.99) & (m[:, 1].abs() < 0.15) & (m[:, 2].abs() < 0.15)  # the panel's shadow: |y|,|z| < 0.36
+    only = read_ply(lit / "light_only.ply")[0].colors.detach()
+    assert behind.sum() > 3 and float(only[behind].max()) < 1e-3
+    assert _bake(box, lights) == 0  # without the edit, lit again
+    assert float(read_ply(lit / "light_only.ply")[0].colors.detach()[behind].min()) > 0.05
+    assert _bake(box, lights, "--edit", "nope") == EXIT_USER
+    err = capsys.readouterr().err
+    assert "--edit nope: " in err and "not found; bake the edit first" in err

@@ -35,12 +35,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "A viewer composes A * (S + S_new) + R, with any edit's albedo.")
     p.add_argument("workspace", help="workspace folder")
     p.add_argument("--light", required=True, help="lights JSON file (docs/relighting.md, e.g. written by the add-on)")
+    p.add_argument("--edit", default=None, help="take the shadows' and normals' geometry from "
+                   "<ws>/edits/EDIT/albedo.ply, as `igs render --edit EDIT --light` does (default: the decomposition's "
+                   "albedo); the shading Gaussians are the same for every edit")
     add_config_arguments(p, _DEFAULTS, OPTIONS)
     locking.writes(p, locking.workspace_arg)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> dict:
-    result = light_bake(args.workspace, args.light, config_from_args(_DEFAULTS, OPTIONS, args))
+    result = light_bake(args.workspace, args.light, config_from_args(_DEFAULTS, OPTIONS, args), edit=args.edit)
     events.result("light-bake", result, indent=None)
     return result

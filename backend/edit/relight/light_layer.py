@@ -11,8 +11,10 @@ Files (written together, each next to the old one and swapped in when all are co
   bake was made from, so a stale bake is seen: :func:`stale_sources`) and the settings.
 
 The albedo field gives the geometry (the shadow maps and the views' depth) as in ``igs render --light``.
-An edit changes the albedo's colours, not the shading, so the layer serves every edit: a viewer composes
-``A_edit * (S + S_new) + R``.
+An edit changes the albedo, not the shading: a viewer composes ``A_edit * (S + S_new) + R``. An edit's bake
+also adds and removes albedo Gaussians, which moves the geometry the shadows and normals come from
+(docs/relighting.md has the measurement), so ``edit`` takes the geometry from ``edits/<edit>/albedo.ply``,
+as ``igs render --edit N --light`` does; ``light.json`` records which.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.atomic_io import atomic_paths
 from backend.core.errors import IGSError
+from backend.core.paths import plain_name
 from backend.edit.relight.light_bake import LightBakeConfig, bake_lights, gaussian_normals, spread_views
 from backend.edit.relight.lights import Light, read_canonical
 from backend.edit.relight.relight import LightRig
@@ -70,15 +73,19 @@ def stale_sources(ws_root: str | Path) -> list[str] | None:
         return None
     changed = []
     for kind in SOURCES:
-        path = Path(ws_root) / "layers" / f"{kind}.ply"
         rec = baked.get(kind) if isinstance(baked, dict) else None
-        if not path.exists() or not isinstance(rec, dict) or rec.get("sha256") != file_stamp(path)["sha256"]:
+        path = Path(ws_root) / str(rec.get("file", "")) if isinstance(rec, dict) else None
+        if path is None or not path.is_file() or rec.get("sha256") != file_stamp(path)["sha256"]:
             changed.append(kind)
     return changed
 
 
-def _layer(ws_root: Path, kind: str) -> tuple[GaussianSet, Path]:
+def _layer(ws_root: Path, kind: str, edit: str | None = None) -> tuple[GaussianSet, Path]:
     path = ws_root / "layers" / f"{kind}.ply"
+    if edit is not None:
+        path = ws_root / "edits" / plain_name(edit, "--edit") / f"{kind}.ply"
+        if not path.exists():
+            raise IGSError(f"--edit {edit}: {path} not found; bake the edit first (igs edit bake)")
     if not path.exists():
         raise IGSError(f"{path}: layer not found; run `igs decompose` first")
     g, _ = read_ply(path, kind=kind)
@@ -93,17 +100,20 @@ def _with_colors(g: GaussianSet, colors: torch.Tensor) -> GaussianSet:
     return GaussianSet("shading", t, raster_mode=g.raster_mode)
 
 
-def light_bake(workspace: str | Path, light_file: str | Path, cfg: LightBakeConfig) -> dict[str, Any]:
-    """Bake the lights of ``light_file`` into ``<ws>/layers/lit`` (module docstring); returns the files
-    written and a summary."""
+def light_bake(workspace: str | Path, light_file: str | Path, cfg: LightBakeConfig,
+               edit: str | None = None) -> dict[str, Any]:
+    """Bake the lights of ``light_file`` into ``<ws>/layers/lit`` (module docstring), with the geometry of
+    the albedo of ``edit`` (None: the decomposition's); returns the files written and a summary."""
     t0 = time.perf_counter()
     cfg.check()
+    if edit is not None:
+        plain_name(edit, "--edit")
     canonical = read_canonical(light_file)
     lights = [Light.from_canonical(d) for d in canonical]
     capture = load_capture(workspace)
     root = capture.workspace.root
     shading, shading_path = _layer(root, "shading")
-    albedo, albedo_path = _layer(root, "albedo")
+    albedo, albedo_path = _layer(root, "albedo", edit)
     stamps = {"shading": file_stamp(shading_path), "albedo": file_stamp(albedo_path)}
     cameras = [f.camera for f in capture.frames]
     views = spread_views(cameras, cfg.views)
@@ -122,7 +132,8 @@ def light_bake(workspace: str | Path, light_file: str | Path, cfg: LightBakeConf
     doc = lights_document(
         canonical, note="lights baked into layers/lit/shading.ply by igs light-bake (docs/relighting.md)",
         lights_file=str(Path(light_file).resolve()),
-        baked_from={k: {"file": f"layers/{k}.ply", **v} for k, v in stamps.items()},
+        edit=edit, baked_from={k: {"file": p.relative_to(root).as_posix(), **stamps[k]}
+                               for k, p in (("shading", shading_path), ("albedo", albedo_path))},
         settings={"normals": cfg.normals, "views": len(views), "shadow_size": cfg.relight.shadow_size,
                   "depth_tolerance": cfg.depth_tolerance},
         gaussians=len(shading), seen_fraction=round(float(seen.double().mean()), 4))
@@ -133,7 +144,7 @@ def light_bake(workspace: str | Path, light_file: str | Path, cfg: LightBakeConf
     for kind, path in files.items():
         events.output(f"light_bake_{kind}", path)
     mean = {name: [round(float(x), 5) for x in s.mean(0)] for name, s in added.items()}
-    return {"out": str(files["shading"]), "light_only": str(files["light_only"]),
+    return {"out": str(files["shading"]), "edit": edit, "light_only": str(files["light_only"]),
             "light_json": str(files["light_json"]), "lights": [li.name for li in lights],
             "gaussians": len(shading), "seen_fraction": round(float(seen.double().mean()), 4),
             "mean_added_shading": mean, "seconds": round(time.perf_counter() - t0, 2)}
