@@ -124,8 +124,8 @@ def test_lights_collection_round_trips_through_the_contract_reader(scene, tmp_pa
     assert bpy.ops.igs.add_light_collection() == {"FINISHED"}
     coll = scene.igs.light_collection
     assert coll.name == "IGS Lights" and coll in scene.collection.children_recursive
-    point = add_light(coll, "Key Light", "POINT", placed(1.0, 0.5, 2.2), energy=60.0, color=(1.0, 0.9, 0.8),
-                      shadow_soft_size=0.02)
+    add_light(coll, "Key Light", "POINT", placed(1.0, 0.5, 2.2), energy=60.0, color=(1.0, 0.9, 0.8),
+              shadow_soft_size=0.02)
     spot_m = placed(0.0, -1.0, 2.4, rx=0.6)
     add_light(coll, "cone", "SPOT", spot_m, energy=120.0, spot_size=1.05, spot_blend=0.3, exposure=1.0)
     sun_m = placed(0.0, 0.0, 5.0, rx=0.3, ry=-0.2)
@@ -335,3 +335,27 @@ def test_real_backend_renders_the_view_lit(scene, tmp_path):
     a = cv2.imread(str(unlit / "full" / "view.png")).astype(float)
     b = cv2.imread(str(lit / "full" / "view.png")).astype(float)
     assert a.shape == b.shape and b.mean() > a.mean() + 1.0, (a.mean(), b.mean())
+
+
+def test_lights_panel_says_which_lights_light_the_splats(scene, tmp_path, lights_python):
+    from test_blender_panel import draw, shown_text
+
+    ws = _ready_workspace(scene, tmp_path, lights_python)
+    texts = draw("IGS_PT_lights")
+    assert ("operator", "igs.add_light_collection", None, None) in texts
+    assert "No lights collection: Add Light Collection makes 'IGS Lights'" in shown_text(texts)
+    assert "Viewport shading: the captured light only" in shown_text(texts)
+    bpy.ops.igs.add_light_collection()
+    texts = draw("IGS_PT_lights")
+    assert "'IGS Lights' holds no visible light" in shown_text(texts)
+    assert ("operator", "igs.add_light_collection", None, None) not in texts
+    assert {p for fn, p, _, _ in texts if fn == "prop"} >= {"use_lights", "live_lights", "light_collection"}
+    bpy.ops.igs.add_light(kind="POINT")
+    bpy.ops.igs.add_light(kind="AREA")
+    sub("light_bake").LIVE.reset()
+    assert bpy.ops.igs.bake_lights() == {"FINISHED"}, scene.igs.last_report
+    got = shown_text(draw("IGS_PT_lights"))
+    assert "'IGS Lights': 1 area, 1 point light(s) light the splats" in got
+    assert "Viewport shading: lit by 2 light(s) (layers/lit/shading.ply)" in got
+    assert any(t and t.startswith("Shading + lights") for _, _, t, _ in draw("IGS_PT_layers"))
+    assert (ws / "layers" / "lit" / "shading.ply").is_file()
