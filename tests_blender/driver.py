@@ -436,6 +436,18 @@ def png_pixels(path: Path):
     return px[::-1, :, :3]
 
 
+def wait_rendered(prefix: str, limit_s: float):
+    """Yield until Render View's result is loaded (its report names the new ``renders/<prefix>-*`` folder);
+    returns that folder's full/view.png. (The job can read as ended a moment before the operator loads it.)"""
+    t0 = time.time()
+    while time.time() - t0 < limit_s:
+        report = props().last_report
+        if report.startswith("Rendered ") and f"/renders/{prefix}-2" in report:
+            return Path(report.split("Rendered ", 1)[1].strip())
+        yield 0.5
+    raise TimeoutError(f"Render View wrote no renders/{prefix}-* in {limit_s:.0f} s: {props().last_report}")
+
+
 def lights_render_view():
     """Render View without lights, then with a point light added to the lights collection half a metre in
     front of the baked wall: the lit render is brighter around the light's foot on the wall than elsewhere."""
@@ -450,8 +462,8 @@ def lights_render_view():
         pr.render_layer, pr.render_edit = "full", True
         assert invoke("igs.render_view") == {"RUNNING_MODAL"}
         yield from wait_job(CONFIG["step_timeout_s"])
-        unlit = newest_render("view") / "full" / "view.png"
-        assert unlit.is_file(), props().last_report
+        unlit = yield from wait_rendered("view", 300)
+        assert unlit.is_file() and unlit.parent.parent == newest_render("view"), (unlit, props().last_report)
         yield 3.0
         shot("15-render-view")
         proxy = bpy.data.objects[f"IGS proxy [{CONFIG['edit']}]"]
@@ -470,9 +482,8 @@ def lights_render_view():
         s.data["light"] = {"location": list(light.location), "energy": light.data.energy, "distance": r}
         assert invoke("igs.render_view") == {"RUNNING_MODAL"}
         yield from wait_job(CONFIG["step_timeout_s"])
-        lit_dir = newest_render("view-lit")
-        s.data["lit_render"] = str(lit_dir.relative_to(CONFIG["workspace"]))
-        lit = lit_dir / "full" / "view.png"
+        lit = yield from wait_rendered("view-lit", 300)
+        s.data["lit_render"] = str(lit.relative_to(CONFIG["workspace"]))
         assert lit.is_file(), props().last_report
         yield 3.0
         shot("16-render-view-lit")
