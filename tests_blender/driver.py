@@ -477,8 +477,6 @@ def lights_render_view():
         light.location = wall + towards_camera.normalized() * r
         light.data.energy = 4 * np.pi ** 2 * r * r  # E/pi = 1 at the wall's nearest point: as bright as daylight S
         bpy.context.view_layer.update()
-        scroll_sidebar(-14)  # up to the Lights panel
-        redraw()
         s.data["light"] = {"location": list(light.location), "energy": light.data.energy, "distance": r}
         assert invoke("igs.render_view") == {"RUNNING_MODAL"}
         yield from wait_job(CONFIG["step_timeout_s"])
@@ -487,6 +485,16 @@ def lights_render_view():
         assert lit.is_file(), props().last_report
         yield 3.0
         shot("16-render-view-lit")
+        image_windows = [w for w in bpy.context.window_manager.windows if w != main_window()]
+        for win in image_windows:  # back to the main window, to see the Lights panel
+            with bpy.context.temp_override(window=win, screen=win.screen):
+                bpy.ops.wm.window_close()
+        yield 1.0
+        scroll_sidebar(-80)
+        scroll_sidebar(18)  # from the top down to the Lights panel
+        redraw()
+        yield 2.0
+        shot("17-lights-panel")
         a, b = png_pixels(unlit), png_pixels(lit)
         assert a.shape == b.shape, (a.shape, b.shape)
         gain = (b - a).mean(axis=2)
