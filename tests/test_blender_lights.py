@@ -36,6 +36,7 @@ from test_blender_addon import (  # noqa: E402, F401  (addon, ext_zip, scene: fi
     write_layers,
 )
 
+from igs_contract.layer_ply import C0  # noqa: E402
 from igs_contract.light_json import read_lights  # noqa: E402
 
 LIGHTS_DOUBLE = r'''#!{python}
@@ -359,3 +360,47 @@ def test_lights_panel_says_which_lights_light_the_splats(scene, tmp_path, lights
     assert "Viewport shading: lit by 2 light(s) (layers/lit/shading.ply)" in got
     assert any(t and t.startswith("Shading + lights") for _, _, t, _ in draw("IGS_PT_layers"))
     assert (ws / "layers" / "lit" / "shading.ply").is_file()
+
+
+@pytest.fixture
+def native_scene(addon):
+    """Blender 5.3's native splats on (the point-cloud path is the ``scene`` fixture's)."""
+    if bpy.app.version < (5, 3, 0):
+        pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    prefs = bpy.context.preferences.addons[MOD].preferences
+    prefs.backend_python = PYTHON
+    prefs.native_splats = True
+    return bpy.context.scene
+
+
+def test_native_f12_multiplies_the_baked_shading_field(native_scene, tmp_path, lights_python):
+    """Blender 5.3: the lit shading becomes the shading field's splat object, and F12's Shading output (the
+    compositor's) is brighter by what the bake added; emptying the collection puts the captured shading back."""
+    from test_blender_native import load, render_outputs, wall_workspace
+
+    scene = native_scene
+    ws, _ = wall_workspace(tmp_path)
+    load(scene, ws)
+    scene.cycles.samples = 16
+    before = render_outputs(scene, tmp_path / "unlit", ("Shading",))["Shading"]
+    bpy.context.preferences.addons[MOD].preferences.backend_python = str(lights_python)
+    bake = sub("light_bake")
+    bake.LIVE.reset()
+    bpy.ops.igs.add_light(kind="SUN")
+    assert bpy.ops.igs.bake_lights() == {"FINISHED"}, scene.igs.last_report
+    shading = bpy.data.objects["IGS shading"]
+    assert sub("native_layers").is_native(shading) and Path(shading["igs_ply"]).parent.name == "lit"
+    assert shading.name in bpy.data.collections["IGS Field shading"].objects
+    after = render_outputs(scene, tmp_path / "lit", ("Shading",))["Shading"]
+    covered = before.max(axis=2) > 0.05
+    gain = float((after - before)[covered].mean())
+    added = 0.25 * C0  # the double adds 0.25 to every shading Gaussian's DC: C0 * 0.25 to its colour
+    assert 0.75 * added < gain < 1.05 * added, (gain, added)  # seen through the splats' alpha, above 0.9 here
+
+    for obj in list(scene.igs.light_collection.objects):
+        bpy.data.objects.remove(obj)
+    assert bpy.ops.igs.bake_lights() == {"FINISHED"}, scene.igs.last_report
+    assert Path(bpy.data.objects["IGS shading"]["igs_ply"]) == ws / "layers" / "shading.ply"
+    again = render_outputs(scene, tmp_path / "unlit2", ("Shading",))["Shading"]
+    np.testing.assert_allclose(again, before, atol=1e-4)
