@@ -136,7 +136,7 @@ def _fit_when_drawn(window, area, image: bpy.types.Image, size: tuple[int, int] 
     frame loads, so this waits on a timer until both have happened; ``size`` is the fallback for an
     image that never reports its own.
     """
-    tries, fits = [0], [0]
+    tries = [0]
 
     def fit():
         tries[0] += 1
@@ -152,15 +152,10 @@ def _fit_when_drawn(window, area, image: bpy.types.Image, size: tuple[int, int] 
             with bpy.context.temp_override(window=window, area=area, region=region):
                 bpy.ops.image.view_all()
                 bpy.ops.image.view_zoom_ratio(ratio=ratio)
-            area.tag_redraw()
         except (RuntimeError, ReferenceError, StopIteration, TypeError) as e:
             # the window was closed or the editor changed meanwhile: nothing to fit
             print(f"Intrinsic Splats: could not fit the image to its editor: {e}")
-            return None
-        # An image shown again (a second Render View) is loaded once more when the editor next draws it,
-        # which resets the view after the first fit: fit once more after that draw.
-        fits[0] += 1
-        return 0.5 if fits[0] == 1 else None
+        return None
 
     area.tag_redraw()
     bpy.app.timers.register(fit, first_interval=0.2)
