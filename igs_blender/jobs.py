@@ -43,3 +43,14 @@ def stop_all() -> None:
         job.kill()
         job.wait(timeout=5.0)
     _current["job"] = None
+
+
+def show_job(props, job: BackendJob) -> None:
+    """Copy a job's state into ``Scene.igs`` (``props``) for the panels."""
+    st = job.state
+    props.job_label = st.label
+    props.job_running = job.running
+    props.job_progress = st.fraction
+    props.job_status = st.status_text() if job.running else job.report()
+    props.job_stages = "\n".join(f"{s.name}: {s.state}" + (f" {s.step}/{s.total}" if s.total else "")
+                                 for s in st.stages.values())

@@ -46,6 +46,12 @@ def _redraw(self, context):
     scene_objects.tag_redraw(context)
 
 
+def _lights_changed(self, context):
+    from . import light_bake
+
+    light_bake.note_change(context.scene)
+
+
 class IGS_EditItem(bpy.types.PropertyGroup):
     """One edit: its proxy mesh and, once baked, its edited albedo layer."""
 
@@ -233,6 +239,18 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
                                "video whose world is tilted")],
         default="CAPTURE")
     write_mp4: BoolProperty(name="MP4", default=True, description="Also write an MP4 of the sequence")
+
+    # -- lights ---------------------------------------------------------------------------------
+    light_collection: PointerProperty(
+        name="Lights", type=bpy.types.Collection, update=_lights_changed,
+        description="The collection whose visible lights light the splats (the scene's other lights do not); "
+                    "empty: the collection 'IGS Lights' when there is one")
+    use_lights: BoolProperty(name="Use Lights", default=True, update=_lights_changed,
+                             description="Light the splats with the lights collection: Render View and Turntable "
+                                         "(igs render --light) and the viewport's shading layer")
+    live_lights: BoolProperty(name="Live Viewport", default=True, update=_lights_changed,
+                              description="Bake the lights into the viewport's shading layer (light-bake) about a "
+                                          "second after a light in the collection stops changing")
 
     # -- the running job (written by operators, drawn by panels) -------------------------------------
     job_label: StringProperty(default="")

@@ -39,7 +39,8 @@ light object:
 
 :func:`read_lights` returns each light in its canonical form (:func:`canonical`: every key present,
 ``direction`` and ``x_axis`` unit vectors, ``position`` None for a sun, ``direction`` None for a point
-light); :func:`lights_document` writes that form back.
+light); :func:`lights_document` writes that form back, and :func:`write_lights` writes a file atomically
+(the Blender add-on's lights collection goes through it).
 """
 
 from __future__ import annotations
@@ -152,6 +153,22 @@ def lights_document(lights: list[dict], **notes) -> dict:
     """The lights file of canonical lights (keys that do not apply left out), with ``notes`` beside the
     list (ignored by the readers)."""
     return {**notes, LIGHTS: [_compact(light) for light in lights]}
+
+
+def write_lights(path: str | os.PathLike, lights: list[dict], **notes) -> Path:
+    """Check ``lights`` (file form, as :func:`canonical` reads them) and write them with ``notes`` to ``path``
+    atomically: a temporary file beside it, then a rename, so a reader sees the old file or the new one.
+    A ContractError names ``path`` and the light; nothing is written then."""
+    path = Path(path)
+    parse_lights(lights, str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps({**notes, LIGHTS: lights}, indent=1) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
 
 
 def _compact(light: dict) -> dict:

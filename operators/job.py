@@ -15,6 +15,7 @@ import bpy
 from ..igs_blender import backend_env, jobs, preferences, scene_objects
 from ..igs_blender.client import BackendError, BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs import show_job
 from ..igs_blender.workspace_files import busy_line
 from .modes import in_object_mode
 
@@ -24,17 +25,6 @@ def backend_job(context, args: list, label: str, expected_stages: int = 0) -> Ba
     prefs = preferences.get(context)
     return backend_env.backend_job(preferences.interpreter(context), args, label, root=prefs.backend_root,
                                    expected_stages=expected_stages)
-
-
-def show_job(props, job: BackendJob) -> None:
-    """Copy a job's state into ``Scene.igs`` for the panels."""
-    st = job.state
-    props.job_label = st.label
-    props.job_running = job.running
-    props.job_progress = st.fraction
-    props.job_status = st.status_text() if job.running else job.report()
-    props.job_stages = "\n".join(f"{s.name}: {s.state}" + (f" {s.step}/{s.total}" if s.total else "")
-                                 for s in st.stages.values())
 
 
 class BackendOperator:

@@ -26,7 +26,16 @@ import numpy as np
 from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
-from ..igs_blender import compat, edits, images, layers, native_render, native_turntable, scene_objects
+from ..igs_blender import (
+    compat,
+    edits,
+    images,
+    layers,
+    lights,
+    native_render,
+    native_turntable,
+    scene_objects,
+)
 from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.client import BackendJob
@@ -67,6 +76,20 @@ def edit_args(props) -> list:
     return ["--edit", item.name]
 
 
+def light_args(scene, ws: Path) -> list:
+    """``--light <ws>/lights/scene_lights.json`` (written now) when Use Lights is on and the lights collection
+    holds a visible light; [] otherwise."""
+    if not scene.igs.use_lights:
+        return []
+    specs = lights.lights_specs(scene)
+    return ["--light", lights.write_scene_lights(scene, ws, specs)] if specs else []
+
+
+def output_kind(kind: str, light: list) -> str:
+    """The output folder's prefix: ``view``, ``turntable``... and ``view-lit`` etc. with lights."""
+    return f"{kind}-lit" if light else kind
+
+
 def write_cameras(path: Path, views: list) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     document = camera_json.cameras_document([v.to_json() for v in views])
@@ -80,12 +103,14 @@ def layer_frames(out: Path, layer: str) -> list[Path]:
     return sorted(p for p in folder.glob("*") if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
 
 
-def _render_job(context, cameras: Path | list, out: Path, label: str, mp4: bool = False) -> BackendJob:
-    """``cameras``: a cameras.json Blender wrote, or the backend's own camera arguments."""
+def _render_job(context, cameras: Path | list, out: Path, label: str, mp4: bool = False,
+                light: list | None = None) -> BackendJob:
+    """``cameras``: a cameras.json Blender wrote, or the backend's own camera arguments; ``light``: the
+    lights' arguments (:func:`light_args`)."""
     props = context.scene.igs
     ws = existing_workspace(props.workspace)
     source = list(cameras) if isinstance(cameras, list) else ["--cameras", cameras]
-    args = ["render", ws, *edit_args(props), *source, "--out", out, "--layers", props.render_layer]
+    args = ["render", ws, *edit_args(props), *(light or []), *source, "--out", out, "--layers", props.render_layer]
     if mp4:
         args.append("--mp4")
     return backend_job(context, args, label, expected_stages=1)
@@ -165,9 +190,10 @@ class IGS_OT_render_view(_NativeOrBackend, bpy.types.Operator):
         scene = context.scene
         ws = existing_workspace(scene.igs.workspace)
         view = sfm_view_from_object(scene, scene.camera, name="view")
-        self._out = fresh_output_dir(ws, "view")
+        light = light_args(scene, ws)
+        self._out = fresh_output_dir(ws, output_kind("view", light))
         cam_file = write_cameras(self._out / "cameras.json", [view])
-        return _render_job(context, cam_file, self._out, "Render view")
+        return _render_job(context, cam_file, self._out, "Render view" + (" (lit)" if light else ""), light=light)
 
     def finish(self, context, job: BackendJob) -> str:
         files = layer_frames(self._out, context.scene.igs.render_layer)
@@ -214,7 +240,8 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
-        self._out = fresh_output_dir(ws, self.mode.lower())
+        light = light_args(context.scene, ws)
+        self._out = fresh_output_dir(ws, output_kind(self.mode.lower(), light))
         if self.mode == "TURNTABLE" and props.turntable_target == "CAPTURE":
             self._count = props.turntable_frames
             w, h = render_size(context.scene)
@@ -223,8 +250,8 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
             views = self.views(context)
             self._count = len(views)
             cams = write_cameras(self._out / "cameras.json", views)
-        return _render_job(context, cams, self._out, "Turntable" if self.mode == "TURNTABLE" else "Camera path",
-                           mp4=props.write_mp4)
+        label = ("Turntable" if self.mode == "TURNTABLE" else "Camera path") + (" (lit)" if light else "")
+        return _render_job(context, cams, self._out, label, mp4=props.write_mp4, light=light)
 
     def finish(self, context, job: BackendJob) -> str:
         layer = context.scene.igs.render_layer

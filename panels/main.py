@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+import json
 import textwrap
 
 import bpy
 
-from ..igs_blender import edits, layers, native_render, preferences, scene_objects, splat_viewport
+from ..igs_blender import (
+    edits,
+    layers,
+    light_bake,
+    lights,
+    native_render,
+    preferences,
+    scene_objects,
+    splat_viewport,
+)
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
@@ -188,6 +198,7 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
             for kind, obj in loaded.items():  # a radio list: the pressed one is the layer in the viewport
                 shown, total = len(obj.data.points), int(obj.get("igs_total", len(obj.data.points)))
                 label = LAYER_LABELS[kind] + (f" + {', '.join(edited)}" if kind == "albedo" and edited else "")
+                label += " + lights" if kind == "shading" and obj.get(light_bake.KEY) else ""
                 text = f"{label}: {shown:,}" + (f" of {total:,}" if total != shown else "")
                 col.prop_enum(props, "layer_display", kind, text=text)
         if native:
@@ -216,6 +227,43 @@ def _splat_view(box, props) -> None:
         _lines(box, view.error, icon="ERROR")
     elif view.status:
         _lines(box, view.status, icon="INFO")
+
+
+class IGS_PT_lights(_SubPanel, bpy.types.Panel):
+    bl_label = "Lights"
+
+    def draw(self, context):
+        layout = self.layout
+        scene = context.scene
+        props = scene.igs
+        coll = lights.collection(props)
+        row = layout.row(align=True)
+        row.prop(props, "light_collection", text="")
+        if coll is None:
+            layout.operator("igs.add_light_collection", icon="COLLECTION_NEW")
+        row = layout.row(align=True)
+        for kind, icon in (("POINT", "LIGHT_POINT"), ("SPOT", "LIGHT_SPOT"), ("SUN", "LIGHT_SUN"),
+                           ("AREA", "LIGHT_AREA")):
+            row.operator("igs.add_light", text=kind.title(), icon=icon).kind = kind
+        found = lights.scene_lights(scene) if coll is not None else []
+        if coll is None:
+            text = f"No lights collection: Add Light Collection makes '{lights.COLLECTION}'"
+        elif found:
+            text = f"'{coll.name}': {lights.summary(found)} light(s) light the splats"
+        else:
+            text = f"'{coll.name}' holds no visible light: the splats show their captured light"
+        _lines(layout, text, icon="LIGHT", context=context)
+        col = layout.column(align=True)
+        col.prop(props, "use_lights")
+        col.prop(props, "live_lights")
+        layout.operator("igs.bake_lights", icon="RENDER_STILL")
+        shading = light_bake.shading_object()
+        if shading is not None:
+            shown = shading.get(light_bake.KEY)
+            count = len(json.loads(shown)) if shown else 0
+            _lines(layout.box(), f"Viewport shading: lit by {count} light(s) ({light_bake.LIT})" if count else
+                   "Viewport shading: the captured light only (layers/shading.ply)", icon="SHADING_RENDERED",
+                   context=context)
 
 
 class IGS_UL_edits(bpy.types.UIList):
@@ -344,4 +392,5 @@ def _fitted_orbit(context) -> str:
     return f"Fitted: radius {radius:.3g}, height {height:.3g}"
 
 
-CLASSES = (IGS_PT_main, IGS_PT_capture, IGS_PT_decompose, IGS_PT_layers, IGS_UL_edits, IGS_PT_edit, IGS_PT_render)
+CLASSES = (IGS_PT_main, IGS_PT_capture, IGS_PT_decompose, IGS_PT_layers, IGS_PT_lights, IGS_UL_edits, IGS_PT_edit,
+           IGS_PT_render)
