@@ -25,12 +25,12 @@ The workspace's images are undistorted: distortion coefficients other than 0 are
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path, PurePosixPath
 
 from .errors import ContractError
+from .json_file import read_json
 
 CAMERAS = "cameras"
 FRAMES, FILE_PATH, MATRIX, MODEL = "frames", "file_path", "transform_matrix", "camera_model"
@@ -57,12 +57,7 @@ def read_transforms(path: str | os.PathLike) -> list[dict]:
     """The cameras of a workspace's transforms.json as :func:`camera_entry` items, sorted by name (the
     image's file name inside images/, as in the COLMAP model); every problem is one ContractError."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ContractError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
-        raise ContractError(f"{path}: not valid JSON ({e})") from None
+    data = read_json(path, "file")
     if not isinstance(data, dict):
         raise ContractError(f"{path}: expected a JSON object with a '{FRAMES}' list, got {type(data).__name__}")
     frames = data.get(FRAMES)

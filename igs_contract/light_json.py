@@ -52,6 +52,7 @@ import re
 from pathlib import Path
 
 from .errors import ContractError
+from .json_file import read_json
 
 LIGHTS = "lights"
 TYPES = ("point", "spot", "sun", "area")
@@ -71,12 +72,7 @@ def read_lights(path: str | os.PathLike) -> list[dict]:
     """The lights of the file at ``path`` in canonical form; every problem is one ContractError naming the
     file, the light and the field."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ContractError(f"{path}: lights file not found") from None
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
-        raise ContractError(f"{path}: not valid JSON ({e})") from None
+    data = read_json(path, "lights file")
     return parse_lights(data, str(path))
 
 

@@ -26,7 +26,6 @@ skipped. Other lights or views than a workspace already holds are an error (dele
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Literal, get_args
@@ -41,7 +40,7 @@ from backend.core.imageio import write_exr
 from backend.core.workspace import Workspace
 from backend.synth.module_renderer import ViewRenderer
 from backend.synth.scene import SynthScene
-from backend.synth.settings import HOLD_EVERY, SynthSettings
+from backend.synth.settings import HOLD_EVERY, SynthSettings, read_saved
 from backend.synth.views import residual_from_passes
 from igs_contract.errors import ContractError
 from igs_contract.light_json import lights_document, read_lights
@@ -88,10 +87,7 @@ def prepare_lights(ws: Workspace, lights: list[dict], views: list[str], which: L
                           identity="images = gt/albedo * shading + residual; capture with the light added = "
                                    "gt/albedo * (gt/shading + shading) + gt/residual + residual")
     if path.exists():
-        try:
-            old = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise IGSError(f"{path}: not valid JSON ({e}); use --force to start over") from e
+        old = read_saved(path)
         same = old.get("lights") == doc["lights"] and old.get("views") == views
         if same:
             return

@@ -42,7 +42,6 @@ or :mod:`~backend.synth.blender` (the renderer), :mod:`~backend.synth.views`,
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import resource
 import shutil
@@ -70,7 +69,7 @@ from backend.synth.gt_lights import (
 )
 from backend.synth.module_renderer import Renderer, ViewRenderer, blender_output_captured, cycles_params
 from backend.synth.scene import SynthScene
-from backend.synth.settings import SynthSettings
+from backend.synth.settings import SynthSettings, read_saved
 from backend.synth.sparse import write_sparse, write_transforms
 from backend.synth.views import render_views
 
@@ -217,10 +216,7 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
         raise IGSError(f"{ws.images}: this folder already has images that `igs synth` did not render; "
                        "choose another folder")
     if settings_path.exists():
-        try:
-            old = json.loads(settings_path.read_text())
-        except json.JSONDecodeError as e:
-            raise IGSError(f"{settings_path}: not valid JSON ({e}); use --force to start over") from e
+        old = read_saved(settings_path)
         new = settings.as_dict()
         if old != new:
             if not force:

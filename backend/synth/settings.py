@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 from backend.core.cameras import Camera
@@ -117,3 +119,12 @@ class SynthSettings:
             layout = family_layout(self.scene_seed)
             path = family_camera_path(layout, loop, self.width, self.height, self.seed, self.fov_x_deg)
         return path[:self.views]
+
+
+def read_saved(path: Path) -> dict:
+    """A JSON file ``igs synth`` wrote earlier in the workspace (its settings, its lights); one IGSError when
+    it is not valid JSON, which points at --force."""
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise IGSError(f"{path}: not valid JSON ({e}); use --force to start over") from e
