@@ -524,8 +524,9 @@ def lights_render_view():
         assert s.data["darker_px"] == 0, s.data  # adding a light darkens nothing
 
 
-LIGHTS_PANEL_CLICKS = 10
-"""Wheel steps from the sidebar's top down to the Lights panel (below Capture, Decompose and Layers)."""
+LIGHTS_PANEL_CLICKS = 22
+"""Wheel steps from the sidebar's top to where the Lights panel shows whole, under the Layers panel's list
+(measured on 18-live-light.png of a run that scrolled 10)."""
 
 
 def sidebar_to_lights() -> None:
@@ -618,28 +619,34 @@ def lights_live_view():
         shots, runs = {}, {}
         for name, dx, label in (("-x", -side, "18-live-light"), ("+x", side, "19-live-light-moved")):
             at = np.array([tx + dx, ty, height])
-            light.location = sfm_to_blender(at)  # the handler sees the move
+            light.location = sfm_to_blender(at)
+            bpy.context.view_layer.update()  # as a drag does: the depsgraph handler sees the move
             seconds = yield from wait_live_bake(CONFIG["step_timeout_s"],
                                                 running_shot="18a-live-bake-running" if name == "-x" else None)
             force_redraw()
             yield 2.0
             shots[name] = OUT / f"{shot(label)}"
+            pr.layer_display = "shading"  # the shading layer alone: S + S_new, the light without the albedo
+            force_redraw()
+            yield 2.0
+            shots[name + " shading"] = OUT / f"{shot(label + '-shading')}"
+            pr.layer_display = "composite"
             runs[name] = {"light_sfm": [round(float(x), 3) for x in at], "seconds_to_swap": round(seconds, 2),
                           **lit_floor(lit_ply, at, power, spots)}
         s.data["bakes"] = runs
         s.data["report"] = pr.last_report
-        # The viewport: where the composite got brighter when the light moved, on the screen
-        a, b = png_pixels(shots["-x"]), png_pixels(shots["+x"])
+        # The viewport: where the composite and the shading got brighter when the light moved, on the screen
         win = main_window()
-        gain = (b - a).mean(axis=2)
-        y0 = win.height - (region.y + region.height)  # the 3D view's window region, top row first
-        gain = gain[y0:y0 + region.height, region.x:region.x + region.width]
         px = {k: location_3d_to_region_2d(region, rv3d, sfm_to_blender(v)) for k, v in spots.items()}
         px = {k: (float(p.x), float(region.height - p.y)) for k, p in px.items() if p is not None}
-        yy, xx = np.mgrid[0:gain.shape[0], 0:gain.shape[1]]
-        near = {k: float(gain[np.hypot(xx - u, yy - v) < 40].mean()) for k, (u, v) in px.items()}
-        s.data["screen"] = {"spot_px": {k: [round(u), round(v)] for k, (u, v) in px.items()},
-                            "gain_near_spot": {k: round(g, 4) for k, g in near.items()}}
+        s.data["screen"] = {"spot_px": {k: [round(u), round(v)] for k, (u, v) in px.items()}}
+        for layer in ("", " shading"):
+            gain = (png_pixels(shots["+x" + layer]) - png_pixels(shots["-x" + layer])).mean(axis=2)
+            y0 = win.height - (region.y + region.height)  # the 3D view's window region, top row first
+            gain = gain[y0:y0 + region.height, region.x:region.x + region.width]
+            yy, xx = np.mgrid[0:gain.shape[0], 0:gain.shape[1]]
+            near = {k: round(float(gain[np.hypot(xx - u, yy - v) < 40].mean()), 4) for k, (u, v) in px.items()}
+            s.data["screen"]["gain_near_spot" + layer.replace(" ", "_")] = near
         for r in runs.values():
             # the floor under the light is lit about as the closed form says; the floor on the table's far
             # side is in the top's shadow: far less than the closed form (and than under the light)
@@ -647,6 +654,7 @@ def lights_live_view():
             assert 0.4 * r["under_light"]["closed_form"] < r["under_light"]["s_new"], r
             assert r["far_side"]["s_new"] < 0.35 * r["far_side"]["closed_form"], r
         assert runs["+x"]["centroid_x"] > runs["-x"]["centroid_x"] + 0.5, runs  # the lit floor moved with it
+        near = s.data["screen"]["gain_near_spot_shading"]
         assert near["+x"] > 0.02 and near["-x"] < -0.02, s.data["screen"]  # and so did the viewport's
 
 
