@@ -390,8 +390,9 @@ def floor_workspace(ws: Path) -> np.ndarray:
     px, py = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 9), indexing="ij")
     plate = np.stack([px.ravel(), py.ravel(), np.full(px.size, z)], 1)
     both = np.concatenate([floor, plate])
-    # Small discs for the plate: the shadow maps take a texel's depth wherever the Gaussians' alpha passes
-    # 1/255, so a plate of wide discs casts the shadow of its discs' 3-sigma footprints.
+    # Small discs for the plate, so that its shadow is the plate's: a shadow map holds the expected depth of
+    # the texel, so a wide disc's faint tail in front of the floor pulls that depth nearer than the depth
+    # bias, and the plate's discs as wide as the floor's (0.06 m) shadow the floor under the light too.
     scale = np.concatenate([np.full(len(floor), 0.06), np.full(len(plate), 0.02)])
     write_ply(ws / "layers" / "albedo.ply", _flat("albedo", both, scale, 0.6))
     write_ply(ws / "layers" / "shading.ply", _flat("shading", both, scale, 0.5))
