@@ -338,6 +338,144 @@ def test_real_backend_renders_the_view_lit(scene, tmp_path):
     assert a.shape == b.shape and b.mean() > a.mean() + 1.0, (a.mean(), b.mean())
 
 
+FLOOR_XY = np.arange(-0.6, 0.61, 0.15)
+"""The floor's Gaussians: a 9 x 9 grid on z = 0 (x and y in -0.6 .. 0.6), among them (+-0.45, 0, 0)."""
+PLATE = (0.15, 0.30, -0.10, 0.10, 0.5)
+"""The occluder: an opaque plate over x in 0.15 .. 0.30, y in -0.1 .. 0.1, at z = 0.5."""
+
+
+def _flat(kind: str, means: np.ndarray, scale, color: float):
+    """Flat discs (thin along z, so their shortest axis is the floor's normal) of one grey colour."""
+    import torch
+
+    from backend.splats.gaussians import GaussianSet
+
+    n = len(means)
+    t = {"means": torch.tensor(means, dtype=torch.float32),
+         "log_scales": torch.tensor(np.log(np.stack(np.broadcast_arrays(scale, scale, 0.004, np.zeros(n))[:3], 1)), dtype=torch.float32),
+         "quats": torch.tensor(np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), dtype=torch.float32),
+         "opacity_logits": torch.full((n,), 5.0)}
+    if kind == "residual":
+        t["sh0"] = torch.full((n, 1, 3), -1.6)
+        t["shN"] = torch.zeros((n, 0, 3))
+    else:  # albedo stores the logit of its colour, shading the colour itself (igs_contract.layer_ply)
+        t["colors"] = torch.full((n, 3), float(np.log(color / (1 - color)) if kind == "albedo" else color))
+    return GaussianSet(kind, t, sh_degree=0)
+
+
+def floor_workspace(ws: Path) -> np.ndarray:
+    """A workspace whose layers are a floor and a plate above it, seen from above by three views; returns the
+    shading Gaussians' centres (the floor's 81, then the plate's)."""
+    import cv2
+
+    from backend.capture.colmap_io import write_model
+    from backend.capture.transforms_io import write_transforms
+    from backend.core.cameras import Camera
+    from backend.splats.ply import write_ply
+
+    w, h = 48, 36
+    cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
+                           [0, 0, 1], w, h, 60) for i in range(3)]
+    rng = np.random.default_rng(0)
+    write_model(ws / "sparse" / "0", cams, rng.uniform(-0.5, 0.5, (20, 3)) * [1, 1, 0], np.full((20, 3), 128))
+    write_transforms(ws / "transforms.json", cams)
+    (ws / "images").mkdir(parents=True, exist_ok=True)
+    for cam in cams:
+        cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
+    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
+                                                 "frames": [c.name for c in cams], "size": [w, h]}))
+    gx, gy = np.meshgrid(FLOOR_XY, FLOOR_XY, indexing="ij")
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
+    x0, x1, y0, y1, z = PLATE
+    px, py = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 9), indexing="ij")
+    plate = np.stack([px.ravel(), py.ravel(), np.full(px.size, z)], 1)
+    both = np.concatenate([floor, plate])
+    # Small discs for the plate, so that its shadow is the plate's: a shadow map holds the expected depth of
+    # the texel, so a wide disc's faint tail in front of the floor pulls that depth nearer than the depth
+    # bias, and the plate's discs as wide as the floor's (0.06 m) shadow the floor under the light too.
+    scale = np.concatenate([np.full(len(floor), 0.06), np.full(len(plate), 0.02)])
+    write_ply(ws / "layers" / "albedo.ply", _flat("albedo", both, scale, 0.6))
+    write_ply(ws / "layers" / "shading.ply", _flat("shading", both, scale, 0.5))
+    write_ply(ws / "layers" / "residual.ply", _flat("residual", floor[::4], 0.06, 0.0))
+    return both
+
+
+def _point_light_shading(power: float, light: np.ndarray, at: np.ndarray) -> float:
+    """The closed form of a point light's diffuse shading on the floor (normal +z): P / (4 pi r^2) cos / pi."""
+    d = light - at
+    r2 = float(d @ d)
+    return power / (4 * math.pi * r2) * (d[2] / math.sqrt(r2)) / math.pi
+
+
+def _bake_in_real_time(bake, timeout: float = 300.0) -> float:
+    """Run the live bake's timer as Blender does, in real time, from a change the depsgraph handler saw until
+    it has nothing left to do; returns the seconds from that change to the swap."""
+    assert bake.LIVE.want is not None and bake.bpy.app.timers.is_registered(bake.tick)
+    bake.bpy.app.timers.unregister(bake.tick)  # background bpy runs no timers: this loop is the timer
+    t0 = bake.LIVE.changed_at
+    interval = 0.25
+    while interval is not None and time.monotonic() - t0 < timeout:
+        time.sleep(interval)
+        interval = bake.tick()
+    assert interval is None and bake.LIVE.job is None, "the bake did not finish in time"
+    return time.monotonic() - t0
+
+
+def test_real_light_bake_lights_the_floor_with_the_plates_shadow_and_follows_the_light(scene, tmp_path):
+    """The live bake runs the real ``light-bake`` through the add-on's jobs: the lit shading replaces the unlit
+    one, the floor beside the light brightens as the closed form says, the floor in the plate's shadow does
+    not; moved over the plate's other side, the light lights and shadows the other way round."""
+    from backend.splats.ply import read_ply
+
+    ws = tmp_path / "ws"
+    centres = floor_workspace(ws)
+    scene.igs.workspace = str(ws)
+    bpy.context.preferences.addons[MOD].preferences.backend_python = PYTHON
+    bpy.ops.igs.load_cameras()
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    bake = sub("light_bake")
+    bake.LIVE.reset()
+    props = scene.igs
+    left = int(np.argmin(np.linalg.norm(centres - [-0.45, 0.0, 0.0], axis=1)))
+    right = int(np.argmin(np.linalg.norm(centres - [0.45, 0.0, 0.0], axis=1)))
+    unlit = read_ply(ws / "layers" / "shading.ply", kind="shading")[0].params["colors"].detach().numpy()
+
+    def baked(light_at) -> tuple[np.ndarray, float]:
+        light.location = light_at
+        bpy.context.view_layer.update()  # the depsgraph handler sees the change
+        seconds = _bake_in_real_time(bake)
+        shading = bpy.data.objects["IGS shading"]
+        assert Path(shading["igs_ply"]) == ws / "layers" / "lit" / "shading.ply", props.last_report
+        assert shading["igs_lights"] == bake.wanted_key(scene)  # it shows the lights as they are now
+        sent = read_lights(ws / "layers" / "lit" / "light.json")
+        np.testing.assert_allclose(sent[0]["position"], light_at, atol=1e-6)
+        lit = read_ply(ws / "layers" / "lit" / "shading.ply", kind="shading")[0].params["colors"].detach().numpy()
+        ply_io, layers = sub("ply_io"), sub("layers")
+        np.testing.assert_allclose(layers.layer_from_object(shading).f_dc,
+                                   ply_io.read_splat_ply(ws / "layers" / "lit" / "shading.ply").f_dc, atol=1e-6)
+        return (lit - unlit).mean(axis=1), seconds
+
+    bpy.ops.igs.add_light(kind="POINT")
+    light = bpy.context.active_object
+    light.data.energy, light.data.shadow_soft_size = 100.0, 0.0
+    first = np.array([0.0, 0.0, 1.0])  # the plate's shadow falls on x in 0.3 .. 0.6: the right is in it
+    added, seconds = baked(first)
+    assert "lit by 1 light(s)" in props.last_report and props.job_label == "Light bake"
+    expect = _point_light_shading(100.0, first, centres[left])
+    assert 0.6 * expect < added[left] < 1.3 * expect, (added[left], expect)
+    assert added[right] < 0.1 * expect, (added[right], expect)
+    centre = int(np.argmin(np.linalg.norm(centres, axis=1)))  # under the light, beside the plate's shadow
+    assert 0.6 * _point_light_shading(100.0, first, centres[centre]) < added[centre]
+
+    second = np.array([0.9, 0.0, 1.0])  # moved: the shadow falls on x in -0.6 .. -0.3, the left is in it
+    moved, seconds2 = baked(second)
+    expect = _point_light_shading(100.0, second, centres[right])
+    assert 0.6 * expect < moved[right] < 1.3 * expect, (moved[right], expect)
+    assert moved[left] < 0.1 * expect, (moved[left], expect)
+    print(f"\nlight-bake, handler's trigger to swap: {seconds:.2f} s, then {seconds2:.2f} s "
+          f"({len(centres)} shading Gaussians, {len(centres)} albedo Gaussians, 3 views of 48x36)")
+
+
 def test_lights_panel_says_which_lights_light_the_splats(scene, tmp_path, lights_python):
     from test_blender_panel import draw, shown_text
 

@@ -31,7 +31,8 @@ SESSION_TIMEOUT_S = int(os.environ.get("IGS_GUI_TIMEOUT", "3000"))
 
 STEPS = ["splash", "install", "preferences", "create_backend_env", "check_backend", "close_preferences",
          "capture_model_priors", "capture_procedural_scene", "import_synthetic", "decompose", "load_layers", "splat_view", "splat_agreement",
-         "look_through", "ctrl_b_rectangle", "fit_plane", "edit_preview", "colour_and_bake", "render_turntable", "lights_render_view"]
+         "look_through", "ctrl_b_rectangle", "fit_plane", "edit_preview", "colour_and_bake", "render_turntable", "lights_render_view",
+         "lights_live_view"]
 
 
 @pytest.fixture(scope="module")
