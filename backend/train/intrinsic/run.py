@@ -12,6 +12,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from backend.core import events
 from backend.core.errors import IGSError
 from backend.splats.gaussians import GaussianSet
@@ -26,7 +28,7 @@ from backend.train.intrinsic.initial import (
 )
 from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
 from backend.train.intrinsic.setup import Setup, prepare_setup
-from backend.train.intrinsic.stages import ResidualStage, ShadingStage
+from backend.train.intrinsic.stages import ResidualStage, ShadingStage, shading_gain
 from backend.train.intrinsic.state import STATE_DIR, DecomposeState, file_hash, jsonable, stage_settings
 from backend.train.loop import Stage, train
 from backend.train.views import View
@@ -85,7 +87,16 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device,
                    stop_after=stop_after, on_step=on_step)
     cache_seconds = getattr(stage, "cache_seconds", 0.0)
-    return result.gaussians, stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
+    gain = None
+    if name == "shading" and cfg.shading_quantile != 0.5:
+        gain = shading_gain(result.gaussians, train_views, tcfg.backend, cfg.dark_level)
+        with torch.no_grad():
+            result.gaussians.params["colors"].mul_(gain)
+        events.log(f"shading: gain {gain:.3f} (median image / A*S after fitting the {cfg.shading_quantile} quantile)")
+    entry = stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
+    if gain is not None:
+        entry["gain"] = round(gain, 4)
+    return result.gaussians, entry
 
 
 def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, stages: Sequence[str] = STAGES,
