@@ -48,6 +48,9 @@ OPTIONS = (
     Option("--texture-weight", "lambda_texture",
            "weight of the term that keeps albedo edges out of the shading "
            f"(default {_D.lambda_texture}; 0 = off)", type=opt.WEIGHT),
+    Option("--shading-budget", "shading_budget",
+           "the shading field's densification budget as a fraction of the trained albedo's Gaussians "
+           f"(default {_D.shading_budget})", type=opt.number(0, 1, lo_open=True)),
     Option("--shading-quantile", "shading_quantile",
            "quantile of the views that the shading stage fits, under a glossy surface's reflection "
            f"(default {_D.shading_quantile}; 0.5 = the median, a plain L1)", type=opt.number(0, 0.5, lo_open=True)),
@@ -73,7 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
     p.add_argument("--iterations", type=opt.COUNT, default=None,
-                   help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
+                   help=f"iterations per stage: albedo N, shading N/2, residual N/2 (default "
                         f"{_D.albedo.iterations}/{_D.shading.iterations}/{_D.residual.iterations})")
     add_config_arguments(p, _D, STAGE_ITERATIONS)
     p.add_argument("--single-set", action="store_true",
