@@ -199,8 +199,8 @@ def test_bench_targets_without_the_single_set_report_its_target_as_not_measured(
     assert t["albedo_vs_single_set"]["met"] is False and "single-seq" in table({**r, "targets": t})
 
 
-def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_quarters():
-    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
+def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_half():
+    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 1500, "residual": 1500}
     assert config.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
     cfg = DecomposeConfig()
     assert {s: cfg.stage(s).iterations for s in config.STAGES} == config.split_iterations(cfg.albedo.iterations)
@@ -215,8 +215,8 @@ def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
     half = scaled_iterations(dec, 0.3)
-    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 225, 150]
-    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 750, 500]
+    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 150, 150]
+    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 500, 500]
     assert scaled_iterations(dec, 1.0) is dec
     # --gray-weight reaches the decomposition config only when given
     from backend.train.intrinsic.config import DecomposeConfig
@@ -295,3 +295,38 @@ def test_the_command_result_shows_the_foreground_metrics_and_the_leakage(capsys)
     show({**summary, "foreground": None, "leakage": None})  # no ground-truth albedo: whole image only
     out = json.loads(capsys.readouterr().out)
     assert "layers_foreground" not in out and "leakage" not in out
+
+
+def test_shading_budget_is_a_fraction_of_the_albedo_count_bounded_by_its_own():
+    import pytest
+
+    from backend.core.errors import IGSError
+    from backend.train.intrinsic.run import shading_config
+
+    cfg = DecomposeConfig()
+    assert shading_config(cfg, 100_000).densify.max_gaussians == 30_000
+    assert cfg.shading.densify.max_gaussians > 30_000  # the config itself is left as it is
+    cfg.shading.densify.max_gaussians = 10_000
+    assert shading_config(cfg, 100_000).densify.max_gaussians == 10_000
+    assert shading_config(DecomposeConfig(shading_budget=1.0), 7).densify.max_gaussians == 7
+    for bad in (0.0, 1.5):
+        with pytest.raises(IGSError, match="shading_budget must be in"):
+            shading_config(DecomposeConfig(shading_budget=bad), 100)
+
+
+def test_shading_variants_parse_and_set_dotted_fields():
+    import pytest
+
+    from backend.bench.shading_variants import configured, parse_variant
+    from backend.core.errors import IGSError
+
+    v = parse_variant("before:lambda_texture=0,shading.iterations=750,shading_geometry=points")
+    assert v.name == "before" and v.changes == {"lambda_texture": 0, "shading.iterations": 750,
+                                                "shading_geometry": "points"}
+    cfg = configured(DecomposeConfig(), v.changes)
+    assert cfg.lambda_texture == 0 and cfg.shading.iterations == 750 and cfg.shading_geometry == "points"
+    assert parse_variant("defaults").changes == {}
+    with pytest.raises(IGSError, match="no field 'shading.nope'"):
+        configured(DecomposeConfig(), {"shading.nope": 1})
+    with pytest.raises(IGSError, match="is not key=value"):
+        parse_variant("x:lambda_texture")
