@@ -199,8 +199,8 @@ def test_bench_targets_without_the_single_set_report_its_target_as_not_measured(
     assert t["albedo_vs_single_set"]["met"] is False and "single-seq" in table({**r, "targets": t})
 
 
-def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_half():
-    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 1500, "residual": 1500}
+def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_quarters():
+    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
     assert config.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
     cfg = DecomposeConfig()
     assert {s: cfg.stage(s).iterations for s in config.STAGES} == config.split_iterations(cfg.albedo.iterations)
@@ -215,8 +215,8 @@ def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
     half = scaled_iterations(dec, 0.3)
-    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 150, 150]
-    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 500, 500]
+    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 225, 150]
+    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 750, 500]
     assert scaled_iterations(dec, 1.0) is dec
     # --gray-weight reaches the decomposition config only when given
     from backend.train.intrinsic.config import DecomposeConfig
