@@ -143,8 +143,8 @@ def split_iterations(total: int) -> dict[StageName, int]:
     The albedo field carries the geometry and gets vanilla 3DGS's budget. The shading starts on that
     geometry with a fraction of its Gaussians and only has to draw the light, shadow edges included.
     On family scenes 0-2 (bench budget, shading budget 0.3) the full image was 27.07 / 30.97 / 26.54
-    dB at 3N / 4 and 27.00 / 29.77 / 26.41 at N / 2 (and on scenes 100 / 101 at N / 2, 0.3 / 0.2 dB
-    under the previous defaults), for about 4 s less of 70. A residual iteration renders only the
+    dB at 3N / 4 and 27.00 / 29.77 / 26.41 at N / 2 (the defaults at N / 2 were also 0.3 / 0.2 dB under
+    the previous defaults on scenes 100 / 101), for about 4 s less of 70. A residual iteration renders only the
     residual's few Gaussians over the cached A * S, so N / 2 of them cost little (at N / 4 the full
     image lost 0.3 dB).
     """
