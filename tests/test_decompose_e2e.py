@@ -18,6 +18,7 @@ from _synth_capture import needs_synth_renderer
 from backend.commands.cli import main
 from backend.eval.layer_metrics import headline_metrics
 from backend.splats.ply import read_ply
+from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.stages import inverse_photometric
 from backend.train.loop import load_checkpoint
 
@@ -122,7 +123,7 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert time.perf_counter() - t0 < 30
     # the shading started on the albedo field; from the SfM points instead, shading and residual are
     # redone (their settings / inputs changed) and the albedo is kept
-    assert st["shading"]["initial_gaussians"] == round(0.4 * m["gaussians"]["albedo"])
+    assert st["shading"]["initial_gaussians"] == round(DecomposeConfig().shading_from_albedo * m["gaussians"]["albedo"])
     assert "of the albedo's" in st["shading"]["init"]
     assert main(["decompose", str(ws), *ARGS, "--shading-geometry", "points"]) == 0
     assert (ws / "layers" / "albedo.ply").read_bytes() == albedo_bytes

@@ -295,3 +295,38 @@ def test_the_command_result_shows_the_foreground_metrics_and_the_leakage(capsys)
     show({**summary, "foreground": None, "leakage": None})  # no ground-truth albedo: whole image only
     out = json.loads(capsys.readouterr().out)
     assert "layers_foreground" not in out and "leakage" not in out
+
+
+def test_shading_budget_is_a_fraction_of_the_albedo_count_bounded_by_its_own():
+    import pytest
+
+    from backend.core.errors import IGSError
+    from backend.train.intrinsic.run import shading_config
+
+    cfg = DecomposeConfig()
+    assert shading_config(cfg, 100_000).densify.max_gaussians == 30_000
+    assert cfg.shading.densify.max_gaussians > 30_000  # the config itself is left as it is
+    cfg.shading.densify.max_gaussians = 10_000
+    assert shading_config(cfg, 100_000).densify.max_gaussians == 10_000
+    assert shading_config(DecomposeConfig(shading_budget=1.0), 7).densify.max_gaussians == 7
+    for bad in (0.0, 1.5):
+        with pytest.raises(IGSError, match="shading_budget must be in"):
+            shading_config(DecomposeConfig(shading_budget=bad), 100)
+
+
+def test_shading_variants_parse_and_set_dotted_fields():
+    import pytest
+
+    from backend.bench.shading_variants import configured, parse_variant
+    from backend.core.errors import IGSError
+
+    v = parse_variant("before:lambda_texture=0,shading.iterations=750,shading_geometry=points")
+    assert v.name == "before" and v.changes == {"lambda_texture": 0, "shading.iterations": 750,
+                                                "shading_geometry": "points"}
+    cfg = configured(DecomposeConfig(), v.changes)
+    assert cfg.lambda_texture == 0 and cfg.shading.iterations == 750 and cfg.shading_geometry == "points"
+    assert parse_variant("defaults").changes == {}
+    with pytest.raises(IGSError, match="no field 'shading.nope'"):
+        configured(DecomposeConfig(), {"shading.nope": 1})
+    with pytest.raises(IGSError, match="is not key=value"):
+        parse_variant("x:lambda_texture")

@@ -161,3 +161,71 @@ def test_shading_stage_recovers_the_light_on_a_black_panel_only_with_the_dark_te
     print(f"mean |S - truth| on the panel: {free:.3f} without the dark term, {tied:.3f} with it")
     assert free > 1.0  # the photometric loss alone raises S on the panel to reach the reflection
     assert tied < 0.25 and tied < 0.2 * free, (tied, free)
+
+
+def _glossy_stripes(gloss: list[float]):
+    """A wall of dark (0.1) and light (0.6) albedo stripes under a uniform light S = 1, seen by one camera per
+    entry of ``gloss``, each adding that much view-dependent reflection to every pixel of the wall.
+    Returns (albedo set, stripe mask per point, views)."""
+    g = np.linspace(-1, 1, 30)
+    pts = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    pts = np.c_[pts, np.zeros(len(pts))]
+    dark = (np.floor((pts[:, 0] + 1) * 2.5) % 2 == 0)
+    cols = np.where(dark[:, None], 0.1, 0.6).repeat(3, 1).astype(np.float32)
+    albedo = from_points(pts, cols, "albedo", config=OPAQUE)
+    views = []
+    with torch.no_grad():
+        for i, r in enumerate(gloss):
+            c = Camera.look_at(f"frame_{i:04d}.png", [0.15 * i - 0.3, 0.05 * i - 0.1, -2.2], [0, 0, 0], [0, -1, 0],
+                               40, 30, 55)
+            out = render_layers([stages.layer_splats(albedo)], c, backend="cpu")[0]
+            views.append(View(i, c, out.color + r * (out.alpha > 0.5)[..., None]))
+    return albedo, dark, views
+
+
+def _stripe_shading(quantile: float, tmp_path) -> tuple[float, float]:
+    """Train the shading stage on the glossy stripes; the mean S at the dark and at the light stripes' Gaussians."""
+    albedo, dark, views = _glossy_stripes([0.0, 0.004, 0.05, 0.06, 0.08])
+    shading = from_points(albedo.means.detach().numpy(), np.ones((len(dark), 3), np.float32), "shading", config=OPAQUE)
+    cfg = TrainConfig(iterations=300, checkpoint_every=1000, backend="cpu", lr=LearningRates(colors=5e-2),
+                      lambda_dssim=0.0)
+    stage = ShadingStage("shading", shading, views, views[:1], cfg, 2.0, albedo=albedo,
+                         terms=ShadingTerms(quantile=quantile), color_space="linear")
+    s = train(stage, tmp_path / f"ckpt_q{quantile}").gaussians.colors.detach().mean(-1).numpy()
+    return float(s[dark].mean()), float(s[~dark].mean())
+
+
+def test_a_low_quantile_keeps_a_glossy_reflection_out_of_the_shading(tmp_path):
+    """The median over the views puts the reflection into S as r / A, the dark stripes lit 50 % more than the light
+    ones once converged: the albedo's pattern, inverted. The 0.25 quantile fits under the reflection of most views."""
+    med_dark, med_light = _stripe_shading(0.5, tmp_path)
+    low_dark, low_light = _stripe_shading(0.25, tmp_path)
+    print(f"S dark / light stripes: median {med_dark:.3f} / {med_light:.3f}, 0.25 quantile {low_dark:.3f} / {low_light:.3f}")
+    assert med_dark / med_light > 1.15  # 1.2 measured (1.38 when converged)
+    assert low_dark / low_light - 1 < 0.25 * (med_dark / med_light - 1), (low_dark, low_light)  # 1.02 measured
+    assert abs(low_light - 1.0) < 0.06
+
+
+def test_inverse_photometric_quantile_charges_overshoot_more_and_is_l1_at_the_median():
+    target = torch.full((8, 8, 3), 1.0)
+    up, down = target * 1.2, target / (1.2 * 1.0)
+    assert torch.isclose(stages.inverse_photometric(up, target, 0.0, 0.5),
+                         stages.inverse_photometric(up, target, 0.0))
+    # with q = 0.25 an overshoot costs 1.5 x its L1 and an undershoot 0.5 x
+    l1_up = stages.inverse_photometric(up, target, 0.0)
+    assert torch.isclose(stages.inverse_photometric(up, target, 0.0, 0.25), 1.5 * l1_up)
+    assert torch.isclose(stages.inverse_photometric(down, target, 0.0, 0.25),
+                         0.5 * stages.inverse_photometric(down, target, 0.0))
+
+
+def test_shading_gain_is_the_median_ratio_of_image_to_diffuse():
+    albedo, _, views = _glossy_stripes([0.0, 0.0, 0.0])
+    shading = from_points(albedo.means.detach().numpy(), np.full((len(albedo), 3), 0.5, np.float32), "shading",
+                          config=OPAQUE)
+    shading.params["opacity_logits"] = albedo.params["opacity_logits"].clone()
+    shading.params["log_scales"] = albedo.params["log_scales"].clone()
+    shading.params["quats"] = albedo.params["quats"].clone()
+    stages.cache_frozen(views, [albedo], "cpu", "albedo")
+    for v in views:
+        v.image = v.image * 0.8  # the light is 0.8 where S says 0.5
+    assert abs(stages.shading_gain(shading, views, "cpu", 0.05) - 1.6) < 0.02

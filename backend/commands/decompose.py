@@ -48,6 +48,12 @@ OPTIONS = (
     Option("--texture-weight", "lambda_texture",
            "weight of the term that keeps albedo edges out of the shading "
            f"(default {_D.lambda_texture}; 0 = off)", type=opt.WEIGHT),
+    Option("--shading-budget", "shading_budget",
+           "the shading field's densification budget as a fraction of the trained albedo's Gaussians "
+           f"(default {_D.shading_budget})", type=opt.number(0, 1, lo_open=True)),
+    Option("--shading-quantile", "shading_quantile",
+           "quantile of the views that the shading stage fits, under a glossy surface's reflection "
+           f"(default {_D.shading_quantile}; 0.5 = the median, a plain L1)", type=opt.number(0, 0.5, lo_open=True)),
     Option("--shading-geometry", "shading_geometry",
            "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
            "default) or 'points' (the SfM points, as in the paper)"),

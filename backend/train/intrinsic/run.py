@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
+
+import torch
 
 from backend.core import events
 from backend.core.errors import IGSError
@@ -26,9 +28,9 @@ from backend.train.intrinsic.initial import (
 )
 from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
 from backend.train.intrinsic.setup import Setup, prepare_setup
-from backend.train.intrinsic.stages import ResidualStage, ShadingStage
+from backend.train.intrinsic.stages import ResidualStage, ShadingStage, shading_gain
 from backend.train.intrinsic.state import STATE_DIR, DecomposeState, file_hash, jsonable, stage_settings
-from backend.train.loop import Stage, train
+from backend.train.loop import Stage, TrainConfig, train
 from backend.train.views import View
 
 MODE = "three-set"
@@ -38,7 +40,7 @@ METRICS_KEY = "decompose"
 def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
                      train_views: list[View], test_views: list[View]) -> tuple[Stage, GaussianSet, str]:
     """The stage ``name`` with its initial Gaussians in place: (stage, initial set, how it was made)."""
-    tcfg = cfg.stage(name)
+    tcfg = shading_config(cfg, len(layers["albedo"])) if name == "shading" else cfg.stage(name)
     common = dict(config=tcfg, scene_extent=setup.extent, color_space="linear",
                   strategy=DensifyStrategy(tcfg.resolved_densify(), setup.extent))
     if name == "albedo":
@@ -66,6 +68,16 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
     return stage, init, how
 
 
+def shading_config(cfg: DecomposeConfig, albedo_count: int) -> TrainConfig:
+    """The shading stage's training config, its densification budget cut to ``shading_budget`` of the
+    trained albedo's ``albedo_count`` Gaussians."""
+    if not 0 < cfg.shading_budget <= 1:
+        raise IGSError(f"shading_budget must be in (0, 1], got {cfg.shading_budget}")
+    t = cfg.shading
+    cap = min(t.densify.max_gaussians, max(1, round(cfg.shading_budget * albedo_count)))
+    return replace(t, densify=replace(t.densify, max_gaussians=cap))
+
+
 def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
               resume: bool, *, stop_after: int | None = None,
               on_step: Callable[[int], None] | None = None) -> tuple[GaussianSet, dict[str, Any]]:
@@ -78,6 +90,7 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual")
     test_views = setup.views(setup.test_frames, target, cfg.downscale, False)
     stage, init, how = _stage_with_init(name, setup, cfg, layers, train_views, test_views)
+    tcfg = stage.config  # the shading's budget is set from the albedo layer
     initial_n = len(init)
     events.log(f"{name}: {len(train_views)} training / {len(test_views)} held-out views at "
                f"{train_views[0].camera.width}x{train_views[0].camera.height}, {initial_n} initial Gaussians ({how})")
@@ -85,7 +98,16 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device,
                    stop_after=stop_after, on_step=on_step)
     cache_seconds = getattr(stage, "cache_seconds", 0.0)
-    return result.gaussians, stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
+    gain = None
+    if name == "shading" and cfg.shading_quantile != 0.5:
+        gain = shading_gain(result.gaussians, train_views, tcfg.backend, cfg.dark_level)
+        with torch.no_grad():
+            result.gaussians.params["colors"].mul_(gain)
+        events.log(f"shading: gain {gain:.3f} (median image / A*S after fitting the {cfg.shading_quantile} quantile)")
+    entry = stage_entry(result, tcfg, setup_seconds - cache_seconds, cache_seconds, how, initial_n)
+    if gain is not None:
+        entry["gain"] = round(gain, 4)
+    return result.gaussians, entry
 
 
 def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, stages: Sequence[str] = STAGES,

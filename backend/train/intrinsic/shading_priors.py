@@ -37,6 +37,8 @@ class ShadingTerms:
     """Albedo luminance (linear) below which S counts as free."""
     texture: float = 0.0
     """S's log gradient penalised where the albedo has an edge."""
+    quantile: float = 0.5
+    """Quantile of the photometric L1 (0.5: plain L1)."""
 
 
 def push_pull_fill(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import torch
 
 from backend.core import events
+from backend.core.imageio import luminance
 from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
@@ -22,9 +23,18 @@ from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric
 from backend.train.views import View
 
 
-def inverse_photometric(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float) -> torch.Tensor:
-    """Paper eq. 5 on the inverse domain: (1-λ) L1 + λ D-SSIM between 1/(1+pred) and 1/(1+target)."""
-    return photometric(inverse_domain(pred), inverse_domain(target), lambda_dssim)
+def inverse_photometric(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float,
+                        quantile: float = 0.5) -> torch.Tensor:
+    """Paper eq. 5 on the inverse domain: (1-λ) L1 + λ D-SSIM between 1/(1+pred) and 1/(1+target).
+
+    ``quantile`` < 0.5 turns the L1 into a pinball loss that charges ``pred`` above ``target`` more
+    than below it (2 (1 - q) against 2 q; 0.5: plain L1)."""
+    if quantile == 0.5:
+        return photometric(inverse_domain(pred), inverse_domain(target), lambda_dssim)
+    ip, it = inverse_domain(pred), inverse_domain(target)
+    d = it - ip  # > 0 where pred is above target (the inverse map reverses the order)
+    pin = 2.0 * torch.where(d > 0, (1.0 - quantile) * d, -quantile * d).mean()
+    return (1 - lambda_dssim) * pin + photometric(ip, it, 1.0) * lambda_dssim if lambda_dssim > 0 else pin
 
 
 def depth_term(cfg: TrainConfig, view: View, out: RenderOutput) -> torch.Tensor | None:
@@ -93,7 +103,7 @@ class ShadingStage(Stage):
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         w = self.terms
-        terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim)}
+        terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim, w.quantile)}
         if w.gray > 0:
             terms["gray"] = w.gray * gray_reg(self.gaussians.colors)
         if w.dark > 0:
@@ -106,6 +116,29 @@ class ShadingStage(Stage):
         if cfg.lambda_scale > 0:
             terms["scale"] = cfg.lambda_scale * scale_reg(self.gaussians.scales)
         return sum_terms(terms)
+
+
+def shading_gain(shading: GaussianSet, views: Sequence[View], backend: Backend, dark_level: float,
+                 max_views: int = 16) -> float:
+    """The global gain k that undoes a low quantile's bias: the median over pixels of lum(I) / lum(A * S).
+
+    A quantile below the median fits A * S under the image by the spread of the views' noise too, a
+    uniform darkening of S. The median ratio puts S back at the level of the image, while the
+    residual's view-dependent light, which the low quantile kept out of S, stays out: a global gain
+    does not bring back a pattern. Pixels: albedo rendered (alpha > 0.5), not dark (luminance above
+    ``dark_level``), A * S above 1e-3. Views: ``max_views`` spread over ``views`` (cached ``A``).
+    """
+    picked = list(views)[::max(1, len(views) // max_views)][:max_views]
+    ratios = []
+    with torch.no_grad():
+        for v in picked:
+            (out,) = render_layers([layer_splats(shading)], v.camera, backend=backend)
+            a = v.extras["A"]
+            lum_as = luminance(compose(a, out.color))
+            keep = (v.extras["alpha_A"] > 0.5) & (luminance(a) > dark_level) & (lum_as > 1e-3)
+            ratios.append((luminance(v.image)[keep] / lum_as[keep]).cpu())
+    r = torch.cat(ratios) if ratios else torch.empty(0)
+    return float(r.median()) if len(r) else 1.0
 
 
 class ResidualStage(Stage):

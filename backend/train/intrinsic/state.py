@@ -42,7 +42,9 @@ def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
     common = {"downscale": cfg.downscale, "hold_every": cfg.hold_every, "init": asdict(cfg.init)}
     if name == "shading":
         return jsonable({**common, "lambda_gray": cfg.lambda_gray, "lambda_dark": cfg.lambda_dark,
-                         "dark_level": cfg.dark_level, "lambda_texture": cfg.lambda_texture, "shading_init": cfg.shading_init,
+                         "dark_level": cfg.dark_level, "lambda_texture": cfg.lambda_texture,
+                         "shading_quantile": cfg.shading_quantile, "shading_budget": cfg.shading_budget,
+                         "shading_init": cfg.shading_init,
                          "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo})
     if name == "residual":
         return jsonable({**common, "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn)})
