@@ -651,14 +651,15 @@ def lights_live_view():
         assert second["far_side"]["s_new"] < 0.35 * second["far_side"]["closed_form"], second
         if second["under_light"]["n"]:  # +x: lit once the light came (where the floor has Gaussians there)
             assert second["under_light"]["s_new"] > first["far_side"]["s_new"], runs
-        assert second["centroid_x"] > first["centroid_x"] + 0.5, runs  # the lit floor moved with the light
+        assert second["centroid_x_all"] > first["centroid_x_all"] + 0.5, runs  # what is lit moved with the light
         assert near["-x"] < -0.02 and near["+x"] > 0.01, s.data["screen"]  # and so did the viewport's
 
 
 def lit_floor(path: Path, light, power: float, spots: dict) -> dict:
     """What ``light-bake`` added to the floor (its Gaussians within 0.15 m of z = 0), from its S_new PLY: the mean
     S_new within 0.4 m of the floor under the light and of the floor across the table, each beside the closed
-    form of an unshadowed point light on an upward floor, and the S_new-weighted centroid's x."""
+    form of an unshadowed point light on an upward floor, and the S_new-weighted centroid's x on the floor and
+    over every Gaussian."""
     import numpy as np
 
     xyz, s_new = read_shading_ply(path)
@@ -675,6 +676,9 @@ def lit_floor(path: Path, light, power: float, spots: dict) -> dict:
                     "closed_form": round(closed, 4)}
     w = s_new * floor
     out["centroid_x"] = round(float((w * xyz[:, 0]).sum() / max(w.sum(), 1e-9)), 3)
+    # every Gaussian the light reaches (floor, table, walls): the floor beyond the table's +x end may hold
+    # no shading Gaussian at all in the tiny decomposition
+    out["centroid_x_all"] = round(float((s_new * xyz[:, 0]).sum() / max(s_new.sum(), 1e-9)), 3)
     return out
 
 
