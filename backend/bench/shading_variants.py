@@ -3,7 +3,8 @@
 
 The tool the shading defaults were chosen with. For each seed workspace of a ``bench_seeds`` run
 (``<root>/seed_<K>``, with its trained albedo layer) and each variant, it copies the workspace,
-retrains the shading and residual stages with the variant's changes to the decomposition's config
+retrains the shading and residual stages (``--stages``: the albedo too) with the variant's changes to
+the decomposition's config
 (the bench's budget: ``--iterations N`` split as ``bench_decompose`` does, ``--downscale``), and
 reports on the held-out views:
 
@@ -13,7 +14,7 @@ reports on the held-out views:
   ground-truth edited albedo times our S plus our R against the edited render, in the pixels the
   edit's mask covers fully. It is what a user sees after a perfect bake, so it isolates what S and
   R contribute (``bench_edit``'s oracle column, on the capture's held-out views);
-- the two stages' seconds.
+- the albedo's PSNR and the retrained stages' seconds.
 
 A variant is ``NAME`` (the defaults) or ``NAME:key=value,key=value`` with dotted DecomposeConfig
 fields (``shading.iterations=750``) and JSON values.
@@ -43,7 +44,7 @@ from backend.core.workspace import split_frames
 from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.layer_metrics import headline_metrics, render_frame
 from backend.splats.ply import read_ply
-from backend.train.intrinsic.config import DecomposeConfig
+from backend.train.intrinsic.config import STAGES, DecomposeConfig
 from backend.train.intrinsic.run import decompose
 from backend.train.views import resize_image
 
@@ -112,8 +113,9 @@ def repaint_psnr(ws: Path, edit: str, downscale: float) -> float | None:
     return float(np.mean(scores)) if scores else None
 
 
-def run_variant(src: Path, dst: Path, v: Variant, iterations: int, downscale: float, edit: str) -> dict[str, Any]:
-    if not (src / "layers" / "albedo.ply").is_file():
+def run_variant(src: Path, dst: Path, v: Variant, iterations: int, downscale: float, edit: str,
+                stages: tuple[str, ...] = ("shading", "residual")) -> dict[str, Any]:
+    if "albedo" not in stages and not (src / "layers" / "albedo.ply").is_file():
         raise IGSError(f"{src}: no trained albedo layer (run bench_seeds on it first)")
     if dst.exists():
         shutil.rmtree(dst)
@@ -121,14 +123,14 @@ def run_variant(src: Path, dst: Path, v: Variant, iterations: int, downscale: fl
     _, base = bench_decompose.configs(iterations, downscale, 100_000, "auto", DecomposeConfig().spawn.points)
     cfg = configured(base, v.changes)
     t = time.perf_counter()
-    run = decompose(str(dst), cfg, stages=("shading", "residual"), resume=False)
+    run = decompose(str(dst), cfg, stages=stages, resume=False)
     seconds = time.perf_counter() - t
     m = headline_metrics(evaluate_decomposition(run))
-    return {"full_psnr": m.get("full_psnr"), "shading_psnr": m.get("shading_psnr"),
+    return {"albedo_psnr": m.get("albedo_psnr"), "full_psnr": m.get("full_psnr"), "shading_psnr": m.get("shading_psnr"),
             "shading_psnr_fg": m.get("shading_psnr_fg"), "leakage": m.get("leakage"), "leakage_gt": m.get("leakage_gt"),
             "repaint_psnr": repaint_psnr(dst, edit, downscale), "seconds": round(seconds, 1),
             "stages": {k: {s: e.get(s) for s in ("train_seconds", "cache_seconds", "gaussians")}
-                       for k, e in run.stages.items() if k != "albedo"}}
+                       for k, e in run.stages.items() if k in stages}}
 
 
 def table(result: dict[str, Any]) -> str:
@@ -137,11 +139,11 @@ def table(result: dict[str, Any]) -> str:
     rows = []
     for name, seeds in result["variants"].items():
         for seed, r in seeds.items():
-            rows.append([name, seed, f(r["full_psnr"], ".2f"), f(r["shading_psnr_fg"], ".2f"),
+            rows.append([name, seed, f(r.get("albedo_psnr"), ".2f"), f(r["full_psnr"], ".2f"), f(r["shading_psnr_fg"], ".2f"),
                          f(r["repaint_psnr"], ".2f"), f(r["leakage"], "+.3f"), f(r["leakage_gt"], "+.3f"),
                          f(r["seconds"], ".0f")])
-    return markdown(("variant", "seed", "full dB", "shading fg dB", f"{result['edit']} repaint, our S and R",
-                     "leakage", "leakage GT", "s (shading + residual)"), rows)
+    return markdown(("variant", "seed", "albedo dB", "full dB", "shading fg dB", f"{result['edit']} repaint, our S and R",
+                     "leakage", "leakage GT", f"s ({' + '.join(result['stages'])})"), rows)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -152,21 +154,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=1000, help="the bench_seeds run's --iterations (default 1000)")
     p.add_argument("--downscale", type=float, default=2.0, help="the bench_seeds run's --downscale (default 2)")
     p.add_argument("--edit", default="poster_recolor", help="gt_edit recolour to image (default poster_recolor)")
+    p.add_argument("--stages", default="shading,residual",
+                   help="comma list of the stages retrained (default shading,residual; albedo,shading,residual "
+                        "retrains the albedo too)")
     p.add_argument("--work", default=None, help="where the copies go (default <root>/variants)")
     p.add_argument("--out", default=None, help="JSON output (default <root>/shading_variants.json)")
     args = p.parse_args(argv)
     try:
         seeds = number_list(args.seeds, int, 0, "--seeds: a comma list of integers >= 0")
         variants = [parse_variant(t) for t in args.variant]
+        stages = tuple(x.strip() for x in args.stages.split(",") if x.strip())
+        if not stages or any(x not in STAGES for x in stages):
+            raise IGSError(f"--stages: a comma list of {', '.join(STAGES)}, got {args.stages!r}")
         root = Path(args.root)
         work = Path(args.work) if args.work else root / "variants"
         result: dict[str, Any] = {"benchmark": "shading_variants", "root": str(root), "edit": args.edit,
-                                  "iterations": args.iterations, "downscale": args.downscale,
+                                  "iterations": args.iterations, "downscale": args.downscale, "stages": list(stages),
                                   "changes": {v.name: v.changes for v in variants}, "variants": {}}
         for v in variants:
             result["variants"][v.name] = {
                 str(k): run_variant(root / f"seed_{k}", work / v.name / f"seed_{k}", v, args.iterations,
-                                    args.downscale, args.edit) for k in seeds}
+                                    args.downscale, args.edit, stages) for k in seeds}
     except IGSError as e:
         return error(p.prog, e)
     return write_result(table(result), args.out or root / "shading_variants.json", result)
