@@ -12,3 +12,6 @@ EXIT_BUSY = 75
 75 is sysexits' EX_TEMPFAIL: the same command succeeds later."""
 EXIT_CANCELLED = 130
 """Stopped on request (128 + SIGINT); the workspace keeps its last checkpoint."""
+EXIT_PIPE = 141
+"""The reader of stdout went away (``igs info | head``): stopped quietly, as a shell reports a
+process ended by SIGPIPE (128 + 13). What was written is kept, as after a cancel."""

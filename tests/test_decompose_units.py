@@ -53,6 +53,33 @@ def test_frozen_albedo_is_rendered_once_per_view_not_per_iteration(monkeypatch, 
     assert result.step == 12
 
 
+def test_the_residual_cache_renders_only_the_shading_over_the_albedo_the_shading_stage_rendered(monkeypatch):
+    pts, cols, cams = wall_scene()
+    albedo = from_points(pts, cols, "albedo")
+    shading = from_points(pts[::2], np.full_like(cols[::2], 0.7), "shading")
+    image = lambda c: torch.full((c.height, c.width, 3), 0.3)  # noqa: E731
+    first = [View(i, c, image(c)) for i, c in enumerate(cams)]
+    stages.cache_frozen(first, [albedo], "cpu", "albedo")
+    carried = stages.albedo_renders(first)
+    assert sorted(carried) == sorted(v.name for v in first)
+
+    fresh = [View(i, c, image(c)) for i, c in enumerate(cams)]
+    full = [View(i, c, image(c)) for i, c in enumerate(cams)]
+    assert stages.reuse_albedo_renders(fresh[:3], carried) == 3  # the 4th view renders both layers
+    rendered = []
+    real = stages.render_layers
+    monkeypatch.setattr(stages, "render_layers", lambda layers, *a, **k: rendered.append(len(layers))
+                        or real(layers, *a, **k))
+    stages.cache_frozen(fresh, [albedo, shading], "cpu", "albedo x shading")
+    assert rendered == [1, 1, 1, 2]
+    stages.cache_frozen(full, [albedo, shading], "cpu", "albedo x shading")
+    for a, b in zip(fresh, full):
+        assert "A" not in a.extras  # A * S replaces A: no more memory than the fused cache
+        torch.testing.assert_close(a.extras["AS"], b.extras["AS"], rtol=1e-5, atol=1e-6)
+        for k in ("depth_A", "alpha_A"):
+            torch.testing.assert_close(a.extras[k], b.extras[k], rtol=1e-5, atol=1e-6)
+
+
 def test_residual_spawns_at_high_error_pixels_at_the_prior_depth():
     pts, cols, cams = wall_scene()
     cam = cams[0]

@@ -84,6 +84,17 @@ def test_a_second_ctrl_c_during_training_stops_with_130(box):
     assert all(evs) and evs[-1]["event"] == "cancelled"
 
 
+@pytest.mark.parametrize("events", [False, True])
+def test_a_reader_that_goes_away_stops_the_command_quietly_with_141(box, events):
+    """`igs info WS | head`: the pipe is closed before the command writes, as head does after its lines."""
+    cmd = [sys.executable, "-m", "backend", *(["--events"] if events else []), "info", str(box)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # the reader is gone before the interpreter has even started
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141, err
+    assert err == ""  # no traceback, not even Python's "Exception ignored" at exit
+
+
 def _events_of(argv, capsys):
     capsys.readouterr()
     code = main(["--events", *argv])

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import os
 import re
 import sys
 import time
@@ -22,7 +23,7 @@ from backend.core.atomic_io import os_error
 from backend.core.errors import Cancelled, IGSError
 from backend.core.workspace_lock import WorkspaceBusy
 from igs_contract.events import CANCELLED, DONE, ERROR, START
-from igs_contract.exit_codes import EXIT_BUSY, EXIT_CANCELLED, EXIT_INTERNAL, EXIT_OK, EXIT_USER
+from igs_contract.exit_codes import EXIT_BUSY, EXIT_CANCELLED, EXIT_INTERNAL, EXIT_OK, EXIT_PIPE, EXIT_USER
 
 # Errors of the machine rather than of the program (full disk, read-only or missing folder,
 # permissions): one line naming the file, like bad input.
@@ -93,6 +94,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str]) -> int:
+    try:
+        return _run(argv)
+    except BrokenPipeError:  # the reader of stdout went away (`igs info | head`): not an error to report
+        _drop_stdout()
+        return EXIT_PIPE
+
+
+def _run(argv: list[str]) -> int:
     signals.install()  # first: a Ctrl-C while torch and the commands load is a cancel, not a traceback
     # --events is known before the commands load, so a second Ctrl-C meanwhile still ends in an event
     events.enable_json("--events" in argv[:next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))])
@@ -120,6 +129,8 @@ def _main(argv: list[str]) -> int:
         events.emit(ERROR, message=str(e))
         print(f"igs {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USER
+    except BrokenPipeError:  # not a disk error: _main's own
+        raise
     except OSError as e:
         if e.errno not in DISK_ERRORS:  # a bug, not the machine: the traceback below
             return _internal_error(e)
@@ -135,6 +146,16 @@ def _main(argv: list[str]) -> int:
         return _internal_error(e)
     events.emit(DONE, command=args.command, seconds=time.perf_counter() - t0)
     return EXIT_OK
+
+
+def _drop_stdout() -> None:
+    """Point stdout at the null device, so that Python's flush at exit does not meet the closed pipe
+    again (it would print "Exception ignored ... BrokenPipeError")."""
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout has no file descriptor (replaced in-process): nothing to flush
+        pass
 
 
 def _internal_error(e: Exception) -> int:

@@ -28,7 +28,13 @@ from backend.train.intrinsic.initial import (
 )
 from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
 from backend.train.intrinsic.setup import Setup, prepare_setup
-from backend.train.intrinsic.stages import ResidualStage, ShadingStage, shading_gain
+from backend.train.intrinsic.stages import (
+    ResidualStage,
+    ShadingStage,
+    albedo_renders,
+    reuse_albedo_renders,
+    shading_gain,
+)
 from backend.train.intrinsic.state import STATE_DIR, DecomposeState, file_hash, jsonable, stage_settings
 from backend.train.loop import Stage, TrainConfig, train
 from backend.train.views import View
@@ -38,8 +44,12 @@ METRICS_KEY = "decompose"
 
 
 def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
-                     train_views: list[View], test_views: list[View]) -> tuple[Stage, GaussianSet, str]:
-    """The stage ``name`` with its initial Gaussians in place: (stage, initial set, how it was made)."""
+                     train_views: list[View], test_views: list[View],
+                     carried: dict[str, dict] | None = None) -> tuple[Stage, GaussianSet, str]:
+    """The stage ``name`` with its initial Gaussians in place: (stage, initial set, how it was made).
+
+    ``carried``: the albedo's renders per view, filled by the shading stage and used by the residual
+    stage's cache (the same albedo layer in the same run), so the albedo is rendered once per view."""
     tcfg = shading_config(cfg, len(layers["albedo"])) if name == "shading" else cfg.stage(name)
     common = dict(config=tcfg, scene_extent=setup.extent, color_space="linear",
                   strategy=DensifyStrategy(tcfg.resolved_densify(), setup.extent))
@@ -53,6 +63,9 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
         stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
                              albedo=layers["albedo"], terms=cfg.shading_terms(), **common).to(setup.device)
         stage.prepare()  # the albedo cache feeds the ratio initialisation too
+        if carried is not None:
+            carried.clear()
+            carried.update(albedo_renders(train_views + test_views))
         if cfg.shading_geometry == "albedo":
             init, how = shading_from_albedo(layers["albedo"], train_views, cfg)
         else:
@@ -61,6 +74,9 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
         stage = ResidualStage("residual", GaussianSet.empty("residual", cfg.residual_sh_degree), train_views,
                               test_views, albedo=layers["albedo"], shading=layers["shading"],
                               **common).to(setup.device)
+        if carried:
+            reuse_albedo_renders(train_views + test_views, carried)
+            carried.clear()
         stage.prepare()
         init = spawn_residual(train_views, cfg)
         how = f"{len(init)} spawned at high |I - A*S| pixels"
@@ -80,16 +96,18 @@ def shading_config(cfg: DecomposeConfig, albedo_count: int) -> TrainConfig:
 
 def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[str, GaussianSet],
               resume: bool, *, stop_after: int | None = None,
-              on_step: Callable[[int], None] | None = None) -> tuple[GaussianSet, dict[str, Any]]:
+              on_step: Callable[[int], None] | None = None,
+              carried: dict[str, dict] | None = None) -> tuple[GaussianSet, dict[str, Any]]:
     """Train one stage (resuming its checkpoint when ``resume``); returns the set and its summary.
-    ``stop_after`` and ``on_step`` go to :func:`backend.train.loop.train` (a benchmark's window)."""
+    ``stop_after`` and ``on_step`` go to :func:`backend.train.loop.train` (a benchmark's window);
+    ``carried`` to :func:`_stage_with_init`."""
     tcfg = cfg.stage(name)
     t0 = time.perf_counter()
     with_depth = tcfg.lambda_depth > 0
     target = "albedo" if name == "albedo" else "image"
     train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual")
     test_views = setup.views(setup.test_frames, target, cfg.downscale, False)
-    stage, init, how = _stage_with_init(name, setup, cfg, layers, train_views, test_views)
+    stage, init, how = _stage_with_init(name, setup, cfg, layers, train_views, test_views, carried)
     tcfg = stage.config  # the shading's budget is set from the albedo layer
     initial_n = len(init)
     events.log(f"{name}: {len(train_views)} training / {len(test_views)} held-out views at "
@@ -130,6 +148,7 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
     state = DecomposeState(setup.ckpt_root / STATE_DIR, restart=not resume)
     layers: dict[str, GaussianSet] = {}
     entries: dict[str, dict[str, Any]] = {}
+    carried: dict[str, dict] = {}  # the shading stage's albedo renders, for the residual stage's cache
 
     for name in STAGES:
         ply = setup.layers_dir / f"{name}.ply"
@@ -156,7 +175,7 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
         # a stage whose inputs changed since its checkpoint starts over
         stale = bool(st) and (st.get("upstream") != upstream or st.get("extra") != settings)
         state.set(name, {"done": False, "upstream": upstream, "extra": settings})
-        g, entry = run_stage(name, setup, cfg, layers, resume=resume and not stale)
+        g, entry = run_stage(name, setup, cfg, layers, resume=resume and not stale, carried=carried)
         write_ply(ply, g, space="linear")
         events.output("layer", ply)
         # later stages see the layer as stored (as after a resume), not the in-memory copy

@@ -56,13 +56,19 @@ def layer_splats(g: GaussianSet) -> Splats:
     return Splats(**g.render_args())
 
 
+ALBEDO_KEYS = frozenset(("A", "depth_A", "alpha_A"))
+"""The extras :func:`cache_frozen` leaves for G_A (:func:`albedo_renders` hands them to the next stage)."""
+
+
 def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: Backend, what: str) -> float:
     """Render the frozen layers once per view into ``view.extras`` (no re-render per iteration).
 
     ``frozen`` is [G_A] (caches ``A``) or [G_A, G_S] (caches ``AS`` = A * S, one fused pass), each
     (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) (spawning falls back on it
     without a depth prior), its alpha as ``alpha_A`` (H, W) (where no albedo is rendered, the shading
-    stage holds S at 0). Returns the seconds spent.
+    stage holds S at 0). A view that already holds G_A's renders (:data:`ALBEDO_KEYS`, carried from
+    the shading stage by :func:`albedo_renders`) renders only G_S, and gives up ``A`` for ``AS``.
+    Returns the seconds spent.
     """
     key = "A" if len(frozen) == 1 else "AS"
     todo = [v for v in views if key not in v.extras]
@@ -72,6 +78,12 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
     splats = [layer_splats(g) for g in frozen]
     with torch.no_grad(), events.stage(f"cache {what}", len(todo), unit="view") as bar:
         for v in todo:
+            if key == "AS" and ALBEDO_KEYS <= v.extras.keys():
+                # the albedo this process already rendered for the shading stage: only S is rendered
+                (s,) = render_layers(splats[1:], v.camera, backend=backend, with_depth=False)
+                v.extras["AS"] = compose(v.extras.pop("A"), s.color).contiguous()
+                bar.update(1)
+                continue
             outs = render_layers(splats, v.camera, backend=backend)
             albedo = outs[0].color
             v.extras[key] = (albedo if len(outs) == 1 else compose(albedo, outs[1].color)).contiguous()
@@ -79,6 +91,23 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
             v.extras["alpha_A"] = outs[0].alpha
             bar.update(1)
     return time.perf_counter() - t0
+
+
+def albedo_renders(views: Sequence[View]) -> dict[str, dict[str, torch.Tensor]]:
+    """G_A's cached renders of ``views`` by view name, to put into the same views of a later stage
+    (:func:`reuse_albedo_renders`) when it freezes the same albedo layer in the same process."""
+    return {v.name: {k: v.extras[k] for k in ALBEDO_KEYS} for v in views if ALBEDO_KEYS <= v.extras.keys()}
+
+
+def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, torch.Tensor]]) -> int:
+    """Put the renders of :func:`albedo_renders` into ``views`` (matched by name, on each view's
+    device); returns how many views took them."""
+    n = 0
+    for v in views:
+        if (r := renders.get(v.name)) is not None:
+            v.extras.update({k: t.to(v.image.device) for k, t in r.items()})
+            n += 1
+    return n
 
 
 class ShadingStage(Stage):
