@@ -25,6 +25,7 @@ from pathlib import Path
 import bpy
 
 from . import backend_env, edits, jobs, layers, lights, preferences, scene_objects
+from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
 from .client import BackendError, BackendJob
 from .errors import UserError
 from .ply_io import read_splat_ply
@@ -237,13 +238,11 @@ def _follow(scene) -> float | None:
 
 
 def register() -> None:
-    if _on_depsgraph not in bpy.app.handlers.depsgraph_update_post:
-        bpy.app.handlers.depsgraph_update_post.append(_on_depsgraph)
+    add_depsgraph_handler(_on_depsgraph)
 
 
 def unregister() -> None:
-    if _on_depsgraph in bpy.app.handlers.depsgraph_update_post:
-        bpy.app.handlers.depsgraph_update_post.remove(_on_depsgraph)
+    remove_depsgraph_handler(_on_depsgraph)
     if bpy.app.timers.is_registered(tick):
         bpy.app.timers.unregister(tick)
     LIVE.reset()

@@ -33,6 +33,7 @@ import json
 import bpy
 
 from . import camera_objects, compat, layers, native_layers, proxies, scene_objects
+from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
 
 VIEW_LAYERS = {"albedo": "IGS Albedo", "shading": "IGS Shading", "residual": "IGS Residual", "scene": "IGS Scene",
                "edit": "IGS Edit Preview"}
@@ -434,11 +435,9 @@ def _on_depsgraph(scene, _depsgraph=None) -> None:
 
 
 def register() -> None:
-    if _on_depsgraph not in bpy.app.handlers.depsgraph_update_post:
-        bpy.app.handlers.depsgraph_update_post.append(_on_depsgraph)
+    add_depsgraph_handler(_on_depsgraph)
 
 
 def unregister() -> None:
-    if _on_depsgraph in bpy.app.handlers.depsgraph_update_post:
-        bpy.app.handlers.depsgraph_update_post.remove(_on_depsgraph)
+    remove_depsgraph_handler(_on_depsgraph)
     _SIGNATURE.clear()
