@@ -87,6 +87,10 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert {"shading_psnr", "shading_psnr_fg", "full_psnr_fg", "leakage", "leakage_gt"} <= set(flat)
     assert m["decompose_seconds"] > 0 and all(st[s]["train_seconds"] > 0 for s in st)
     assert st["shading"]["cache_seconds"] > 0 and st["residual"]["cache_seconds"] > 0
+    # the residual trained with the shading in its second half (from iteration 12; a kill after that
+    # resumes it from the checkpoint), and the residual stage went on from it
+    assert "trained with the shading" in st["residual"]["init"]
+    assert (ws / "checkpoints" / "decompose_shading" / "joint_residual.ply").is_file()
 
     # the layers: standard PLYs of the right kinds, counted in metrics.json and capture.json
     layers = {k: read_ply(ws / "layers" / f"{k}.ply")[0] for k in ("albedo", "shading", "residual")}
@@ -130,6 +134,21 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     pts = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
     assert pts["shading"]["initial_gaussians"] == len(load_capture(ws).points)
     assert pts["shading"]["resumed_from"] == 0 and pts["residual"]["resumed_from"] == 0
+
+
+def test_the_residual_stage_run_apart_goes_on_from_the_residual_trained_with_the_shading(capture, tmp_path):
+    ws = tmp_path / "ws"
+    shutil.copytree(capture, ws)
+    assert main(["decompose", str(ws), *ARGS, "--stage", "albedo", "--stage", "shading"]) == 0
+    joint, _ = read_ply(ws / "checkpoints" / "decompose_shading" / "joint_residual.ply", kind="residual")
+    assert main(["decompose", str(ws), *ARGS, "--stage", "residual"]) == 0
+    st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
+    assert st["residual"]["init"] == f"{len(joint)} trained with the shading"
+    # without the joint part the shading is redone alone and the residual is spawned after it
+    assert main(["decompose", str(ws), *ARGS, "--joint-residual", "0"]) == 0
+    st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
+    assert st["shading"]["resumed_from"] == 0 and "spawned at high" in st["residual"]["init"]
+    assert not (ws / "checkpoints" / "decompose_shading" / "joint_residual.ply").exists()
 
 
 def test_antialiased_decomposition_writes_every_layer_in_its_mode_and_renders_it(capture, tmp_path):

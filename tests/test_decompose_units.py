@@ -2,6 +2,8 @@
 frozen-layer caching, residual spawning, the single set's extra colours through densification and
 checkpoints, the per-channel alignment, and the contact sheet."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -78,6 +80,57 @@ def test_the_residual_cache_renders_only_the_shading_over_the_albedo_the_shading
         torch.testing.assert_close(a.extras["AS"], b.extras["AS"], rtol=1e-5, atol=1e-6)
         for k in ("depth_A", "alpha_A"):
             torch.testing.assert_close(a.extras[k], b.extras[k], rtol=1e-5, atol=1e-6)
+
+
+def _joint_stage(views, albedo, shading, iterations=12, start=6):
+    from backend.train.intrinsic.run import joint_residual
+    cfg = DecomposeConfig(joint_residual=(iterations - start) / iterations)
+    cfg.spawn.points = 40
+    tcfg = TrainConfig(iterations=iterations, checkpoint_every=100, backend="cpu")
+    cfg.residual = TrainConfig(backend="cpu", lambda_depth=0.05, lambda_scale=0.01, depth_normalized=True)
+    joint = joint_residual(cfg, tcfg)
+    assert joint.start == start and joint.config.iterations == iterations - start
+    return ShadingStage("shading", shading, views[:3], views[3:], tcfg, 2.0, albedo=albedo,
+                        terms=ShadingTerms(gray=0.03, dark=0.1, texture=0.1), joint=joint, color_space="linear")
+
+
+def test_the_joint_residual_trains_with_the_shading_in_its_last_part_and_resumes_bit_identically(tmp_path):
+    pts, cols, cams = wall_scene()
+    albedo = from_points(pts, cols, "albedo")
+
+    def fresh():
+        views = [View(i, c, torch.full((c.height, c.width, 3), 0.5) + 0.2 * (torch.arange(c.width) > c.width // 2)[:, None],
+                      torch.full((c.height, c.width), 2.5)) for i, c in enumerate(cams)]
+        return views, from_points(pts[::2], np.full_like(cols[::2], 0.8), "shading")
+
+    views, shading = fresh()
+    stage = _joint_stage(views, albedo, shading)
+    train(stage, tmp_path / "a", stop_after=5)
+    assert stage.residual is None  # not before its start
+    train(stage, tmp_path / "a", stop_after=7)
+    assert stage.residual is not None and len(stage.residual) > 0
+    first = {k: t.detach().clone() for k, t in stage.residual.params.items()}
+    result = train(stage, tmp_path / "a")
+    assert result.step == 12
+    moved = max(float((stage.residual.params[k].detach() - first[k]).abs().max()) for k in ("means", "sh0"))
+    assert moved > 0  # the residual was optimised, not only spawned
+    with torch.no_grad():  # training predicts A * S + R
+        stage.iteration = 11
+        out = stage.render(views[0])
+        assert stage._residual_out is None  # under no_grad (evaluation) the shading is alone: A * S
+    torch.testing.assert_close(stage.predict(views[0], out), views[0].extras["A"] * out.color)
+
+    # killed after the residual joined: the resumed run ends with the same two sets, bit for bit
+    views2, shading2 = fresh()
+    stage2 = _joint_stage(views2, albedo, shading2)
+    train(stage2, tmp_path / "b", stop_after=9)
+    views3, shading3 = fresh()
+    stage3 = _joint_stage(views3, albedo, shading3)
+    train(stage3, tmp_path / "b")
+    for k in stage.gaussians.params:
+        assert torch.equal(stage3.gaussians.params[k], stage.gaussians.params[k]), k
+    for k in stage.residual.params:
+        assert torch.equal(stage3.residual.params[k], stage.residual.params[k]), k
 
 
 def test_residual_spawns_at_high_error_pixels_at_the_prior_depth():
@@ -226,11 +279,18 @@ def test_bench_targets_without_the_single_set_report_its_target_as_not_measured(
     assert t["albedo_vs_single_set"]["met"] is False and "single-seq" in table({**r, "targets": t})
 
 
-def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_quarters():
-    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
+def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_half_with_the_residual_in_its_second_half():
+    from backend.train.intrinsic.run import joint_residual
+    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 1500, "residual": 1500}
     assert config.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
     cfg = DecomposeConfig()
     assert {s: cfg.stage(s).iterations for s in config.STAGES} == config.split_iterations(cfg.albedo.iterations)
+    joint = joint_residual(cfg, cfg.shading)
+    assert joint.start == cfg.shading.iterations // 2 and joint.config.iterations == cfg.shading.iterations // 2
+    assert joint.config.lambda_depth == cfg.residual.lambda_depth and joint.config.depth_normalized
+    assert joint_residual(replace(cfg, joint_residual=0.0), cfg.shading) is None
+    with pytest.raises(IGSError, match="joint_residual"):
+        joint_residual(replace(cfg, joint_residual=1.5), cfg.shading)
     assert cfg.shading.densify.grad_threshold < cfg.albedo.densify.grad_threshold
 
 
@@ -242,8 +302,8 @@ def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
     half = scaled_iterations(dec, 0.3)
-    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 225, 150]
-    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 750, 500]
+    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 150, 150]
+    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 500, 500]
     assert scaled_iterations(dec, 1.0) is dec
     # --gray-weight reaches the decomposition config only when given
     from backend.train.intrinsic.config import DecomposeConfig

@@ -54,6 +54,13 @@ OPTIONS = (
     Option("--shading-quantile", "shading_quantile",
            "quantile of the views that the shading stage fits, under a glossy surface's reflection "
            f"(default {_D.shading_quantile}; 0.5 = the median, a plain L1)", type=opt.number(0, 0.5, lo_open=True)),
+    Option("--joint-residual", "joint_residual",
+           "the fraction of the shading stage's iterations, at its end, in which the residual trains with "
+           f"the shading (default {_D.joint_residual}; 0 = the residual only after the shading)",
+           type=opt.number(0, 1)),
+    Option("--joint-residual-weight", "joint_residual_weight",
+           "weight of the L1 on the residual where the albedo is lit while it trains with the shading "
+           f"(default {_D.joint_residual_weight})", type=opt.WEIGHT),
     Option("--shading-geometry", "shading_geometry",
            "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
            "default) or 'points' (the SfM points, as in the paper)"),
@@ -76,7 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
     p.add_argument("--iterations", type=opt.COUNT, default=None,
-                   help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
+                   help=f"iterations per stage: albedo N, shading N/2, residual N/2 (default "
                         f"{_D.albedo.iterations}/{_D.shading.iterations}/{_D.residual.iterations})")
     add_config_arguments(p, _D, STAGE_ITERATIONS)
     p.add_argument("--single-set", action="store_true",

@@ -221,6 +221,17 @@ class Stage:
         """(prediction, target) as sRGB-encoded (H, W, 3) in [0, 1]."""
         return to_display(pred, self.color_space), to_display(self.target(view), self.color_space)
 
+    def after_step(self, step: int) -> None:
+        """Called after each optimiser step (``step``: iterations done before it): a stage that trains
+        a second set alongside steps it here."""
+
+    def extra_state(self) -> dict[str, Any] | None:
+        """State of the stage's own beyond the set, optimiser and strategy, for the checkpoint."""
+        return None
+
+    def load_extra_state(self, state: dict[str, Any] | None) -> None:
+        """Restore :meth:`extra_state` from a checkpoint (None: the checkpoint had none)."""
+
     def render_features(self, camera, colors: torch.Tensor) -> RenderOutput:
         """Render per-Gaussian features ``colors`` (N, C) with the current geometry, detached
         (floater removal renders depth statistics this way)."""
@@ -344,6 +355,7 @@ def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimiz
         "train_views": [v.name for v in stage.train_views],
         "train_seconds": train_seconds,
         "extra": extra,
+        "stage_state": stage.extra_state(),
     }
     path = _checkpoint_path(ckpt_dir)
     buf = io.BytesIO()  # serialised in memory: a full disk is then a clear error, not torch's "unexpected pos"
@@ -484,6 +496,7 @@ def _restore(ckpt: dict[str, Any], stage: Stage, optimizer: torch.optim.Optimize
     torch.set_rng_state(ckpt["rng"]["torch"])
     random.setstate(ckpt["rng"]["python"])
     np.random.set_state(ckpt["rng"]["numpy"])
+    stage.load_extra_state(ckpt.get("stage_state"))
     events.log(f"{stage.name}: resuming from iteration {ckpt['step']} of {stage.config.iterations} ({ckpt_dir})")
     return ckpt["step"], ckpt["train_seconds"], dict(ckpt["extra"])
 
@@ -586,4 +599,5 @@ def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSamp
     with phase("optimizer"):
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
+        stage.after_step(step)
     return {"loss": loss.detach(), **terms}

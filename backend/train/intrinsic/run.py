@@ -29,6 +29,7 @@ from backend.train.intrinsic.initial import (
 from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
 from backend.train.intrinsic.setup import Setup, prepare_setup
 from backend.train.intrinsic.stages import (
+    JointResidual,
     ResidualStage,
     ShadingStage,
     albedo_renders,
@@ -61,7 +62,8 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
             raise IGSError(f"shading_geometry must be one of {', '.join(SHADING_GEOMETRIES)}, "
                            f"got {cfg.shading_geometry!r}")
         stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
-                             albedo=layers["albedo"], terms=cfg.shading_terms(), **common).to(setup.device)
+                             albedo=layers["albedo"], terms=cfg.shading_terms(), joint=joint_residual(cfg, tcfg),
+                             **common).to(setup.device)
         stage.prepare()  # the albedo cache feeds the ratio initialisation too
         if carried is not None:
             carried.clear()
@@ -74,14 +76,37 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
         stage = ResidualStage("residual", GaussianSet.empty("residual", cfg.residual_sh_degree), train_views,
                               test_views, albedo=layers["albedo"], shading=layers["shading"],
                               **common).to(setup.device)
+        warm = carried.pop("residual", None) if carried else None
+        if warm is None and cfg.joint_residual > 0 and (path := joint_residual_path(setup)).is_file():
+            warm, _ = read_ply(path, kind="residual")  # the shading stage finished in an earlier run
         if carried:
             reuse_albedo_renders(train_views + test_views, carried)
             carried.clear()
         stage.prepare()
-        init = spawn_residual(train_views, cfg)
-        how = f"{len(init)} spawned at high |I - A*S| pixels"
+        if warm is not None:
+            init, how = warm, f"{len(warm)} trained with the shading"
+        else:
+            init = spawn_residual(train_views, cfg)
+            how = f"{len(init)} spawned at high |I - A*S| pixels"
     stage.gaussians = init
     return stage, init, how
+
+
+def joint_residual_path(setup: Setup) -> Path:
+    """Where the shading stage leaves the residual it trained with it (in its checkpoint folder: a
+    restarted shading stage drops it)."""
+    return setup.ckpt_root / f"{STATE_DIR}_shading" / "joint_residual.ply"
+
+
+def joint_residual(cfg: DecomposeConfig, shading: TrainConfig) -> JointResidual | None:
+    """The residual's part in the shading stage (``cfg.joint_residual`` of its iterations, at the end)."""
+    if not 0 <= cfg.joint_residual <= 1:
+        raise IGSError(f"joint_residual must be in [0, 1], got {cfg.joint_residual}")
+    length = round(cfg.joint_residual * shading.iterations)
+    if length == 0:
+        return None
+    return JointResidual(start=shading.iterations - length, spawn=lambda views: spawn_residual(views, cfg),
+                         config=replace(cfg.residual, iterations=length), weight=cfg.joint_residual_weight)
 
 
 def shading_config(cfg: DecomposeConfig, albedo_count: int) -> TrainConfig:
@@ -116,6 +141,10 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device,
                    stop_after=stop_after, on_step=on_step)
     cache_seconds = getattr(stage, "cache_seconds", 0.0)
+    if getattr(stage, "residual", None) is not None:  # the residual stage continues from it
+        write_ply(joint_residual_path(setup), stage.residual.to("cpu"), space="linear")
+        if carried is not None:
+            carried["residual"] = stage.residual.to("cpu")
     gain = None
     if name == "shading" and cfg.shading_quantile != 0.5:
         gain = shading_gain(result.gaussians, train_views, tcfg.backend, cfg.dark_level)

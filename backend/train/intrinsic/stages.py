@@ -8,7 +8,9 @@ fits ``I = A * S`` with the cached ``A``; the residual stage fits ``I = A * S + 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -17,8 +19,13 @@ from backend.core.imageio import luminance
 from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
-from backend.train.intrinsic.shading_priors import ShadingTerms, free_shading_loss, texture_edge_loss
-from backend.train.loop import Stage, TrainConfig, depth_loss_applies, sum_terms
+from backend.train.intrinsic.shading_priors import (
+    ShadingTerms,
+    free_shading_loss,
+    free_shading_weights,
+    texture_edge_loss,
+)
+from backend.train.loop import Stage, TrainConfig, depth_loss_applies, make_optimizer, means_lr, sum_terms
 from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
 from backend.train.views import View
 
@@ -110,29 +117,129 @@ def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, tor
     return n
 
 
-class ShadingStage(Stage):
-    """G_S with G_A frozen: ``I = A * S``, loss on the inverse domain + gray + dark + texture + depth + scale."""
+@dataclass
+class JointResidual:
+    """The residual trained with the shading in the shading stage's last part.
 
-    def __init__(self, *args, albedo: GaussianSet, terms: ShadingTerms, **kw):
+    Without it a glossy surface's reflection, which adds to the diffuse light, can only be reached
+    by raising S (by R / A: the albedo's pattern, inverted); with the residual there, the texture
+    term on S can push it into R."""
+
+    start: int
+    """The shading stage's iteration at which the residual joins."""
+    spawn: Callable[[Sequence[View]], GaussianSet]
+    """The initial residual from the training views' cached ``AS`` (:func:`spawn_residual`)."""
+    config: TrainConfig
+    """The residual's training settings: learning rates, depth and scale weights, and the SH and
+    position-rate schedules over its ``iterations`` (the joint part's length)."""
+    weight: float = 0.0
+    """Weight of the mean rendered residual where the albedo is lit (an L1 on R there): where A * S
+    and R explain a pixel equally well, the light stays in the shading, while the texture term still
+    pushes a pattern in S out to R. Where there is no albedo (the environment) R is free."""
+
+
+class ShadingStage(Stage):
+    """G_S with G_A frozen: ``I = A * S``, loss on the inverse domain + gray + dark + texture + depth + scale.
+
+    With ``joint`` the residual G_R joins for the stage's last part: ``I = A * S + R``, both updated."""
+
+    def __init__(self, *args, albedo: GaussianSet, terms: ShadingTerms, joint: JointResidual | None = None, **kw):
         super().__init__(*args, **kw)
         self.albedo = albedo
         self.terms = terms
         self.cache_seconds = 0.0
+        self.joint = joint
+        self.residual: GaussianSet | None = None
+        """G_R once it has joined."""
+        self._residual_optimizer: torch.optim.Optimizer | None = None
+        self._residual_out: RenderOutput | None = None
 
     def frozen_sets(self) -> list[GaussianSet]:
-        return [self.albedo]
+        return [self.albedo] + ([self.residual] if self.residual is not None else [])
+
+    # --- the joint residual -------------------------------------------------------------------
+
+    def _joined(self) -> bool:
+        return self.joint is not None and self.iteration >= self.joint.start
+
+    def _join(self) -> None:
+        """Spawn G_R where A * S (the shading as trained so far) leaves the largest error."""
+        s = layer_splats(self.gaussians)
+        with torch.no_grad():
+            for v in self.train_views:
+                (out,) = render_layers([s], v.camera, backend=self.config.backend, with_depth=False)
+                v.extras["AS"] = compose(v.extras["A"], out.color)
+            residual = self.joint.spawn(self.train_views)
+        for v in self.train_views:
+            del v.extras["AS"]
+        self._set_residual(residual)
+        events.log(f"shading: the residual joins at iteration {self.iteration} with {len(residual)} Gaussians")
+
+    def _set_residual(self, residual: GaussianSet) -> None:
+        residual.raster_mode = self.config.raster_mode
+        self.residual = residual.to(self.device)
+        self._residual_optimizer = make_optimizer(self.residual, self.joint.config, self.scene_extent)
+
+    def render(self, view: View) -> RenderOutput:
+        if not (torch.is_grad_enabled() and self._joined()):  # evaluation: the shading alone (A * S)
+            self._residual_out = None
+            return super().render(view)
+        if self.residual is None:
+            self._join()
+        shading, residual = render_layers([layer_splats(self.gaussians), layer_splats(self.residual)], view.camera,
+                                          backend=self.config.backend, with_depth=self.wants_depth(view))
+        self._residual_out = residual
+        return shading
+
+    def wants_depth(self, view: View) -> bool:
+        joint = self._joined() and depth_loss_applies(self.joint.config, view)
+        return super().wants_depth(view) or joint
+
+    def after_step(self, step: int) -> None:
+        if self._residual_optimizer is None or self._residual_out is None:
+            return
+        t = step - self.joint.start  # the residual's own iterations done
+        cfg = self.joint.config
+        self.residual.set_active_sh_degree(t // cfg.resolved_sh_up_every())
+        for group in self._residual_optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr"] = means_lr(t, cfg, self.scene_extent)
+        self._residual_optimizer.step()
+        self._residual_optimizer.zero_grad(set_to_none=True)
+
+    def extra_state(self) -> dict[str, Any] | None:
+        if self.residual is None:
+            return None
+        r = self.residual
+        return {"kind": r.kind, "sh_degree": r.sh_degree, "active_sh_degree": r.active_sh_degree,
+                "params": r.tensors(), "optimizer": self._residual_optimizer.state_dict()}
+
+    def load_extra_state(self, state: dict[str, Any] | None) -> None:
+        if state is None or self.joint is None:
+            return
+        self._set_residual(GaussianSet(state["kind"], state["params"], state["sh_degree"], state["active_sh_degree"]))
+        self._residual_optimizer.load_state_dict(state["optimizer"])
 
     def prepare(self) -> None:
         self.cache_seconds += cache_frozen(self.train_views + self.test_views, [self.albedo],
                                            self.config.backend, "albedo")
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
-        return compose(view.extras["A"], out.color)
+        diffuse = compose(view.extras["A"], out.color)
+        return diffuse if self._residual_out is None else diffuse + self._residual_out.color
 
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         w = self.terms
         terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim, w.quantile)}
+        if (r := self._residual_out) is not None:
+            if self.joint.weight > 0:  # where the albedo is lit: elsewhere (the environment) only R can draw
+                lit, _, _ = free_shading_weights(view.extras["A"], view.extras["alpha_A"], w.dark_level)
+                terms["residual_l1"] = self.joint.weight * (lit * r.color.abs().mean(-1)).mean()
+            if (d := depth_term(self.joint.config, view, r)) is not None:
+                terms["residual_depth"] = d
+            if self.joint.config.lambda_scale > 0:
+                terms["residual_scale"] = self.joint.config.lambda_scale * scale_reg(self.residual.scales)
         if w.gray > 0:
             terms["gray"] = w.gray * gray_reg(self.gaussians.colors)
         if w.dark > 0:

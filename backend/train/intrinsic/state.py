@@ -37,6 +37,14 @@ def jsonable(x: Any) -> Any:
     return json.loads(json.dumps(x))
 
 
+def _joint_settings(cfg: DecomposeConfig) -> dict[str, Any]:
+    """What the shading stage's result depends on when the residual trains with it (nothing when not)."""
+    if cfg.joint_residual == 0:
+        return {"joint_residual": 0.0}
+    return {"joint_residual": cfg.joint_residual, "joint_residual_weight": cfg.joint_residual_weight,
+            "residual_train": asdict(cfg.residual), "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn)}
+
+
 def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
     """Settings outside a stage's TrainConfig that change its result (resume must match them)."""
     common = {"downscale": cfg.downscale, "hold_every": cfg.hold_every, "init": asdict(cfg.init)}
@@ -45,9 +53,11 @@ def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
                          "dark_level": cfg.dark_level, "lambda_texture": cfg.lambda_texture,
                          "shading_quantile": cfg.shading_quantile, "shading_budget": cfg.shading_budget,
                          "shading_init": cfg.shading_init,
-                         "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo})
+                         "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo,
+                         **_joint_settings(cfg)})
     if name == "residual":
-        return jsonable({**common, "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn)})
+        return jsonable({**common, "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn),
+                         "joint_residual": cfg.joint_residual})
     return jsonable(common)
 
 
