@@ -87,10 +87,7 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert {"shading_psnr", "shading_psnr_fg", "full_psnr_fg", "leakage", "leakage_gt"} <= set(flat)
     assert m["decompose_seconds"] > 0 and all(st[s]["train_seconds"] > 0 for s in st)
     assert st["shading"]["cache_seconds"] > 0 and st["residual"]["cache_seconds"] > 0
-    # the residual trained with the shading in its second half (from iteration 12; a kill after that
-    # resumes it from the checkpoint), and the residual stage went on from it
-    assert "trained with the shading" in st["residual"]["init"]
-    assert (ws / "checkpoints" / "decompose_shading" / "joint_residual.ply").is_file()
+    assert "spawned at high" in st["residual"]["init"]  # by default the residual starts after the shading
 
     # the layers: standard PLYs of the right kinds, counted in metrics.json and capture.json
     layers = {k: read_ply(ws / "layers" / f"{k}.ply")[0] for k in ("albedo", "shading", "residual")}
@@ -136,16 +133,44 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert pts["shading"]["resumed_from"] == 0 and pts["residual"]["resumed_from"] == 0
 
 
-def test_the_residual_stage_run_apart_goes_on_from_the_residual_trained_with_the_shading(capture, tmp_path):
+def test_the_residual_trained_with_the_shading_is_where_the_residual_stage_goes_on_from(capture, tmp_path):
+    """--joint-residual 0.5: killed after the residual joined (iteration 12 of 24), the shading stage
+    resumes with it; the residual stage, run apart, goes on from it; without the option the shading
+    is redone alone and the residual is spawned after it."""
     ws = tmp_path / "ws"
     shutil.copytree(capture, ws)
-    assert main(["decompose", str(ws), *ARGS, "--stage", "albedo", "--stage", "shading"]) == 0
-    joint, _ = read_ply(ws / "checkpoints" / "decompose_shading" / "joint_residual.ply", kind="residual")
-    assert main(["decompose", str(ws), *ARGS, "--stage", "residual"]) == 0
+    joint = [*ARGS, "--joint-residual", "0.5"]
+    assert main(["decompose", str(ws), *joint, "--stage", "albedo"]) == 0
+    from backend.train.intrinsic.config import DecomposeConfig as Cfg
+    from backend.train.intrinsic.run import decompose
+    cfg = Cfg(joint_residual=0.5, downscale=1.0).set_all(backend="cpu", checkpoint_every=8)
+    for s, n in (("albedo", 50), ("shading", 24), ("residual", 48)):
+        cfg.stage(s).iterations = n
+    cfg.albedo.densify.max_gaussians = cfg.shading.densify.max_gaussians = 3000
+    cfg.spawn.points = 300
+    from backend.core.errors import Cancelled
+    from backend.train.intrinsic import run as run_mod
+
+    def cancel_at_16(step):
+        if step == 16:
+            raise Cancelled("stop")
+
+    real_train = run_mod.train
+    run_mod.train = lambda stage, ckpt, **kw: real_train(stage, ckpt, **{**kw, "on_step": cancel_at_16})
+    try:  # cancelled at 16 (a checkpoint is written), after the residual joined at 12
+        with pytest.raises(Cancelled):
+            decompose(ws, cfg, stages=("shading",))
+    finally:
+        run_mod.train = real_train
+    assert _step(ws, "shading") == 16 and load_checkpoint(ws / "checkpoints" / "decompose_shading")["stage_state"]
+    assert main(["decompose", str(ws), *joint, "--stage", "shading"]) == 0
     st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
-    assert st["residual"]["init"] == f"{len(joint)} trained with the shading"
-    # without the joint part the shading is redone alone and the residual is spawned after it
-    assert main(["decompose", str(ws), *ARGS, "--joint-residual", "0"]) == 0
+    assert st["shading"]["resumed_from"] == 16
+    kept, _ = read_ply(ws / "checkpoints" / "decompose_shading" / "joint_residual.ply", kind="residual")
+    assert main(["decompose", str(ws), *joint, "--stage", "residual"]) == 0
+    st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
+    assert st["residual"]["init"] == f"{len(kept)} trained with the shading"
+    assert main(["decompose", str(ws), *ARGS]) == 0
     st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
     assert st["shading"]["resumed_from"] == 0 and "spawned at high" in st["residual"]["init"]
     assert not (ws / "checkpoints" / "decompose_shading" / "joint_residual.ply").exists()

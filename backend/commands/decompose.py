@@ -83,7 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
     p.add_argument("--iterations", type=opt.COUNT, default=None,
-                   help=f"iterations per stage: albedo N, shading N/2, residual N/2 (default "
+                   help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
                         f"{_D.albedo.iterations}/{_D.shading.iterations}/{_D.residual.iterations})")
     add_config_arguments(p, _D, STAGE_ITERATIONS)
     p.add_argument("--single-set", action="store_true",
