@@ -141,10 +141,11 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume, device=setup.device,
                    stop_after=stop_after, on_step=on_step)
     cache_seconds = getattr(stage, "cache_seconds", 0.0)
-    if getattr(stage, "residual", None) is not None:  # the residual stage continues from it
-        write_ply(joint_residual_path(setup), stage.residual.to("cpu"), space="linear")
+    if (joint := getattr(stage, "residual", None)) is not None:  # the residual stage continues from it
+        joint = joint.to("cpu")
+        write_ply(joint_residual_path(setup), joint, space="linear")
         if carried is not None:
-            carried["residual"] = stage.residual.to("cpu")
+            carried["residual"] = joint
     gain = None
     if name == "shading" and cfg.shading_quantile != 0.5:
         gain = shading_gain(result.gaussians, train_views, tcfg.backend, cfg.dark_level)
