@@ -232,10 +232,13 @@ class ShadingStage(Stage):
         cfg = self.config
         w = self.terms
         terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim, w.quantile)}
-        if (r := self._residual_out) is not None:
+        r = self._residual_out
+        weights = None  # the lit/dark/absent split, for the free-shading term and the residual's L1
+        if w.dark > 0 or (r is not None and self.joint.weight > 0):
+            weights = free_shading_weights(view.extras["A"], view.extras["alpha_A"], w.dark_level)
+        if r is not None:
             if self.joint.weight > 0:  # where the albedo is lit: elsewhere (the environment) only R can draw
-                lit, _, _ = free_shading_weights(view.extras["A"], view.extras["alpha_A"], w.dark_level)
-                terms["residual_l1"] = self.joint.weight * (lit * r.color.abs().mean(-1)).mean()
+                terms["residual_l1"] = self.joint.weight * (weights[0] * r.color.abs().mean(-1)).mean()
             if (d := depth_term(self.joint.config, view, r)) is not None:
                 terms["residual_depth"] = d
             if self.joint.config.lambda_scale > 0:
@@ -244,7 +247,7 @@ class ShadingStage(Stage):
             terms["gray"] = w.gray * gray_reg(self.gaussians.colors)
         if w.dark > 0:
             terms["dark"] = w.dark * free_shading_loss(out.color, view.extras["A"], view.extras["alpha_A"],
-                                                       w.dark_level)
+                                                       w.dark_level, weights)
         if w.texture > 0:
             terms["texture"] = w.texture * texture_edge_loss(out.color, view.extras["A"])
         if (d := depth_term(cfg, view, out)) is not None:
