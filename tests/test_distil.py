@@ -1,6 +1,7 @@
 """`igs distil` end to end on a tiny decomposed box workspace: the student is a standard 3DGS PLY,
-it beats its untrained start on held-out views, a SIGTERM cancel resumes to the same bytes, an
-edit is distilled without its low-pass column, bad flags are one clear error; and the bench runs."""
+it beats its untrained start on held-out views, a SIGTERM cancel resumes to the same bytes, a failed
+write keeps the earlier splat and metrics together, an edit is distilled without its low-pass column,
+bad flags are one clear error; and the bench runs."""
 
 import json
 import os
@@ -18,6 +19,7 @@ from plyfile import PlyData
 from backend.commands.cli import main
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
+from backend.train import distil as distil_module
 from backend.train.distil_views import between_cameras, jittered_cameras
 from backend.train.loop import load_checkpoint
 from igs_contract.events import parse_event
@@ -95,6 +97,31 @@ def test_cancel_then_resume_ends_byte_identical(layered, tmp_path, capsys):
     assert side["resumed_from"] == stopped
     assert (ws / "exports" / "layers-distilled.ply").read_bytes() == \
         (straight / "exports" / "layers-distilled.ply").read_bytes()
+
+
+def test_a_failed_write_of_the_metrics_keeps_the_earlier_splat_and_metrics_pair(layered, tmp_path, capsys,
+                                                                                 monkeypatch):
+    ws = _copy(layered, tmp_path / "ws")
+    assert main(["distil", str(ws), *ARGS]) == 0
+    capsys.readouterr()
+    exports = ws / "exports"
+    before = {p.name: p.read_bytes() for p in exports.iterdir()}
+    assert sorted(before) == ["layers-distilled.json", "layers-distilled.ply"]
+
+    real = distil_module.write_json
+
+    def full_disk(path, data):  # the disk fills up at the metrics, after the new splat is written
+        if Path(path).parent == exports:
+            raise OSError(28, "No space left on device", str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(distil_module, "write_json", full_disk)
+    other = [a if a != str(ITERATIONS) else "40" for a in ARGS]  # another run, which would replace the pair
+    assert main(["distil", str(ws), *other, "--restart"]) != 0
+    err = capsys.readouterr().err
+    assert "layers-distilled.json" in err and "Traceback" not in err
+    # the new splat was written first, yet neither file moved: the pair is the earlier run's, whole
+    assert {p.name: p.read_bytes() for p in exports.iterdir()} == before
 
 
 def test_an_edit_is_distilled_without_its_low_pass_column(layered, tmp_path, capsys):

@@ -18,7 +18,8 @@ display sRGB opens in SuperSplat, the web viewers and the other Blender splat ad
    costs more steps to recover than a short run has.
 
 Outputs: the PLY (standard 3DGS layout, ``igs_space srgb``) and a sidecar JSON of metrics beside
-it; checkpoints in ``<ws>/checkpoints/distil-<edit or layers>/``.
+it, which replace an earlier pair together (both or neither); checkpoints in
+``<ws>/checkpoints/distil-<edit or layers>/``.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import torch
 
 from backend.capture.load import load_capture
 from backend.core import events
-from backend.core.atomic_io import write_json
+from backend.core.atomic_io import atomic_paths, write_json
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
@@ -290,13 +291,11 @@ def distil(workspace: str | Path, cfg: DistilConfig | None = None, out: str | Pa
     if result.step < cfg.train.iterations:
         return {"step": result.step, "finished": False}
 
-    ply = write_ply(out, result.gaussians, space="srgb")
-    events.output("distilled", ply)
     m = result.metrics
     per_view = m.get("per_view", {})
     initial = m.get("initial") or {}
     summary = {
-        "ply": str(ply),
+        "ply": str(out),
         "psnr": m.get("psnr", "n/a"), "ssim": m.get("ssim", "n/a"), "lpips": m.get("lpips", "n/a"),
         "count": len(result.gaussians),
         "seconds": round(time.perf_counter() - t_start, 2),
@@ -321,6 +320,10 @@ def distil(workspace: str | Path, cfg: DistilConfig | None = None, out: str | Pa
         "train": config_dict(cfg.train),
         "inputs": inputs,
     }
-    write_json(sidecar, summary)
+    # the splat and its metrics replace the old pair together, or neither does
+    with atomic_paths([out, sidecar]) as (ply_part, sidecar_part):
+        write_ply(ply_part, result.gaussians, space="srgb")
+        write_json(sidecar_part, summary)
+    events.output("distilled", out)
     events.output("metrics", sidecar)
     return summary
