@@ -67,12 +67,12 @@ def test_free_shading_loss_is_zero_for_the_neighbourhood_light_and_pulls_garbage
     albedo, alpha = _panel_scene()
     lit_light = torch.full((32, 48, 3), 1.5)
     lit_light[:4] = 0.0  # nothing where no albedo is rendered
-    assert free_shading_loss(lit_light, albedo, alpha, 0.05) < 1e-4
+    assert free_shading_loss(lit_light, free_shading_weights(albedo, alpha, 0.05)) < 1e-4
     garbage = lit_light.clone()
     garbage[10:24, 16:32] = torch.tensor([6.0, 0.1, 3.0])  # streaks on the black panel
     garbage[:4] = 2.0  # and where there is nothing
     s = garbage.clone().requires_grad_(True)
-    free_shading_loss(s, albedo, alpha, 0.05).backward()
+    free_shading_loss(s, free_shading_weights(albedo, alpha, 0.05)).backward()
     # descending the gradient moves the panel towards the wall's 1.5 and the open strip towards 0
     assert s.grad[16, 24, 0] > 0 and s.grad[16, 24, 1] < 0
     assert (s.grad[:4] > 0).all()
@@ -90,7 +90,7 @@ def test_gradient_descent_on_the_free_term_recovers_the_light_on_a_black_panel()
     opt = torch.optim.Adam([s], lr=0.05)
     for _ in range(300):
         opt.zero_grad()
-        free_shading_loss(s, albedo, alpha, 0.05).backward()
+        free_shading_loss(s, free_shading_weights(albedo, alpha, 0.05)).backward()
         opt.step()
     err = (s.detach()[10:24, 16:32] - truth[10:24, 16:32]).abs().mean()
     assert err < 0.05, float(err)

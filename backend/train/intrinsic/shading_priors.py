@@ -83,15 +83,14 @@ def free_shading_weights(albedo: torch.Tensor, albedo_alpha: torch.Tensor,
     return a - dark, dark, 1.0 - a
 
 
-def free_shading_loss(shading: torch.Tensor, albedo: torch.Tensor, albedo_alpha: torch.Tensor,
-                      dark_level: float,
-                      weights: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+def free_shading_loss(shading: torch.Tensor,
+                      weights: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
     """Mean over pixels of dark * |S - fill(S from lit pixels)| + absent * |S|.
 
-    ``shading``: the rendered S (H, W, 3); ``albedo``, ``albedo_alpha``: the frozen albedo render;
-    ``weights``: their :func:`free_shading_weights` when the caller has them already.
+    ``shading``: the rendered S (H, W, 3); ``weights``: the frozen albedo render's
+    :func:`free_shading_weights` (lit, dark, absent).
     """
-    lit, dark, absent = weights if weights is not None else free_shading_weights(albedo, albedo_alpha, dark_level)
+    lit, dark, absent = weights
     target = push_pull_fill(shading.detach(), lit)
     per_pixel = dark * (shading - target).abs().mean(-1) + absent * shading.abs().mean(-1)
     return per_pixel.mean()

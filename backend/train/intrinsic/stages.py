@@ -246,8 +246,7 @@ class ShadingStage(Stage):
         if w.gray > 0:
             terms["gray"] = w.gray * gray_reg(self.gaussians.colors)
         if w.dark > 0:
-            terms["dark"] = w.dark * free_shading_loss(out.color, view.extras["A"], view.extras["alpha_A"],
-                                                       w.dark_level, weights)
+            terms["dark"] = w.dark * free_shading_loss(out.color, weights)
         if w.texture > 0:
             terms["texture"] = w.texture * texture_edge_loss(out.color, view.extras["A"])
         if (d := depth_term(cfg, view, out)) is not None:
