@@ -66,9 +66,11 @@ def build_root() -> Path:
 
 
 def copy_driver(driver: str, run: Path) -> None:
-    """``tests_blender/<driver>`` as ``run/driver.py``, with ``window_driver.py`` (which it imports) beside it."""
+    """``tests_blender/<driver>`` as ``run/driver.py``, with the modules drivers import beside it
+    (``window_driver.py`` and the window suite's ``driver_*.py``)."""
     shutil.copy2(REPO / "tests_blender" / driver, run / "driver.py")
-    shutil.copy2(REPO / "tests_blender" / "window_driver.py", run / "window_driver.py")
+    for module in ("window_driver.py", *sorted(p.name for p in (REPO / "tests_blender").glob("driver_*.py"))):
+        shutil.copy2(REPO / "tests_blender" / module, run / module)
 
 
 def copy_sources(dst: Path) -> None:
