@@ -438,7 +438,8 @@ def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
 
 
 def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None,
-          device: torch.device | str | None = None, on_step: Callable[[int], None] | None = None) -> TrainResult:
+          device: torch.device | str | None = None, on_step: Callable[[int], None] | None = None,
+          keep_on_cancel: bool = True) -> TrainResult:
     """Optimise ``stage.gaussians``; checkpoints go to ``ckpt_dir`` (created).
 
     ``device``: where to train (None: where the stage is, see :meth:`Stage.to`). Checkpoints hold
@@ -447,7 +448,8 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     ``resume``: continue from the checkpoint in ``ckpt_dir`` when there is one (otherwise it is
     deleted and the run starts over). ``stop_after``: return once this many iterations are done
     (after writing a checkpoint), as if the process had been stopped there — used by tests.
-    Cancel (SIGINT/SIGTERM via :mod:`backend.core.events`) writes a checkpoint and raises :class:`Cancelled`.
+    Cancel (SIGINT/SIGTERM via :mod:`backend.core.events`) writes a checkpoint and raises :class:`Cancelled`;
+    ``keep_on_cancel=False`` (a run that never resumes): no checkpoint, and the Cancelled says so.
     ``on_step(step)`` is called after each iteration and its densification, outside the timed part
     (the training benchmark timestamps iterations with it).
     Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
@@ -455,7 +457,8 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     with torch_threads(), denormals_flushed():
         if device is not None:
             stage.to(device)
-        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after, on_step=on_step)
+        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after, on_step=on_step,
+                      keep_on_cancel=keep_on_cancel)
 
 
 @contextlib.contextmanager
@@ -512,7 +515,7 @@ def _write_config(ckpt_dir: Path, stage: Stage) -> None:
 
 
 def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None,
-           on_step: Callable[[int], None] | None) -> TrainResult:
+           on_step: Callable[[int], None] | None, keep_on_cancel: bool = True) -> TrainResult:
     cfg = stage.config
     stage.to(stage.device)  # a set assigned after the last move (initial or restored) follows the stage
     ckpt_dir = Path(ckpt_dir)
@@ -559,6 +562,9 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
                     checkpoint(step)
                 bar.update(1, loss=loss_terms["loss"], gaussians=len(stage.gaussians))
         except Cancelled:
+            if not keep_on_cancel:
+                events.log(f"{stage.name}: cancelled at iteration {step}")
+                raise Cancelled(f"{stage.name}: cancelled", resumable=False) from None
             checkpoint(step)
             events.log(f"{stage.name}: cancelled at iteration {step}; checkpoint saved to {ckpt_dir}")
             raise
