@@ -15,6 +15,7 @@ from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
 from backend.core.layer_set import file_hash  # noqa: F401 (the stages' hashes are the set's)
+from backend.core.small_reads import read_text
 from backend.train.intrinsic.config import DecomposeConfig
 
 STATE_DIR = "decompose"
@@ -61,10 +62,10 @@ class DecomposeState:
         self.data: dict[str, Any] = {}
         if self.path.exists():
             try:
-                data = json.loads(self.path.read_text())
+                data = json.loads(read_text(self.path, "decompose state"))
                 problem = None if isinstance(data, dict) and all(isinstance(v, dict) for v in data.values()) \
                     else "not an object of stage entries"
-            except (OSError, ValueError, RecursionError) as e:
+            except (OSError, IGSError, ValueError, RecursionError) as e:
                 data, problem = {}, f"unreadable ({type(e).__name__}: {e})"
             if problem is None:
                 self.data = data
