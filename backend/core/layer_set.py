@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.core.atomic_io import atomic_paths
+from backend.core.errors import IGSError
 from backend.core.small_reads import read_json
 
 SET_JSON = "set.json"
@@ -81,12 +82,16 @@ def commit(layers_dir: Path, pending: Path, kinds: tuple[str, ...], run: str, mo
 
 
 def read_record(layers_dir: Path) -> dict[str, Any] | None:
-    """The set's record with ``consistent`` added (every layer file is the one it recorded), or None
-    when the folder has none (a set written before records existed, or none yet)."""
+    """The set's record with ``consistent`` added (every layer file is the one it recorded; False for
+    a record that cannot be read), or None when the folder has none (a set written before records
+    existed, or none yet)."""
     path = layers_dir / SET_JSON
     if not os.path.lexists(path):
         return None
-    data = read_json(path, "layer set record")
+    try:
+        data = read_json(path, "layer set record")
+    except IGSError:  # a reader reports it as a set it cannot vouch for; the next decompose rewrites it
+        data = None
     layers = data.get("layers") if isinstance(data, dict) else None
     if not isinstance(layers, dict) or not isinstance(data.get("run"), str):
         return {"run": "?", "written": "?", "consistent": False}
