@@ -110,3 +110,15 @@ def test_a_settings_mismatch_is_one_short_line():
     assert settings_diff(then, now) == "iterations: 75 -> 300, densify.max_gaussians: 1126 -> 27673"
     many = settings_diff({f"k{i}": i for i in range(9)}, {f"k{i}": -i for i in range(9)})
     assert many.endswith("and 5 more") and len(many) < 120
+
+
+def test_the_single_set_baseline_writes_its_three_files_as_one_set(decomposed, tmp_path):
+    ws = tmp_path / "ws"
+    shutil.copytree(decomposed, ws)
+    assert main(["decompose", str(ws), *ARGS, "--single-set"]) == 0
+    folder = ws / "layers" / "single_set"
+    record = json.loads((folder / "set.json").read_text())
+    assert record["mode"] == "single-set"
+    assert {k: v["sha256_16"] for k, v in record["layers"].items()} == \
+        {k: layer_set.file_hash(folder / f"{k}.ply") for k in ("albedo", "shading", "residual")}
+    assert not list((ws / "checkpoints" / "decompose" / "pending").rglob("*.ply"))
