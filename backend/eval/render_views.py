@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from backend.core import events, small_reads
+from backend.core import events, layer_set, small_reads
 from backend.core.cameras import Camera, check_pose_values, from_blender_matrix_world
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
@@ -218,6 +218,13 @@ def turntable(center, radius: float, height: float, frames: int, template: Camer
 
 
 def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, GaussianSet]:
+    """The workspace's layers of the kinds ``needed`` (the albedo of ``edit`` when given); says which
+    decompose run wrote the set it reads (``layers/set.json``), and when a file is not the set's."""
+    record = layer_set.read_record(ws_root / "layers") if needed else None
+    if record is not None:
+        events.log(f"layers: set of run {record.get('run', '?')}, written {record.get('written', '?')}"
+                   + ("" if record["consistent"] else "; warning: the files differ from the set's record "
+                      "(run `igs decompose` again)"))
     layers = {}
     for kind in ("albedo", "shading", "residual"):
         if kind not in needed:
