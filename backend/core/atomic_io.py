@@ -4,7 +4,9 @@ A write either leaves the complete new file or the old one: the data is written,
 fsynced, its size checked, and only then renamed over the target. A full disk, a read-only folder
 or a missing permission end in one :class:`IGSError` naming the file and the cause. Temporary
 files carry the writer's process id, so those of a killed process are recognised and removed
-(:func:`clean_stale_tmp`).
+(:func:`clean_stale_tmp`). Files that belong together are replaced as one group, all or nothing
+(:func:`atomic_paths`), and no write goes through a symbolic link or onto a folder or special file
+(:func:`check_target`).
 """
 
 from __future__ import annotations
