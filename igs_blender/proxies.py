@@ -21,6 +21,8 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+from ..igs_contract import small_file
+from ..igs_contract.errors import ContractError
 from . import compat, scene_objects
 from .errors import UserError
 
@@ -37,12 +39,10 @@ def proxy_object_name(edit: str) -> str:
 def read_proxy_json(path: str | os.PathLike) -> dict[str, Any]:
     """Read a proxy file and check what the mesh needs (the backend validates the rest at bake time)."""
     path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: proxy file not found")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (ValueError, UnicodeDecodeError) as e:
-        raise UserError(f"{path}: not valid JSON ({e})") from e
+        data = small_file.read_json(path, "proxy file")
+    except ContractError as e:
+        raise UserError(str(e)) from None
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise UserError(f"{path}: not a schema-{SCHEMA} proxy file")
     for key in ("name", "vertices", "faces", "uvs", "matrix_world"):

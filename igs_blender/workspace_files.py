@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..igs_contract import workspace_lock
+from ..igs_contract import small_file, workspace_lock
 from .errors import UserError
 
 EDIT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
@@ -40,15 +40,16 @@ def existing_workspace(path: str) -> Path:
 
 def busy_line(path: str) -> str | None:
     """The backend's line naming the command that is writing to the workspace at ``path`` (holding its
-    lock, :mod:`igs_contract.workspace_lock`), or None when none is (or no workspace is set)."""
+    lock, :mod:`igs_contract.workspace_lock`), or the error naming a lock file the backend would refuse
+    (a link, a FIFO, a device); None when neither (or no workspace is set). Panel draw and operator poll
+    call it: the read is capped and never waits."""
     if not path or not path.strip():
         return None
     try:
         ws = resolve(path)
     except (UserError, OSError, ValueError):
         return None
-    holder = workspace_lock.active_holder(ws)
-    return workspace_lock.busy_line(ws, holder) if holder is not None else None
+    return workspace_lock.blocking_line(ws)
 
 
 def check_edit_name(name: str) -> str:
@@ -58,9 +59,11 @@ def check_edit_name(name: str) -> str:
 
 
 def read_json(path: Path) -> dict[str, Any] | None:
+    """The JSON object in ``path`` (read through the one capped reader), or None when it is missing,
+    not an object or not readable (a FIFO, a device, a huge file: the panel never waits on one)."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        data = json.loads(small_file.read_text(path, "JSON file"))
+    except (OSError, ValueError, RecursionError):
         return None
     return data if isinstance(data, dict) else None
 

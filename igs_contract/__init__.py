@@ -9,6 +9,8 @@
   workspace's transforms.json the add-on reads its cameras from.
 - ``light_json``: the lights file the add-on writes for ``igs render --light`` (and ``igs synth
   --lights`` reads and writes).
+- ``small_file``: the one reader of small files (JSON, lock records): size-capped, regular files
+  only, never blocking on a FIFO.
 - ``workspace_lock``: the lock file a writing command holds in a workspace, and the line naming
   its holder that both sides show.
 

@@ -30,7 +30,7 @@ import os
 from pathlib import Path, PurePosixPath
 
 from .errors import ContractError
-from .json_file import read_json
+from .small_file import read_json
 
 CAMERAS = "cameras"
 FRAMES, FILE_PATH, MATRIX, MODEL = "frames", "file_path", "transform_matrix", "camera_model"

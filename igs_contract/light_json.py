@@ -52,7 +52,7 @@ import re
 from pathlib import Path
 
 from .errors import ContractError
-from .json_file import read_json
+from .small_file import read_json
 
 LIGHTS = "lights"
 TYPES = ("point", "spot", "sun", "area")

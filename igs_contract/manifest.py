@@ -31,6 +31,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from . import small_file
+from .errors import ContractError
 from .layer_ply import KINDS, SPACES
 
 SUFFIX = ".igs.json"
@@ -133,8 +135,10 @@ def read(path: str | os.PathLike) -> Manifest:
     """Parse a manifest file; :class:`ManifestError` naming ``path`` when it is not one."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        data = json.loads(small_file.read_text(path, "manifest"))
+    except ContractError as e:
+        raise ManifestError(str(e)) from None
+    except (OSError, json.JSONDecodeError, RecursionError) as e:
         raise ManifestError(f"{path}: not a readable manifest ({e})") from e
     if not isinstance(data, dict):
         raise ManifestError(f"{path}: a manifest must be a JSON object")
@@ -190,7 +194,7 @@ def stems(file: str | os.PathLike) -> list[str]:
 
 def candidates(file: str | os.PathLike) -> list[Path]:
     """Manifest files that may describe ``file``, in the order :func:`identify` tries them (only
-    those that exist)."""
+    those that exist; a folder or special file at such a name is listed too: reading it is an error)."""
     file = Path(file)
     names = [file.name + SUFFIX]
     for stem in stems(file):
@@ -198,7 +202,7 @@ def candidates(file: str | os.PathLike) -> list[Path]:
     seen: list[Path] = []
     for n in names:
         p = file.with_name(n)
-        if p not in seen and p.is_file():
+        if p not in seen and os.path.lexists(p):
             seen.append(p)
     return seen
 

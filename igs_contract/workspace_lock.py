@@ -25,10 +25,15 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from . import small_file
+from .errors import ContractError
+
 LOCK_NAME = ".igs.lock"
 """The lock file inside a workspace folder."""
 MAX_SINCE = 1e11
 """Start times past this (the year 5138) are no record's: the file is not a lock record."""
+RECORD_LIMIT = 1 << 16
+"""A record is under 1 KiB: a larger lock file is not read (a link to ``/dev/zero`` never ends)."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +67,13 @@ def lock_path(workspace: str | os.PathLike) -> Path:
     return Path(workspace) / LOCK_NAME
 
 
+def printable(text: str, limit: int = 200) -> str:
+    """``text`` safe to print on a terminal: whitespace runs become one space, every other control
+    character (terminal escapes that would clear the screen or move the cursor) a ``?``; at most
+    ``limit`` characters."""
+    return "".join(c if c.isprintable() else "?" for c in " ".join(text.split()))[:limit]
+
+
 def parse_holder(text: str) -> Holder | None:
     """The record in a lock file's text, or None when it is empty or not a record."""
     try:
@@ -75,14 +87,23 @@ def parse_holder(text: str) -> Holder | None:
             or not isinstance(since, (int, float)) or isinstance(since, bool) or not 0 <= since < MAX_SINCE \
             or not isinstance(host, str):
         return None
-    return Holder(" ".join(command.split())[:200], pid, float(since), " ".join(host.split())[:200])
+    return Holder(printable(command), pid, float(since), printable(host))
+
+
+def read_record(path: str | os.PathLike) -> str:
+    """The text of the lock file ``path`` through the one small-file reader, never following a link:
+    ContractError naming it for a link, folder, FIFO, device or a file over :data:`RECORD_LIMIT`;
+    OSError when it cannot be opened (a missing file is a free workspace)."""
+    return small_file.read_bytes(path, "workspace lock file", RECORD_LIMIT, follow=False) \
+        .decode("utf-8", errors="replace")
 
 
 def read_holder(workspace: str | os.PathLike) -> Holder | None:
-    """The record of ``<workspace>/.igs.lock``, or None (no file, an empty one, or not a record)."""
+    """The record of ``<workspace>/.igs.lock``, or None (no file, an empty one, not a record, or a
+    link or special file there, which the backend refuses to lock)."""
     try:
-        text = lock_path(workspace).read_text(encoding="utf-8", errors="replace")
-    except OSError:
+        text = read_record(lock_path(workspace))
+    except (OSError, ContractError):
         return None
     return parse_holder(text)
 
@@ -141,7 +162,22 @@ def active_holder(workspace: str | os.PathLike) -> Holder | None:
 
 def busy_line(workspace: str | os.PathLike, holder: Holder | None) -> str:
     """The one line both sides show: ``WS: in use by `igs decompose` (PID 1234, since 14:03:12)``."""
+    workspace = printable(str(workspace), 4096)
     if holder is None:
         return f"{workspace}: in use by another igs command"
     where = f" on {holder.host}" if holder.host and holder.host != this_host() else ""
     return f"{workspace}: in use by `igs {holder.command}` (PID {holder.pid}{where}, since {holder.since_text()})"
+
+
+def blocking_line(workspace: str | os.PathLike) -> str | None:
+    """The line that keeps a writer out of ``workspace`` now: its live holder's :func:`busy_line`, or the
+    one error naming a lock path the backend refuses to lock (a link, folder, FIFO, device, a huge
+    file); None when a writer may start. What the add-on shows and greys its writing buttons for."""
+    try:
+        text = read_record(lock_path(workspace))
+    except ContractError as e:
+        return printable(str(e), 4096)
+    except OSError:
+        return None
+    holder = parse_holder(text)
+    return busy_line(workspace, holder) if holder is not None and holder_alive(holder) else None

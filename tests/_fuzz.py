@@ -38,6 +38,8 @@ class Tally:
     valid: int = 0
     clean: int = 0
     tracebacks: list[str] = field(default_factory=list)
+    last_error: str = ""
+    """The error line of the last :meth:`run_cli` case that printed one (checks that it names the file)."""
 
     def run(self, label: str, fn: Callable[[], object]) -> None:
         self.cases += 1
@@ -80,6 +82,7 @@ class Tally:
             self.tracebacks.append(f"{label}: {argv}\n{traceback.format_exc(limit=6)}")
             return None
         lines = [ln for ln in err.getvalue().splitlines() if ": error:" in ln]
+        self.last_error = lines[-1] if lines else ""
         if expect is not None and code not in expect:
             self.tracebacks.append(f"{label}: {argv} exit {code}, expected {expect}\n{err.getvalue()[-1500:]}")
         elif code == 0:

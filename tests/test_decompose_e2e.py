@@ -55,8 +55,9 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     proc.wait()
     killed_at = _step(ws, "shading")
     assert killed_at in (8, 16)
-    albedo_bytes = (ws / "layers" / "albedo.ply").read_bytes()  # the finished stage's layer is on disk
-    assert not (ws / "layers" / "shading.ply").exists()
+    # the finished stage's layer waits in the pending set; layers/ gets the whole set at the end
+    albedo_bytes = (ws / "checkpoints" / "decompose" / "pending" / "albedo.ply").read_bytes()
+    assert not (ws / "layers" / "albedo.ply").exists() and not (ws / "layers" / "shading.ply").exists()
 
     # 2) the same command again: albedo is not redone, shading resumes, residual runs, outputs appear
     assert main(["decompose", str(ws), *ARGS]) == 0

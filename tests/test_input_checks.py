@@ -31,7 +31,7 @@ def test_a_metrics_file_that_is_not_utf8_stops_training_before_it_starts(tmp_pat
     for argv in (["train-3dgs", str(ws.root), "--iterations", "2"], ["decompose", str(ws.root), "--iterations", "2"]):
         assert main(argv) == 2
         line = one_error(capfd)
-        assert f"{ws.metrics_json}: not UTF-8 text" in line and "fix or delete it" in line
+        assert f"{ws.metrics_json}: the metrics file is not UTF-8 text" in line and "fix or delete it" in line
     assert not ws.checkpoints.exists() and not ws.layers.exists()  # stopped before training
     with pytest.raises(IGSError, match="not UTF-8"):
         merge_metrics(ws.metrics_json, "x", {})

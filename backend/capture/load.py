@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from backend.capture.colmap_io import read_model
+from backend.core import layer_set
 from backend.core.atomic_io import clean_stale_tmp
 from backend.core.errors import IGSError
 from backend.core.imageio import read_depth, read_image
@@ -171,6 +172,7 @@ def capture_summary(capture: Capture) -> dict[str, Any]:
         "ground_truth": sorted({p for f in capture.frames for p in f.gt}),
         "gt_edits": gt_edits,
         "layers": layers,
+        "layer_set": layer_set.read_record(ws.layers),
         "edits": edits,
         "metrics": ws.metrics_json.exists(),
     }

@@ -22,6 +22,7 @@ from backend.core.atomic_io import write_bytes, write_json
 from backend.core.cameras import Camera, check_pose_values
 from backend.core.errors import IGSError
 from backend.core.paths import inside
+from backend.core.small_reads import read_text
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 MAX_SIDE = 16384  # pixels
@@ -168,8 +169,8 @@ def read_transforms(path: str | Path) -> TransformsDataset:
     if not path.is_file():
         raise IGSError(f"{path}: file not found")
     try:
-        data = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        data = json.loads(read_text(path, "transforms file"))
+    except (OSError, json.JSONDecodeError) as e:
         raise IGSError(f"{path}: not valid JSON ({e})") from e
     except RecursionError:
         raise IGSError(f"{path}: not valid JSON (nested too deeply)") from None

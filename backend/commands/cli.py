@@ -31,6 +31,7 @@ DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPER
                errno.ENOENT, errno.ENOTDIR, errno.EISDIR}
 
 CANCELLED_MESSAGE = "cancelled; the workspace keeps the last checkpoint, run the same command again to resume"
+RESTART_MESSAGE = "cancelled; nothing was written, and the same command starts over when run again"
 
 # Modules with a ``register(subparsers)`` function, in the order of the pipeline (and of --help).
 # Imported by build_parser, not here: torch loads with them, after the signal handlers are in.
@@ -138,9 +139,10 @@ def _run(argv: list[str]) -> int:
         events.emit(ERROR, message=msg)
         print(f"igs {args.command}: error: {msg}", file=sys.stderr)
         return EXIT_USER
-    except (Cancelled, KeyboardInterrupt):
-        events.emit(CANCELLED, message=CANCELLED_MESSAGE)
-        print(f"igs {args.command}: {CANCELLED_MESSAGE}", file=sys.stderr)
+    except (Cancelled, KeyboardInterrupt) as e:
+        message = RESTART_MESSAGE if isinstance(e, Cancelled) and not e.resumable else CANCELLED_MESSAGE
+        events.emit(CANCELLED, message=message)
+        print(f"igs {args.command}: {message}", file=sys.stderr)
         return EXIT_CANCELLED
     except Exception as e:  # a bug, not bad input: keep the traceback but still report one line
         return _internal_error(e)

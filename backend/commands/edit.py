@@ -18,6 +18,7 @@ from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.core import events
+from backend.core.errors import Cancelled
 from backend.core.paths import plain_name
 from backend.edit.bake import bake_edit
 from backend.edit.bake_config import BakeConfig
@@ -130,7 +131,10 @@ def run_project(args: argparse.Namespace) -> None:
 def run_bake(args: argparse.Namespace) -> None:
     _check_names(args)
     proxy, name = resolve_bake_input(config_from_args(BakeInput, BAKE_INPUT_OPTIONS, args))
-    summary = bake_edit(args.workspace, proxy, name, config_from_args(BakeConfig, BAKE_OPTIONS, args))
+    try:
+        summary = bake_edit(args.workspace, proxy, name, config_from_args(BakeConfig, BAKE_OPTIONS, args))
+    except Cancelled as e:  # a bake keeps no checkpoint at any point: never promise a resume
+        raise Cancelled(*e.args, resumable=False) from None
     show_bake(summary)
 
 

@@ -15,6 +15,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _set_line(summary: dict) -> str:
+    """Which decompose run wrote the layer set (and whether its files are still the ones it wrote)."""
+    record = summary.get("layer_set")
+    if not record:
+        return ""
+    line = f"; set of run {record.get('run', '?')}, written {record.get('written', '?')}"
+    if not record.get("consistent"):
+        line += " (the files differ from the set's record: run `igs decompose` again)"
+    return line
+
+
 def run(args: argparse.Namespace) -> dict:
     summary = capture_summary(load_capture(args.workspace, decode=True))  # every file decoded, not just headers
     if args.json:
@@ -31,7 +42,7 @@ def run(args: argparse.Namespace) -> dict:
         f"depth       {pri['depth']} ({pri['depth_views']}/{summary['views']} views)",
         f"ground truth {', '.join(summary['ground_truth']) or 'none'}"
         + (f"; edits: {', '.join(summary['gt_edits'])}" if summary["gt_edits"] else ""),
-        f"layers      {', '.join(summary['layers']) or 'none yet (run `igs decompose`)'}",
+        f"layers      {', '.join(summary['layers']) or 'none yet (run `igs decompose`)'}{_set_line(summary)}",
         f"edits       {', '.join(summary['edits']) or 'none'}",
     ]
     events.result("info", summary, "\n".join(lines))

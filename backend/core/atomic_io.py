@@ -4,7 +4,9 @@ A write either leaves the complete new file or the old one: the data is written,
 fsynced, its size checked, and only then renamed over the target. A full disk, a read-only folder
 or a missing permission end in one :class:`IGSError` naming the file and the cause. Temporary
 files carry the writer's process id, so those of a killed process are recognised and removed
-(:func:`clean_stale_tmp`).
+(:func:`clean_stale_tmp`). Files that belong together are replaced as one group, all or nothing
+(:func:`atomic_paths`), and no write goes through a symbolic link or onto a folder or special file
+(:func:`check_target`).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import errno
 import json
 import os
 import re
+import secrets
+import stat
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -21,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.core.errors import IGSError
+from igs_contract.small_file import kind_of
 
 TMP_MARK = ".tmp"
 _TMP_RE = re.compile(r"^\..+\.(?:(\d+)-)?[A-Za-z0-9_]{8}\.tmp(?:\.[^.]*)?$")
@@ -54,13 +59,21 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 @contextmanager
 def atomic_paths(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
-    """Yield a temporary path beside each of ``paths``; once the body has written them all, each is
-    flushed to the disk and they are renamed into place, one after the other. Files that belong
-    together (a splat and its manifest) thus appear together or not at all: a failure while any of
-    them is written (a full disk) removes every temporary and leaves every target as it was.
+    """Yield a temporary path beside each of ``paths``; once the body has written them all, they replace
+    their targets as one group, all or nothing: the one way files that belong together (a splat and
+    its manifest, light-bake's three files, distil's pair, a decompose's layer set) are replaced.
+
+    Every target is checked before anything is written: a folder, a symbolic link (a write must not
+    go through a link, nor replace it) or a special file at a target is one IGSError naming it. Then
+    each temporary is flushed to the disk, each existing target gets a backup name (a hard link, so
+    the target never goes missing; where the file system has none, the target is renamed aside) and
+    the temporaries are renamed into place. Should a rename fail, the targets already replaced get
+    their backups back (targets that did not exist are removed again), so the group is as it was.
     An OSError becomes an IGSError naming the target it hit.
     """
     targets = [Path(p) for p in paths]
+    for target in targets:
+        check_target(target)
     tmps: list[Path] = []
     current = targets[0]
     umask = os.umask(0)
@@ -80,9 +93,9 @@ def atomic_paths(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
         for tmp, target in zip(tmps, targets):
             current = target
             _sync_file(tmp, target)
-        for tmp, target in zip(tmps, targets):
-            current = target
-            os.replace(tmp, target)
+        for target in targets:  # a target that became a folder or a link while the body wrote
+            check_target(target)
+        _replace_group(tmps, targets)
         for folder in dict.fromkeys(t.parent for t in targets):
             _sync_dir(folder)
     except OSError as e:
@@ -94,6 +107,71 @@ def atomic_paths(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
                 tmp.unlink(missing_ok=True)
             except OSError:
                 pass
+
+
+def check_target(target: Path) -> None:
+    """Refuse a write target that is not a plain file or absent: a folder, a link or a special file."""
+    try:
+        mode = os.lstat(target).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise os_error(target, e) from e
+    if stat.S_ISLNK(mode):
+        raise IGSError(f"{target}: is a symbolic link; igs does not write through links nor replace them: "
+                       "remove it or write elsewhere")
+    if not stat.S_ISREG(mode):
+        raise IGSError(f"{target}: is {kind_of(mode)}, not a file; nothing was written: remove it or "
+                       "write elsewhere")
+
+
+def _backup(target: Path) -> Path | None:
+    """A backup name for the existing ``target`` (a hard link; renamed aside where links are not
+    possible), or None when there is no target."""
+    if not os.path.lexists(target):
+        return None
+    backup = target.with_name(f".{target.stem}.{os.getpid()}-{secrets.token_hex(4)}{TMP_MARK}.bak")
+    try:
+        os.link(target, backup, follow_symlinks=False)
+    except OSError as e:
+        if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES):
+            raise
+        os.replace(target, backup)  # no hard links here (FAT, some network shares)
+    return backup
+
+
+def _replace_group(tmps: Sequence[Path], targets: Sequence[Path]) -> None:
+    """Rename each of ``tmps`` over its target, all or nothing (:func:`atomic_paths`)."""
+    done: list[Path] = []
+    backups: list[Path | None] = []
+    keep: set[Path] = set()  # backups that could not be put back: never deleted
+    at = targets[0]
+    try:
+        for at in targets:
+            backups.append(_backup(at))
+        for tmp, at in zip(tmps, targets):
+            os.replace(tmp, at)
+            done.append(at)
+    except BaseException as e:
+        for target, backup in zip(targets, backups):  # the way back: every target as it was
+            try:
+                if target in done and backup is None:
+                    target.unlink(missing_ok=True)
+                elif backup is not None and (target in done or not os.path.lexists(target)):
+                    os.replace(backup, target)
+            except OSError:
+                if backup is not None:
+                    keep.add(backup)
+        if isinstance(e, OSError):
+            raise os_error(at, e) from e
+        raise
+    finally:
+        for backup in backups:
+            if backup is not None and backup not in keep:
+                try:
+                    backup.unlink(missing_ok=True)
+                except OSError:
+                    pass
 
 
 def _sync_file(tmp: Path, path: Path, expected: int | None = None) -> None:

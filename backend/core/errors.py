@@ -6,4 +6,9 @@ class IGSError(Exception):
 
 
 class Cancelled(Exception):
-    """Raised when the user cancels (SIGINT/SIGTERM); the last checkpoint is kept."""
+    """Raised when the user cancels (SIGINT/SIGTERM); the last checkpoint is kept, unless ``resumable``
+    is False: the cancelled work keeps nothing, and the same command starts it over (an edit's bake)."""
+
+    def __init__(self, *args: object, resumable: bool = True):
+        super().__init__(*args)
+        self.resumable = resumable

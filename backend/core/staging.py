@@ -17,6 +17,7 @@ from pathlib import Path
 
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.core.small_reads import read_text
 
 STAGING_DIR = ".staging"
 JOURNAL = "journal.json"
@@ -95,9 +96,9 @@ def recover(root: str | os.PathLike) -> None:
 def _finish(root: Path, area: Path) -> None:
     """Apply the journal of ``area`` (idempotent: a step already done is skipped), then delete ``area``."""
     try:
-        journal = json.loads((area / JOURNAL).read_text())
+        journal = json.loads(read_text(area / JOURNAL, "commit journal"))
         moves, removals = list(journal["moves"]), list(journal["remove"])
-    except (OSError, ValueError, KeyError, TypeError) as e:
+    except (OSError, IGSError, ValueError, KeyError, TypeError, RecursionError) as e:
         raise IGSError(f"{area / JOURNAL}: unreadable commit journal ({e}); delete {area} and run the command "
                        "again") from e
     old = area / "old"

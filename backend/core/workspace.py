@@ -6,7 +6,6 @@ what is there.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +15,7 @@ import numpy as np
 from backend.core.atomic_io import write_json
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
+from backend.core.small_reads import read_json
 
 CAPTURE_SCHEMA = 1
 GT_PASSES = ("albedo", "shading", "residual", "depth")
@@ -104,10 +104,7 @@ class Workspace:
         if not self.capture_json.exists():
             raise IGSError(f"{self.capture_json}: missing; is {self.root} a workspace? "
                            "(create one with `igs synth` or `igs import`)")
-        try:
-            data = json.loads(self.capture_json.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
-            raise IGSError(f"{self.capture_json}: not valid JSON ({e})") from e
+        data = read_json(self.capture_json, "capture file")
         if not isinstance(data, dict):
             raise IGSError(f"{self.capture_json}: expected a JSON object, got {type(data).__name__}; "
                            "re-run `igs import` or `igs synth` to rewrite it")

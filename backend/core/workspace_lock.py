@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import sys
 import threading
 import time
@@ -30,7 +31,17 @@ from pathlib import Path
 from backend.core import events, signals
 from backend.core.atomic_io import os_error
 from backend.core.errors import Cancelled, IGSError
-from igs_contract.workspace_lock import Holder, busy_line, lock_path, parse_holder, pid_alive, this_host
+from igs_contract.errors import ContractError
+from igs_contract.small_file import kind_of
+from igs_contract.workspace_lock import (
+    Holder,
+    busy_line,
+    lock_path,
+    parse_holder,
+    pid_alive,
+    read_record,
+    this_host,
+)
 
 WAIT_POLL_S = 0.5
 """How often a waiting command tries the lock again."""
@@ -40,6 +51,11 @@ BUSY_GRACE_S = 0.5
 """How long a command without ``--wait`` tries before it reports the workspace busy: a reader that
 repairs a killed writer's swap holds the lock for a moment."""
 _WIN_LOCK_OFFSET = 1 << 30  # Windows locks a byte range: one far past the record, so readers can read it
+
+
+class LockPathRefused(IGSError):
+    """The lock file's path holds something igs does not lock through: a symbolic link (it would write
+    the record wherever the link points, or create its target), a folder, a FIFO or a device."""
 
 
 class WorkspaceBusy(IGSError):
@@ -105,17 +121,53 @@ def _unlock_fd(fd: int) -> None:
     fcntl.flock(fd, fcntl.LOCK_UN)
 
 
+_OPEN_FLAGS = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) \
+    | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def _refused(path: Path, what: str) -> LockPathRefused:
+    return LockPathRefused(f"{path}: the workspace lock file is {what}; igs keeps its lock record only in a "
+                           "plain file there: remove it and run again")
+
+
+def _open_lock(path: Path) -> int:
+    """A descriptor of the plain lock file ``path`` (created when missing), never through a link:
+    :class:`LockPathRefused` for a link, folder, FIFO or device there (a dangling link's target is
+    never created)."""
+    if os.path.islink(path):  # O_NOFOLLOW is the guard; this also covers systems without it
+        raise _refused(path, "a symbolic link")
+    try:
+        fd = os.open(path, _OPEN_FLAGS, 0o666)
+    except IsADirectoryError:
+        raise _refused(path, "a folder") from None
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise _refused(path, "a symbolic link") from None
+        if e.errno in (errno.ENXIO, errno.ENODEV):  # a socket, a device without a driver
+            raise _refused(path, "not a regular file") from None
+        raise
+    try:
+        mode = os.fstat(fd).st_mode
+    except BaseException:
+        os.close(fd)
+        raise
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise _refused(path, kind_of(mode))
+    return fd
+
+
 def _try_take(path: Path) -> int | None:
     """An open descriptor of ``path`` that this process now holds the lock of, or None when another
     process holds it. Retries when the file was deleted or replaced between opening and locking it."""
     for _ in range(100):
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        fd = _open_lock(path)
         try:
             if not _lock_fd(fd):
                 os.close(fd)
                 return None
             try:
-                same = os.path.samestat(os.fstat(fd), os.stat(path))
+                same = os.path.samestat(os.fstat(fd), os.lstat(path))
             except FileNotFoundError:
                 same = False
         except BaseException:
@@ -151,8 +203,8 @@ def current_holder(root: str | os.PathLike) -> Holder | None:
     path = lock_path(root)
     for _ in range(5):
         try:
-            holder = parse_holder(path.read_text(encoding="utf-8", errors="replace"))
-        except OSError:
+            holder = parse_holder(read_record(path))
+        except (OSError, ContractError):
             return None
         if holder is not None:
             return holder
@@ -306,6 +358,9 @@ def try_hold(root: str | os.PathLike) -> Iterator[bool]:
         return
     try:
         fd = _try_take(lock_path(root))
+    except LockPathRefused:  # writers refuse it too: nothing to repair beside, and nothing to repair with
+        yield False
+        return
     except OSError:  # a read-only workspace: nobody can be writing to it
         yield not os.access(root, os.W_OK)
         return

@@ -239,7 +239,7 @@ def _split(kept: GaussianSet, editable: torch.Tensor, flat: dict[str, np.ndarray
 def _reoptimise(inp: _Inputs, name: str, split: _Split, views: list[View], edit_pixels: int,
                 cfg: BakeConfig) -> TrainResult:
     """4c. G_A's trained Gaussians re-optimised with the albedo loss against ``views``; no checkpoint is
-    kept (a bake is short: no resume)."""
+    kept (a bake is short: no resume, and a cancel says so)."""
     tcfg = TrainConfig(iterations=cfg.iterations, seed=cfg.seed, checkpoint_every=max(cfg.iterations, 1),
                        backend=cfg.backend, raster_mode=inp.original.raster_mode,  # the albedo's: one mode a file
                        lambda_dssim=cfg.lambda_dssim, scale_schedule=False,
@@ -249,9 +249,10 @@ def _reoptimise(inp: _Inputs, name: str, split: _Split, views: list[View], edit_
     strategy = DensifyStrategy(tcfg.densify, extent) if cfg.densify else None
     stage = BakeStage(f"bake_{name}", split.trained, views, [], tcfg, extent, strategy, "linear", frozen=split.frozen)
     ckpt = inp.capture.workspace.checkpoints / "edits" / name
-    result = train(stage, ckpt, resume=False, device=inp.device)
-    shutil.rmtree(ckpt, ignore_errors=True)
-    return result
+    try:
+        return train(stage, ckpt, resume=False, device=inp.device, keep_on_cancel=False)
+    finally:
+        shutil.rmtree(ckpt, ignore_errors=True)
 
 
 def _write_layer(inp: _Inputs, baked: GaussianSet) -> tuple[Path, Path]:

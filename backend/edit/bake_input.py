@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import numpy as np
 
 from backend.core.errors import IGSError
 from backend.core.imageio import read_linear
+from backend.core.small_reads import read_json
 from backend.edit.proxy import ProxyMesh, plane_proxy
 
 
@@ -62,12 +62,7 @@ def plane_from_json(path: str | Path, texture: str | None, color: str | None, na
     path = Path(path)
     if (texture is None) == (color is None):
         raise IGSError("--plane needs exactly one of --texture IMG or --color r,g,b")
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise IGSError(f"{path}: plane file not found") from None
-    except (OSError, json.JSONDecodeError) as e:
-        raise IGSError(f"{path}: not a readable JSON file ({e})") from e
+    data = read_json(path, "plane file")
     if isinstance(data, dict) and isinstance(data.get("plane"), dict):
         data = data["plane"]
     elif isinstance(data, dict) and isinstance(data.get("surface"), dict):

@@ -62,7 +62,6 @@ a missing or unreadable texture.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,6 +74,7 @@ from backend.core.atomic_io import write_image_file, write_json
 from backend.core.cameras import POSE_LIMIT, check_pose_values
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_linear
+from backend.core.small_reads import read_json
 
 PROXY_SCHEMA = 1
 DEGENERATE_AREA_RATIO = 1e-10
@@ -392,12 +392,7 @@ def load_proxy(path: str | os.PathLike) -> ProxyMesh:
     """Read and validate a ``proxy.json`` (format in the module docstring); textures are loaded linear."""
     path = Path(path)
     where = str(path)
-    if not path.is_file():
-        raise IGSError(f"{where}: proxy file not found")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise IGSError(f"{where}: not valid JSON ({e})") from e
+    data = read_json(path, "proxy file")
     if not isinstance(data, dict):
         raise IGSError(f"{where}: the top level must be a JSON object")
     if data.get("schema") != PROXY_SCHEMA:

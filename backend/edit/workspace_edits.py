@@ -12,6 +12,7 @@ from pathlib import Path
 
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
+from backend.core.small_reads import read_text
 from backend.core.workspace import Workspace
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
@@ -41,6 +42,6 @@ def recorded_edit_view(proxy_path: Path) -> str | None:
     if not meta.exists():
         return None
     try:
-        return json.loads(meta.read_text()).get("edit_view")
-    except (OSError, json.JSONDecodeError) as e:
+        return json.loads(read_text(meta, "edit record")).get("edit_view")
+    except (OSError, json.JSONDecodeError, AttributeError, RecursionError) as e:
         raise IGSError(f"{meta}: unreadable ({e})") from e

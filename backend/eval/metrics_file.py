@@ -8,6 +8,7 @@ from typing import Any
 
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.core.small_reads import read_text
 
 
 def read_metrics(path: str | Path) -> dict[str, Any]:
@@ -18,9 +19,9 @@ def read_metrics(path: str | Path) -> dict[str, Any]:
     if not path.exists():
         return {}
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as e:
-        raise IGSError(f"{path}: not UTF-8 text (byte {e.start}); fix or delete it") from e
+        data = json.loads(read_text(path, "metrics file"))
+    except IGSError as e:
+        raise IGSError(f"{e}; fix or delete it") from None
     except (json.JSONDecodeError, RecursionError) as e:
         raise IGSError(f"{path}: not valid JSON ({e}); fix or delete it") from e
     except OSError as e:

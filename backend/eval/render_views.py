@@ -25,14 +25,13 @@ composite are linear values clipped to [0, 1] before the sRGB curve) and with ``
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from backend.core import events
+from backend.core import events, layer_set, small_reads
 from backend.core.cameras import Camera, check_pose_values, from_blender_matrix_world
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
@@ -108,12 +107,7 @@ def camera_from_dict(d: Any, where: str) -> Camera:
 
 def _read_json(path: Path, what: str) -> Any:
     """The JSON value in ``path``; a missing or unreadable file is one error naming ``what`` it is."""
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise IGSError(f"{path}: {what} not found") from None
-    except (OSError, json.JSONDecodeError) as e:
-        raise IGSError(f"{path}: not a readable JSON file ({e})") from e
+    return small_reads.read_json(path, what)
 
 
 def read_cameras(path: str | Path) -> list[Camera]:
@@ -224,6 +218,13 @@ def turntable(center, radius: float, height: float, frames: int, template: Camer
 
 
 def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, GaussianSet]:
+    """The workspace's layers of the kinds ``needed`` (the albedo of ``edit`` when given); says which
+    decompose run wrote the set it reads (``layers/set.json``), and when a file is not the set's."""
+    record = layer_set.read_record(ws_root / "layers") if needed else None
+    if record is not None:
+        events.log(f"layers: set of run {record.get('run', '?')}, written {record.get('written', '?')}"
+                   + ("" if record["consistent"] else "; warning: the files differ from the set's record "
+                      "(run `igs decompose` again)"))
     layers = {}
     for kind in ("albedo", "shading", "residual"):
         if kind not in needed:

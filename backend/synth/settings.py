@@ -9,6 +9,7 @@ from typing import Any
 
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
+from backend.core.small_reads import read_text
 from backend.synth import room
 from backend.synth.family.layout import camera_path as family_camera_path
 from backend.synth.family.layout import family_layout
@@ -125,6 +126,8 @@ def read_saved(path: Path) -> dict:
     """A JSON file ``igs synth`` wrote earlier in the workspace (its settings, its lights); one IGSError when
     it is not valid JSON, which points at --force."""
     try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        return json.loads(read_text(path, "saved settings"))
+    except IGSError as e:
+        raise IGSError(f"{e}; use --force to start over") from None
+    except (json.JSONDecodeError, RecursionError) as e:
         raise IGSError(f"{path}: not valid JSON ({e}); use --force to start over") from e

@@ -39,6 +39,7 @@ from backend.core.atomic_io import atomic_paths, write_json
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
+from backend.core.small_reads import read_text
 from backend.core.workspace import Capture, Workspace, split_frames
 from backend.render import Backend, render
 from backend.render.types import RasterMode
@@ -199,8 +200,8 @@ def _settings(cfg: DistilConfig) -> dict[str, Any]:
 def _read_state(path: Path) -> dict[str, Any] | None:
     """The JSON object in ``path``, or None when it is missing or unreadable (then it is rewritten)."""
     try:
-        state = json.loads(path.read_text())
-    except (OSError, ValueError):
+        state = json.loads(read_text(path, "distil state"))
+    except (OSError, IGSError, ValueError, RecursionError):
         return None
     return state if isinstance(state, dict) else None
 

@@ -19,7 +19,6 @@ import math
 import random
 import shutil
 import time
-import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -36,14 +35,19 @@ from backend.render.threads import torch_threads
 from backend.render.types import RasterMode
 from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
+from backend.train.checkpoint_file import (  # noqa: F401 (load_checkpoint: the loop's reader, re-exported)
+    CHECKPOINT_NAME,
+    CHECKPOINT_VERSION,
+    checkpoint_path,
+    load_checkpoint,
+    settings_diff,
+)
 from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
 from backend.train.memory import PeakMemory, keep_freed_memory
 from backend.train.phases import phase
 from backend.train.views import ColorSpace, View, to_display
 
-CHECKPOINT_VERSION = 1
-CHECKPOINT_NAME = "checkpoint.pt"
 CONFIG_NAME = "config.json"
 
 
@@ -330,10 +334,6 @@ def evaluate(stage: Stage, views: Sequence[View]) -> dict[str, Any]:
     return {**mean_metrics(list(per_view.values())), "views": len(per_view), "per_view": per_view}
 
 
-def _checkpoint_path(ckpt_dir: Path) -> Path:
-    return Path(ckpt_dir) / CHECKPOINT_NAME
-
-
 def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler,
                     step: int, train_seconds: float, extra: dict[str, Any]) -> Path:
     """Atomically write everything needed to continue bit-identically from ``step``."""
@@ -357,7 +357,7 @@ def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimiz
         "extra": extra,
         "stage_state": stage.extra_state(),
     }
-    path = _checkpoint_path(ckpt_dir)
+    path = checkpoint_path(ckpt_dir)
     buf = io.BytesIO()  # serialised in memory: a full disk is then a clear error, not torch's "unexpected pos"
     torch.save(_plain(state), buf)
     write_bytes(path, buf.getvalue())
@@ -376,69 +376,22 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def load_checkpoint(ckpt_dir: Path) -> dict[str, Any] | None:
-    """The checkpoint in ``ckpt_dir`` (None when there is none).
-
-    Loaded with ``weights_only=True``: a checkpoint may hold tensors, numbers, strings and
-    containers only, so a crafted file cannot run code. Anything else is refused.
-    """
-    path = _checkpoint_path(ckpt_dir)
-    if not path.exists():
-        return None
-    try:
-        with warnings.catch_warnings():
-            # torch warns about a pickle protocol other than its own before it reads on (or refuses
-            # the file, which is reported below): the user gets the one line, not the warning too.
-            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
-            ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        reason = _unpickler_reason(e)
-        if "GLOBAL" in reason:  # a class or function reference: only a pickle that can run code needs one
-            raise IGSError(f"{path}: the checkpoint holds more than tensors and plain values ({reason}); "
-                           "it is not loaded because it could run code; run again with --restart to start over") from e
-        raise IGSError(f"{path}: unreadable checkpoint ({reason}); run again with --restart to start over") from e
-    missing = [] if isinstance(ckpt, dict) else ["a dictionary"]
-    if not missing:
-        missing = [k for k in _CHECKPOINT_KEYS if k not in ckpt]
-    if missing:
-        raise IGSError(f"{path}: not an igs checkpoint (missing {', '.join(missing)}); "
-                       "run again with --restart to start over")
-    return ckpt
-
-
-def _unpickler_reason(e: Exception) -> str:
-    """The useful part of a ``torch.load`` error (torch wraps the unpickler's reason in advice)."""
-    text = str(e)
-    if "WeightsUnpickler error:" in text:
-        text = text.split("WeightsUnpickler error:", 1)[1]
-    boilerplate = ("Weights only load failed", "Check the documentation", "Please file an issue")
-    parts = [" ".join(p.split()) for p in text.split("\n\n")]
-    parts = [p for p in parts if p and not p.startswith(boilerplate)]
-    reason = parts[0].split(". Please", 1)[0][:200] if parts else ""
-    return f"{type(e).__name__}: {reason}" if reason else type(e).__name__
-
-
-_CHECKPOINT_KEYS = ("version", "stage", "step", "config", "kind", "sh_degree", "active_sh_degree", "params",
-                    "optimizer", "strategy", "sampler", "rng", "train_views", "train_seconds", "extra")
-
-
 def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
     if ckpt.get("version") != CHECKPOINT_VERSION:
         raise IGSError(f"{path}: checkpoint format {ckpt.get('version')} is not supported; use --restart")
     if ckpt["stage"] != stage.name or ckpt["kind"] != stage.gaussians.kind:
         raise IGSError(f"{path}: checkpoint is for stage {ckpt['stage']} ({ckpt['kind']}), not {stage.name}")
-    now = config_dict(stage.config)
-    diffs = [k for k in now if now[k] != ckpt["config"].get(k)]
-    if diffs:
-        shown = ", ".join(f"{k}: {ckpt['config'].get(k)} -> {now[k]}" for k in diffs[:4])
-        raise IGSError(f"{path}: the checkpoint was made with other settings ({shown}); "
+    diff = settings_diff(ckpt["config"], config_dict(stage.config))
+    if diff:
+        raise IGSError(f"{path}: the checkpoint was made with other settings ({diff}); "
                        "run with the same settings to resume, or --restart to start over")
     if ckpt["train_views"] != [v.name for v in stage.train_views]:
         raise IGSError(f"{path}: the checkpoint was made with other training views; use --restart")
 
 
 def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None,
-          device: torch.device | str | None = None, on_step: Callable[[int], None] | None = None) -> TrainResult:
+          device: torch.device | str | None = None, on_step: Callable[[int], None] | None = None,
+          keep_on_cancel: bool = True) -> TrainResult:
     """Optimise ``stage.gaussians``; checkpoints go to ``ckpt_dir`` (created).
 
     ``device``: where to train (None: where the stage is, see :meth:`Stage.to`). Checkpoints hold
@@ -447,7 +400,8 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     ``resume``: continue from the checkpoint in ``ckpt_dir`` when there is one (otherwise it is
     deleted and the run starts over). ``stop_after``: return once this many iterations are done
     (after writing a checkpoint), as if the process had been stopped there — used by tests.
-    Cancel (SIGINT/SIGTERM via :mod:`backend.core.events`) writes a checkpoint and raises :class:`Cancelled`.
+    Cancel (SIGINT/SIGTERM via :mod:`backend.core.events`) writes a checkpoint and raises :class:`Cancelled`;
+    ``keep_on_cancel=False`` (a run that never resumes): no checkpoint, and the Cancelled says so.
     ``on_step(step)`` is called after each iteration and its densification, outside the timed part
     (the training benchmark timestamps iterations with it).
     Torch runs on one intra-op thread meanwhile (:func:`backend.render.threads.torch_threads`).
@@ -455,7 +409,8 @@ def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after
     with torch_threads(), denormals_flushed():
         if device is not None:
             stage.to(device)
-        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after, on_step=on_step)
+        return _train(stage, ckpt_dir, resume=resume, stop_after=stop_after, on_step=on_step,
+                      keep_on_cancel=keep_on_cancel)
 
 
 @contextlib.contextmanager
@@ -512,7 +467,7 @@ def _write_config(ckpt_dir: Path, stage: Stage) -> None:
 
 
 def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int | None,
-           on_step: Callable[[int], None] | None) -> TrainResult:
+           on_step: Callable[[int], None] | None, keep_on_cancel: bool = True) -> TrainResult:
     cfg = stage.config
     stage.to(stage.device)  # a set assigned after the last move (initial or restored) follows the stage
     ckpt_dir = Path(ckpt_dir)
@@ -524,7 +479,7 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
     sampler = ViewSampler(len(stage.train_views), rng)
     ckpt = load_checkpoint(ckpt_dir) if resume else None
     if ckpt is not None:
-        _check_resumable(ckpt, stage, _checkpoint_path(ckpt_dir))
+        _check_resumable(ckpt, stage, checkpoint_path(ckpt_dir))
         stage.gaussians = stage.restore_gaussians(ckpt).to(stage.device)
     optimizer = make_optimizer(stage.gaussians, cfg, stage.scene_extent)
     step, train_seconds, extra = (0, 0.0, {}) if ckpt is None else _restore(ckpt, stage, optimizer, sampler, ckpt_dir)
@@ -559,6 +514,9 @@ def _train(stage: Stage, ckpt_dir: Path | str, *, resume: bool, stop_after: int 
                     checkpoint(step)
                 bar.update(1, loss=loss_terms["loss"], gaussians=len(stage.gaussians))
         except Cancelled:
+            if not keep_on_cancel:
+                events.log(f"{stage.name}: cancelled at iteration {step}")
+                raise Cancelled(f"{stage.name}: cancelled", resumable=False) from None
             checkpoint(step)
             events.log(f"{stage.name}: cancelled at iteration {step}; checkpoint saved to {ckpt_dir}")
             raise

@@ -35,7 +35,7 @@ from typing import Any, Literal, get_args
 import torch
 from torch import nn
 
-from backend.core import events
+from backend.core import events, layer_set
 from backend.core.errors import IGSError
 from backend.render import RenderOutput, render
 from backend.render.sh import sh_to_color
@@ -48,7 +48,7 @@ from backend.train.intrinsic.initial import initial_albedo, initial_shading
 from backend.train.intrinsic.outcome import DecompositionRun, record_layers, stage_entry
 from backend.train.intrinsic.setup import Setup, prepare_setup
 from backend.train.intrinsic.stages import depth_term, inverse_photometric
-from backend.train.intrinsic.state import STATE_DIR, DecomposeState, jsonable
+from backend.train.intrinsic.state import PENDING_DIR, STATE_DIR, DecomposeState, jsonable
 from backend.train.loop import Stage, TrainConfig, sum_terms, train
 from backend.train.losses import gray_reg, photometric, scale_reg
 from backend.train.views import View
@@ -228,14 +228,19 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     result = train(stage, setup.ckpt_root / f"{STATE_DIR}_{name}", resume=resume and not stale, device=setup.device)
     g: LayeredGaussians = result.gaussians
     layers = {k: g.layer(k) for k in STAGES}
+    pending = setup.ckpt_root / STATE_DIR / PENDING_DIR / name
     for k, layer in layers.items():
-        ply = write_ply(setup.layers_dir / f"{k}.ply", layer, space="linear")
-        events.output("layer", ply)
+        write_ply(pending / f"{k}.ply", layer, space="linear")
+    mode = name.replace("_", "-")
+    record = layer_set.commit(setup.layers_dir, pending, STAGES, layer_set.new_run_id(), mode,
+                              {k: len(layer) for k, layer in layers.items()})  # the three files as one group
+    events.log(f"layers: set {record['run']} written to {setup.layers_dir}")
+    for k in layers:
+        events.output("layer", setup.layers_dir / f"{k}.ply")
     entry = stage_entry(result, tcfg, setup_seconds, 0.0, how, initial_n,
                         {"phases": list(phases), "schedule": schedule})
     state.set(name, {"done": True, "extra": extra, "summary": entry})
     wall = time.perf_counter() - t_start
-    mode = name.replace("_", "-")
     record_layers(setup, layers, mode)
     # one set: the three layer files hold the same Gaussians, counted once
     return DecompositionRun(setup, cfg, layers, {name: entry}, mode, f"decompose_{name}", ws.root / f"report_{name}.png",

@@ -32,6 +32,7 @@ from backend.core import events
 from backend.core.atomic_io import atomic_paths
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
+from backend.core.small_reads import read_text
 from backend.edit.relight.light_bake import LightBakeConfig, bake_lights, gaussian_normals, spread_views
 from backend.edit.relight.lights import Light, read_canonical
 from backend.edit.relight.relight import LightRig
@@ -67,9 +68,9 @@ def stale_sources(ws_root: str | Path) -> list[str] | None:
     """The source layers that changed since the bake in ``<ws>/layers/lit`` (empty: it is current), or
     None when there is no readable bake."""
     try:
-        data = json.loads((lit_dir(ws_root) / LIGHT_JSON).read_text())
+        data = json.loads(read_text(lit_dir(ws_root) / LIGHT_JSON, "bake record"))
         baked = data["baked_from"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, IGSError, ValueError, KeyError, TypeError, RecursionError):
         return None
     changed = []
     for kind in SOURCES:

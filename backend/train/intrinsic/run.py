@@ -1,11 +1,14 @@
 """``decompose``: the albedo, shading and residual stages in order, each skipped, resumed or trained.
 
-Between stages the finished layer is written to ``<ws>/layers/<kind>.ply`` and recorded in
-state.json (:mod:`.state`); the run returns a :class:`DecompositionRun` for the held-out evaluation.
+Between stages the finished layer is written to ``<ws>/checkpoints/decompose/pending/<kind>.ply`` and
+recorded in state.json (:mod:`.state`); at the end the set replaces ``<ws>/layers`` as one group with
+its record (:mod:`backend.core.layer_set`). The run returns a :class:`DecompositionRun` for the
+held-out evaluation.
 """
 
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, replace
@@ -14,7 +17,7 @@ from typing import Any
 
 import torch
 
-from backend.core import events
+from backend.core import events, layer_set
 from backend.core.errors import IGSError
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
@@ -36,7 +39,14 @@ from backend.train.intrinsic.stages import (
     reuse_albedo_renders,
     shading_gain,
 )
-from backend.train.intrinsic.state import STATE_DIR, DecomposeState, file_hash, jsonable, stage_settings
+from backend.train.intrinsic.state import (
+    PENDING_DIR,
+    STATE_DIR,
+    DecomposeState,
+    file_hash,
+    jsonable,
+    stage_settings,
+)
 from backend.train.loop import Stage, TrainConfig, train
 from backend.train.views import View
 
@@ -158,6 +168,15 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     return result.gaussians, entry
 
 
+def _discard(setup: Setup, state: DecomposeState, pending: Path, stages: Sequence[str]) -> None:
+    """``--restart``, done before any training: the checkpoints, pending layers and state entries of the
+    stages run go, so a run killed later leaves only its own progress, which a rerun continues."""
+    for name in stages:
+        shutil.rmtree(setup.ckpt_root / f"{STATE_DIR}_{name}", ignore_errors=True)
+        (pending / f"{name}.ply").unlink(missing_ok=True)
+        state.drop(name)
+
+
 def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, stages: Sequence[str] = STAGES,
               resume: bool = True) -> DecompositionRun:
     """Run the decomposition stages on a workspace; returns the run for the held-out evaluation.
@@ -176,13 +195,16 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
     setup = prepare_setup(workspace, cfg)
     ws = setup.capture.workspace
     state = DecomposeState(setup.ckpt_root / STATE_DIR, restart=not resume)
+    pending = setup.ckpt_root / STATE_DIR / PENDING_DIR
+    if not resume:
+        _discard(setup, state, pending, stages)
     layers: dict[str, GaussianSet] = {}
     entries: dict[str, dict[str, Any]] = {}
     carried: dict[str, dict] = {}  # the shading stage's albedo renders, for the residual stage's cache
 
     for name in STAGES:
-        ply = setup.layers_dir / f"{name}.ply"
-        upstream = {u: file_hash(setup.layers_dir / f"{u}.ply") for u in UPSTREAM[name]}
+        ply = layer_set.current(setup.layers_dir, pending, name)
+        upstream = {u: file_hash(layer_set.current(setup.layers_dir, pending, u)) for u in UPSTREAM[name]}
         config = jsonable(asdict(cfg.stage(name)))
         settings = stage_settings(cfg, name)
         finished = state.finished(name, upstream, ply, config, settings)
@@ -206,14 +228,21 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
         stale = bool(st) and (st.get("upstream") != upstream or st.get("extra") != settings)
         state.set(name, {"done": False, "upstream": upstream, "extra": settings})
         g, entry = run_stage(name, setup, cfg, layers, resume=resume and not stale, carried=carried)
-        write_ply(ply, g, space="linear")
-        events.output("layer", ply)
+        ply = write_ply(pending / f"{name}.ply", g, space="linear")
         # later stages see the layer as stored (as after a resume), not the in-memory copy
         layers[name], _ = read_ply(ply, kind=name)
         entries[name] = entry
         state.set(name, {"done": True, "upstream": upstream, "ply": file_hash(ply), "extra": settings,
                          "config": config, "summary": entry})
 
+    built = [k for k in STAGES if (pending / f"{k}.ply").is_file()]
+    if built:  # one group: the set's new layers and its record
+        kinds = tuple(k for k in STAGES if layer_set.current(setup.layers_dir, pending, k).is_file())
+        record = layer_set.commit(setup.layers_dir, pending, kinds, layer_set.new_run_id(), MODE,
+                                  {k: len(g) for k, g in layers.items()})
+        events.log(f"layers: set {record['run']} written to {setup.layers_dir} (new: {', '.join(built)})")
+    for k in built:
+        events.output("layer", setup.layers_dir / f"{k}.ply")
     wall = time.perf_counter() - t_start
     record_layers(setup, layers, MODE)
     return DecompositionRun(setup, cfg, layers, entries, MODE, METRICS_KEY, ws.report_png, wall,

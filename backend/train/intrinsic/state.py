@@ -6,7 +6,6 @@ A rerun skips a stage only when its layer file, the layers it was trained on (by
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import asdict
 from pathlib import Path
@@ -15,21 +14,14 @@ from typing import Any
 from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
+from backend.core.layer_set import file_hash  # noqa: F401 (the stages' hashes are the set's)
+from backend.core.small_reads import read_text
 from backend.train.intrinsic.config import DecomposeConfig
 
 STATE_DIR = "decompose"
 """Folder of state.json under ``<ws>/checkpoints`` (the stages' checkpoints are ``decompose_<stage>``)."""
-
-
-def file_hash(path: Path) -> str | None:
-    """First 16 hex digits of the file's SHA-256, None when there is no file."""
-    if not path.exists():
-        return None
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()[:16]
+PENDING_DIR = "pending"
+"""Folder under it of the layers a run has finished and not yet committed (:mod:`backend.core.layer_set`)."""
 
 
 def jsonable(x: Any) -> Any:
@@ -70,10 +62,10 @@ class DecomposeState:
         self.data: dict[str, Any] = {}
         if self.path.exists():
             try:
-                data = json.loads(self.path.read_text())
+                data = json.loads(read_text(self.path, "decompose state"))
                 problem = None if isinstance(data, dict) and all(isinstance(v, dict) for v in data.values()) \
                     else "not an object of stage entries"
-            except (OSError, ValueError, RecursionError) as e:
+            except (OSError, IGSError, ValueError, RecursionError) as e:
                 data, problem = {}, f"unreadable ({type(e).__name__}: {e})"
             if problem is None:
                 self.data = data
@@ -84,6 +76,10 @@ class DecomposeState:
 
     def get(self, stage: str) -> dict[str, Any]:
         return self.data.get(stage) or {}
+
+    def drop(self, stage: str) -> None:
+        if self.data.pop(stage, None) is not None:
+            write_json(self.path, self.data)
 
     def set(self, stage: str, entry: dict[str, Any]) -> None:
         self.data[stage] = entry
