@@ -1,0 +1,221 @@
+"""Blender lights the capture itself on 5.3 (the bpy 5.3 module): the lights collection lights the albedo
+splats in Cycles, meshes shadow the capture and the capture shadows meshes, and no backend job runs.
+
+The truth is Cycles' render of the synthetic scene's own geometry: a mesh floor of the albedo's colour at
+the splat floor's place, with the same light, cube and camera, in a scene of its own. The capture's
+composite is ``A * S + A * S_new + R``, so its change when a light or a cube comes or goes is ``A * S_new``'s,
+which is what the mesh floor renders (``A * E / pi``). Renders are 48 x 36 pixels at 32 samples.
+"""
+
+# ruff: noqa: F811  (test functions take the imported fixtures by name)
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+if bpy.app.version < (5, 3, 0):
+    pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
+
+sys.path.insert(0, str(Path(__file__).parent))
+import _addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
+from test_blender_addon import MOD, addon, ext_zip, sub  # noqa: E402, F401
+from test_blender_lights import _flat  # noqa: E402
+from test_blender_native import cycles, render_outputs  # noqa: E402
+
+ALBEDO, SHADING = 0.5, 0.4
+CUBE = ((0.25, 0.0, 0.15), 0.3)
+"""The cube the artist adds: its centre and edge (it stands on the floor)."""
+LIGHT = (-0.3, 0.0, 0.8)
+
+
+@pytest.fixture
+def scene(addon):
+    bpy.ops.wm.read_homefile(use_empty=True)
+    prefs = bpy.context.preferences.addons[MOD].preferences
+    prefs.backend_python = sys.executable
+    prefs.native_splats = True
+    return bpy.context.scene
+
+
+def floor_workspace(ws: Path) -> None:
+    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), albedo 0.5 and shading 0.4, seen by three
+    cameras from above."""
+    import json
+
+    import cv2
+
+    from backend.capture.colmap_io import write_model
+    from backend.capture.transforms_io import write_transforms
+    from backend.core.cameras import Camera
+    from backend.splats.ply import write_ply
+
+    w, h = 48, 36
+    cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
+                           [0, 0, 1], w, h, 60) for i in range(3)]
+    write_model(ws / "sparse" / "0", cams, np.random.default_rng(0).uniform(-0.5, 0.5, (20, 3)) * [1, 1, 0],
+                np.full((20, 3), 128))
+    write_transforms(ws / "transforms.json", cams)
+    (ws / "images").mkdir(parents=True, exist_ok=True)
+    for cam in cams:
+        cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
+    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
+                                                 "frames": [c.name for c in cams], "size": [w, h]}))
+    g = np.arange(-1.0, 1.001, 0.05)
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
+    write_ply(ws / "layers" / "albedo.ply", _flat("albedo", floor, 0.035, ALBEDO))
+    write_ply(ws / "layers" / "shading.ply", _flat("shading", floor, 0.035, SHADING))
+    write_ply(ws / "layers" / "residual.ply", _flat("residual", floor[::4], 0.035, 0.0))
+
+
+def diffuse(name: str, value: float) -> bpy.types.Material:
+    mat = bpy.data.materials.new(name)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    bsdf = nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (value, value, value, 1.0)
+    links.new(bsdf.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    return mat
+
+
+def add_cube(coll) -> bpy.types.Object:
+    (x, y, z), edge = CUBE
+    bpy.ops.mesh.primitive_cube_add(size=edge, location=(x, y, z))
+    cube = bpy.context.active_object
+    for c in list(cube.users_collection):
+        c.objects.unlink(cube)
+    coll.objects.link(cube)
+    cube.data.materials.append(diffuse("cube", 0.7))
+    return cube
+
+
+def point_light(name: str, coll, at=LIGHT, power: float = 60.0) -> bpy.types.Object:
+    data = bpy.data.lights.new(name, "POINT")
+    data.energy, data.shadow_soft_size = power, 0.0
+    obj = bpy.data.objects.new(name, data)
+    coll.objects.link(obj)
+    obj.location = at
+    return obj
+
+
+def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
+    """Cycles renders of the scene's own geometry (module docstring), linear (H, W, 3): the floor lit with the
+    cube ("cube"), without it ("open"), and the cube alone over nothing (its alpha: "cube_mask")."""
+    ts = bpy.data.scenes.new("truth")
+    ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
+    ts.render.resolution_percentage = 100
+    ts.render.film_transparent = True
+    ts.view_settings.view_transform = "Standard"
+    cycles(ts, 32)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.active_object
+    plane.data.materials.append(diffuse("truth floor", ALBEDO))
+    cube = add_cube(ts.collection)
+    point_light("truth light", ts.collection)
+    for obj in list(plane.users_collection):
+        obj.objects.unlink(plane)
+    ts.collection.objects.link(plane)
+    ts.camera = scene.camera
+    images = sub("images")
+    out = {}
+    window = bpy.context.window
+    previous = window.scene if window is not None else None
+    for tag, cube_on, floor_on in (("cube", True, True), ("open", False, True), ("cube_mask", True, False)):
+        cube.hide_render, plane.hide_render = not cube_on, not floor_on
+        ts.render.image_settings.file_format = "OPEN_EXR"
+        ts.render.image_settings.color_depth = "32"
+        ts.render.filepath = str(tmp_path / f"truth_{tag}.exr")
+        bpy.ops.render.render(write_still=True, scene=ts.name)
+        px = images.pixels(bpy.data.images.load(ts.render.filepath))
+        out[tag] = px[..., 3] if tag == "cube_mask" else px[..., :3].astype(np.float64)
+    if previous is not None:
+        window.scene = previous
+    return out
+
+
+def test_normals_are_the_shortest_axes_turned_towards_the_cameras():
+    from intrinsic_splats.igs_blender import native_lighting as nl
+
+    rng = np.random.default_rng(0)
+    n = 50
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    scales = np.stack([rng.uniform(0.2, 1, n), rng.uniform(0.2, 1, n), np.full(n, 0.01)], 1)
+    means = rng.normal(size=(n, 3))
+    eyes = np.array([[0.0, 0.0, 10.0], [1.0, 0.0, 9.0]])
+    got = nl.gaussian_normals(means, scales, q, eyes)
+    rot = nl.quat_matrices(q)
+    from scipy.spatial.transform import Rotation
+
+    want = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix()[:, :, 2]  # local z: the shortest axis
+    np.testing.assert_allclose(np.abs((got * want).sum(1)), 1.0, atol=1e-5)
+    np.testing.assert_allclose(rot, Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix(), atol=1e-9)
+    to_eyes = (eyes[None] - means[:, None]) / np.linalg.norm(eyes[None] - means[:, None], axis=-1, keepdims=True)
+    assert ((got[:, None] * to_eyes).sum(-1).sum(1) >= 0).all()  # turned towards the cameras
+
+
+def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(scene, tmp_path):
+    """The issue's "done when": a point light and a cube added to natively loaded layers; F12 in Cycles."""
+    ws = tmp_path / "ws"
+    floor_workspace(ws)
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.load_cameras() == {"FINISHED"}
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    sub("camera_objects").use_frame_camera(scene, bpy.data.objects["IGS frame_0000"])
+    cycles(scene, 32)
+    bake = sub("light_bake")
+    bake.LIVE.reset()
+    dark = render_outputs(scene, tmp_path / "dark", ("Image",))["Image"]
+
+    bpy.ops.igs.add_light(kind="POINT")
+    light = bpy.context.active_object
+    light.data.energy, light.data.shadow_soft_size = 60.0, 0.0
+    light.location = LIGHT
+    bpy.context.view_layer.update()  # the depsgraph handlers see the light
+    meshes = bpy.data.collections.new("Props")
+    scene.collection.children.link(meshes)
+    cube = add_cube(meshes)
+    cube.hide_render = True
+    bpy.context.view_layer.update()
+    open_floor = render_outputs(scene, tmp_path / "open", ("Image",))["Image"]
+    # a light outside the lights collection leaves the capture as it was (it lights the artist's meshes only)
+    lamp = point_light("Lamp", meshes, at=(0.4, 0.4, 0.4), power=200.0)
+    bpy.context.view_layer.update()
+    assert lamp.light_linking.receiver_collection.name == "IGS Not Lit By Scene Lights"
+    with_lamp = render_outputs(scene, tmp_path / "lamp", ("Image",))["Image"]
+    covered = dark.max(axis=2) > 0.02
+    assert np.abs(with_lamp - open_floor)[covered].mean() < 0.01 * open_floor[covered].mean()
+    bpy.data.objects.remove(lamp)
+    cube.hide_render = False
+    bpy.context.view_layer.update()
+    shadowed = render_outputs(scene, tmp_path / "cube", ("Image",))["Image"]
+    # no backend job ran for the light: nothing pending, no timer, no bake in the workspace
+    assert bake.LIVE.job is None and bake.LIVE.want is None and not bpy.app.timers.is_registered(bake.tick)
+    assert not bake.note_change(scene)
+    assert not (ws / "layers" / "lit").exists() and not scene.igs.job_label
+
+    want = truth(scene, tmp_path)
+    floor = (dark.max(axis=2) > 0.02) & (want["cube_mask"] < 0.01)  # the capture's floor, the cube not over it
+    # the floor near the light brightens by what the mesh floor gets from it
+    added = (open_floor - dark).mean(axis=2)
+    lit_truth = want["open"].mean(axis=2)
+    near = floor & (lit_truth > 0.5 * lit_truth[floor].max())
+    assert near.sum() > 20, near.sum()
+    ratio = added[near].mean() / lit_truth[near].mean()
+    assert 0.85 < ratio < 1.15, ratio
+    # the cube's shadow on the floor: darker than the open floor by the truth's amount
+    dark_truth = (want["open"] - want["cube"]).mean(axis=2)
+    shadow = floor & (dark_truth > 0.5 * lit_truth)
+    assert shadow.sum() > 10, shadow.sum()
+    darker = (open_floor - shadowed).mean(axis=2)
+    ratio = darker[shadow].mean() / dark_truth[shadow].mean()
+    assert 0.85 < ratio < 1.15, ratio
+    # and outside the shadow the cube changes nothing (splats shadow no splat of the floor itself)
+    away = floor & (dark_truth < 0.01) & (lit_truth > 0.05)
+    assert abs(darker[away].mean()) < 0.02 * lit_truth[away].mean() + 1e-3
+    print(f"\nnative light: floor near the light +{added[near].mean():.3f} (truth {lit_truth[near].mean():.3f}); "
+          f"cube's shadow -{darker[shadow].mean():.3f} (truth {dark_truth[shadow].mean():.3f})")
