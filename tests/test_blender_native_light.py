@@ -219,3 +219,119 @@ def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(
     assert abs(darker[away].mean()) < 0.02 * lit_truth[away].mean() + 1e-3
     print(f"\nnative light: floor near the light +{added[near].mean():.3f} (truth {lit_truth[near].mean():.3f}); "
           f"cube's shadow -{darker[shadow].mean():.3f} (truth {dark_truth[shadow].mean():.3f})")
+
+
+PLATES = {"splat floor, opaque": (-0.7, 0.99), "splat floor, faint": (-0.3, 0.3),
+          "mesh floor, opaque": (0.3, 0.99), "mesh floor, faint": (0.7, 0.3)}
+"""Plates of splats at z = 0.5 over x = -0.3: their y and their Gaussians' opacity. The splat floor lies
+at y < 0, the artist's mesh floor at y > 0."""
+PLATE_X, PLATE_Z, PLATE_EDGE, PLATE_STEP, PLATE_SIGMA = -0.3, 0.5, 0.3, 0.05, 0.03
+SUN = (-1.0, 0.0, 1.0)
+"""Towards the sun: each plate's shadow falls 0.5 further along x than the plate (x = 0.2)."""
+
+
+def plates_workspace(ws: Path) -> None:
+    """:func:`floor_workspace`'s cameras, a splat floor over y < 0 and the :data:`PLATES` above."""
+    from backend.splats.ply import write_ply
+
+    floor_workspace(ws)
+    g = np.arange(-1.0, 1.001, 0.05)
+    gx, gy = np.meshgrid(g, g[g < -0.04], indexing="ij")
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
+    h = np.arange(-PLATE_EDGE / 2, PLATE_EDGE / 2 + 1e-6, PLATE_STEP)
+    px, py = np.meshgrid(h, h, indexing="ij")
+    plates, opacity = [], []
+    for y, a in PLATES.values():
+        plates.append(np.stack([px.ravel() + PLATE_X, py.ravel() + y, np.full(px.size, PLATE_Z)], 1))
+        opacity.append(np.full(px.size, a))
+    means = np.concatenate([floor, *plates])
+    scale = np.concatenate([np.full(len(floor), 0.035), np.full(len(means) - len(floor), PLATE_SIGMA)])
+    albedo = _flat("albedo", means, scale, ALBEDO)
+    a = np.concatenate([np.full(len(floor), 0.99), *opacity])
+    albedo.params["opacity_logits"].data[:] = __import__("torch").tensor(np.log(a / (1 - a)), dtype=albedo.params[
+        "opacity_logits"].dtype)
+    write_ply(ws / "layers" / "albedo.ply", albedo)
+    write_ply(ws / "layers" / "shading.ply", _flat("shading", means, scale, SHADING))
+
+
+def seen_through(scene, tmp_path: Path, ys: list[float]) -> list[float]:
+    """Cycles' transmittance of the albedo splats along the ray from each shadow's centre ((0.2, y, 0), y in
+    ``ys``) to the sun: 1 - the alpha an orthographic camera on that ray, looking at the sun, renders."""
+    ts = bpy.data.scenes.new("through")
+    ts.collection.objects.link(bpy.data.objects["IGS albedo"])
+    ts.render.resolution_x = ts.render.resolution_y = 4
+    ts.render.resolution_percentage = 100
+    ts.render.film_transparent = True
+    cycles(ts, 256)
+    data = bpy.data.cameras.new("through")
+    data.type, data.ortho_scale, data.clip_start = "ORTHO", 0.02, 0.001
+    cam = bpy.data.objects.new("through", data)
+    ts.collection.objects.link(cam)
+    ts.camera = cam
+    cam.rotation_euler = (0.0, 0.75 * np.pi, 0.0)  # its -z turned towards (-1, 0, 1): the sun
+    images = sub("images")
+    out = []
+    for y in ys:
+        cam.location = (PLATE_X + PLATE_Z - 0.1, y, 0.1)  # on the ray, above the floor's discs
+        ts.render.image_settings.file_format = "OPEN_EXR"
+        ts.render.filepath = str(tmp_path / f"through_{y:+.1f}.exr")
+        bpy.ops.render.render(write_still=True, scene=ts.name)
+        out.append(1.0 - float(images.pixels(bpy.data.images.load(ts.render.filepath))[..., 3].mean()))
+    return out
+
+
+def patch(img: np.ndarray, scene, point, r: int = 1) -> float:
+    """Mean of the (2r+1)^2 pixels around the pixel that ``point`` (world) falls in."""
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    h, w = img.shape[:2]
+    p = world_to_camera_view(scene, scene.camera, Vector(point))
+    col, row = int(p.x * w), int((1 - p.y) * h)
+    return float(img[row - r:row + r + 1, col - r:col + r + 1].mean())
+
+
+def test_shadows_both_ways_in_cycles_a_faint_plate_casts_a_faint_shadow(scene, tmp_path):
+    """Splat plates shadow the splat floor (the capture onto itself) and the artist's mesh floor (the capture onto
+    a mesh): an opaque plate a full shadow, a faint one the shadow its transmittance gives."""
+    ws = tmp_path / "ws"
+    plates_workspace(ws)
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.load_cameras() == {"FINISHED"}
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    sub("camera_objects").use_frame_camera(scene, bpy.data.objects["IGS frame_0000"])
+    scene.render.resolution_percentage = 200
+    cycles(scene, 64)
+    scene.cycles.max_bounces = 0  # direct light: the shadow is the plate's transmittance alone
+    props = bpy.data.collections.new("Props")
+    scene.collection.children.link(props)
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0.0, 0.52, 0.0))
+    plane = bpy.context.active_object
+    plane.scale = (2.0, 0.9, 1.0)
+    for c in list(plane.users_collection):
+        c.objects.unlink(plane)
+    props.objects.link(plane)
+    plane.data.materials.append(diffuse("mesh floor", ALBEDO))
+    bpy.ops.igs.add_light(kind="SUN")
+    sun = bpy.context.active_object
+    sun.data.energy, sun.data.angle = 3.0, 0.0
+    sun.rotation_euler = (0.0, -np.pi / 4, 0.0)  # its -z towards (1, 0, -1): the light comes from SUN
+    sun.hide_render = True
+    bpy.context.view_layer.update()
+    dark = render_outputs(scene, tmp_path / "dark", ("Image",))["Image"].mean(axis=2)
+    sun.hide_render = False
+    bpy.context.view_layer.update()
+    lit = render_outputs(scene, tmp_path / "lit", ("Image",))["Image"].mean(axis=2)
+    added = lit - dark
+    through = seen_through(scene, tmp_path, [y for y, _ in PLATES.values()])
+    seen = {}
+    for (name, (y, _)), want in zip(PLATES.items(), through):
+        shadow = patch(added, scene, (PLATE_X + PLATE_Z, y, 0.0), 2)
+        open_ = patch(added, scene, (0.75, y, 0.0))
+        seen[name] = (shadow / open_, want, open_)
+    print("\n" + "; ".join(f"{k}: visibility {v:.2f} (seen through the plate {t:.2f}, open {o:.3f})"
+                           for k, (v, t, o) in seen.items()))
+    for name, (visible, want, open_) in seen.items():
+        assert open_ > 0.1, (name, open_)
+        assert abs(visible - want) < 0.1, (name, visible, want)
+        assert (visible < 0.25) if "opaque" in name else (0.4 < visible < 0.9), (name, visible)
