@@ -197,6 +197,9 @@ def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(
     assert bake.LIVE.job is None and bake.LIVE.want is None and not bpy.app.timers.is_registered(bake.tick)
     assert not bake.note_change(scene)
     assert not (ws / "layers" / "lit").exists() and not scene.igs.job_label
+    from test_blender_panel import draw, shown_text
+
+    assert "Blender lights the capture itself (view layer IGS Lit" in shown_text(draw("IGS_PT_lights"))
 
     want = truth(scene, tmp_path)
     floor = (dark.max(axis=2) > 0.02) & (want["cube_mask"] < 0.01)  # the capture's floor, the cube not over it
