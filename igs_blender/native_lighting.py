@@ -164,12 +164,14 @@ def normal_matrix() -> np.ndarray:
 
 def dark_world() -> bpy.types.World:
     """A black world: the lit view layer's, so the scene's world does not light the capture a second time."""
-    world = bpy.data.worlds.get(DARK_WORLD) or bpy.data.worlds.new(DARK_WORLD)
-    world.color = (0.0, 0.0, 0.0)
-    if world.node_tree is not None:
-        bg = next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
-        if bg is not None:
-            bg.inputs["Strength"].default_value = 0.0
+    world = bpy.data.worlds.get(DARK_WORLD)
+    if world is None:  # made once: a setting written on every depsgraph update would trigger another
+        world = bpy.data.worlds.new(DARK_WORLD)
+        world.color = (0.0, 0.0, 0.0)
+        if world.node_tree is not None:
+            bg = next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
+            if bg is not None:
+                bg.inputs["Strength"].default_value = 0.0
     return world
 
 
@@ -242,7 +244,8 @@ def not_lit_collection(albedos: list[bpy.types.Object]) -> bpy.types.Collection:
         if obj not in albedos:
             coll.objects.unlink(obj)
     for entry in coll.collection_objects:
-        entry.light_linking.link_state = "EXCLUDE"
+        if entry.light_linking.link_state != "EXCLUDE":
+            entry.light_linking.link_state = "EXCLUDE"
     return coll
 
 

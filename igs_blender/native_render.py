@@ -360,6 +360,7 @@ def sync(scene: bpy.types.Scene) -> None:
     _albedo_visibility(props, proxy)
     native_lighting.update(scene)
     sync_lighting(scene)
+    _wire(scene, proxy is not None, lighting(scene))
 
 
 def lighting(scene: bpy.types.Scene) -> bool:
@@ -377,6 +378,7 @@ def sync_lighting(scene: bpy.types.Scene) -> None:
     if vl is None:
         return
     on = lighting(scene)
+    rewire = vl.use != on or _lit_wired(scene) != on
     if vl.use != on:
         vl.use = on
     mat = native_lighting.lit_material()
@@ -389,7 +391,15 @@ def sync_lighting(scene: bpy.types.Scene) -> None:
     if albedos:
         native_lighting.set_normal_matrix(mat, native_lighting.normal_matrix())
         native_lighting.exclude_other_lights(scene, albedos)
-    _wire(scene, preview_proxy(scene.igs) is not None, on)
+    if rewire:  # only on a change: this runs on depsgraph updates, and every write triggers another
+        _wire(scene, preview_proxy(scene.igs) is not None, on)
+
+
+def _lit_wired(scene: bpy.types.Scene) -> bool:
+    tree = bpy.data.node_groups.get(TREE)
+    group = tree.nodes.get(GROUP) if tree is not None else None
+    socket = group.inputs.get("Lit") if group is not None else None
+    return socket is not None and socket.is_linked
 
 
 HOME = "igs_home_collections"
