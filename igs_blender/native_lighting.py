@@ -294,3 +294,19 @@ def update(scene: bpy.types.Scene) -> list[str]:
     skipped = exclude_other_lights(scene, albedos)
     return [f"light '{n}' has a light-linking receiver collection of its own: it may light the capture"
             for n in skipped]
+
+
+def release(scene: bpy.types.Scene) -> None:
+    """Undo :func:`update` (Remove Render Setup): the other lights lose the receiver collection it gave them,
+    the albedo splats cast their own shadows again, the proxies and the collection go."""
+    coll = bpy.data.collections.get(NOT_LIT)
+    for obj in scene.objects:
+        if obj.type == "LIGHT" and coll is not None and obj.light_linking.receiver_collection == coll:
+            obj.light_linking.receiver_collection = None
+    if coll is not None:
+        bpy.data.collections.remove(coll)
+    for obj in albedo_objects():
+        obj.visible_shadow = True
+    shadows = bpy.data.collections.get(native_layers.field_collection_name(SHADOW_FIELD))
+    for obj in list(shadows.objects) if shadows is not None else []:
+        scene_objects.remove_object(obj)

@@ -461,6 +461,7 @@ def teardown(scene: bpy.types.Scene) -> None:
             vl.use = True
             del vl["igs_use_before"]
     compat.remove_compositor_tree(scene, TREE)
+    native_lighting.release(scene)
 
 
 _SIGNATURE: dict[str, tuple] = {}

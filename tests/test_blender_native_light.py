@@ -220,6 +220,13 @@ def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(
     # and outside the shadow the cube changes nothing (splats shadow no splat of the floor itself)
     away = floor & (dark_truth < 0.01) & (lit_truth > 0.05)
     assert abs(darker[away].mean()) < 0.02 * lit_truth[away].mean() + 1e-3
+    # Remove Render Setup gives the artist's lights and the splats back as they were
+    other = point_light("Other", meshes, at=(0.4, 0.4, 0.4))
+    bpy.context.view_layer.update()
+    assert other.light_linking.receiver_collection is not None
+    assert bpy.ops.igs.remove_render_setup() == {"FINISHED"}
+    assert other.light_linking.receiver_collection is None and "IGS Not Lit By Scene Lights" not in bpy.data.collections
+    assert bpy.data.objects["IGS albedo"].visible_shadow and "IGS albedo shadow" not in bpy.data.objects
     print(f"\nnative light: floor near the light +{added[near].mean():.3f} (truth {lit_truth[near].mean():.3f}); "
           f"cube's shadow -{darker[shadow].mean():.3f} (truth {dark_truth[shadow].mean():.3f})")
 
@@ -338,3 +345,48 @@ def test_shadows_both_ways_in_cycles_a_faint_plate_casts_a_faint_shadow(scene, t
         assert open_ > 0.1, (name, open_)
         assert abs(visible - want) < 0.1, (name, visible, want)
         assert (visible < 0.25) if "opaque" in name else (0.4 < visible < 0.9), (name, visible)
+
+
+def test_a_baked_edit_is_lit_in_its_new_colour(scene, tmp_path):
+    """The selected edit's baked albedo (the floor repainted from 0.5 to 0.8) takes the light in its colour:
+    what the light adds grows by 0.8 / 0.5, and its shadow proxy replaces the workspace albedo's."""
+    from backend.splats.ply import read_ply, write_ply
+
+    ws = tmp_path / "ws"
+    floor_workspace(ws)
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.load_cameras() == {"FINISHED"}
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    sub("camera_objects").use_frame_camera(scene, bpy.data.objects["IGS frame_0000"])
+    cycles(scene, 32)
+    bpy.ops.igs.add_light(kind="POINT")
+    light = bpy.context.active_object
+    light.data.energy, light.data.shadow_soft_size = 60.0, 0.0
+    light.location = LIGHT
+
+    def added(tag: str) -> np.ndarray:
+        light.hide_render = True
+        bpy.context.view_layer.update()
+        dark = render_outputs(scene, tmp_path / f"{tag}_dark", ("Image",))["Image"]
+        light.hide_render = False
+        bpy.context.view_layer.update()
+        return (render_outputs(scene, tmp_path / f"{tag}_lit", ("Image",))["Image"] - dark).mean(axis=2)
+
+    before = added("before")
+    g = read_ply(ws / "layers" / "albedo.ply", kind="albedo")[0]
+    g.params["colors"].data[:] = float(np.log(0.8 / 0.2))  # albedo stores the logit of its colour
+    ply = write_ply(ws / "edits" / "paint" / "albedo.ply", g)
+    edits, layers = sub("edits"), sub("layers")
+    props = scene.igs
+    item = edits.ensure(props, "paint")
+    item.albedo = layers.load_layer(ply, name=layers.object_name("albedo", "paint"))
+    item.baked = True
+    props.edits_index = len(props.edits) - 1
+    props.render_edit = True
+    edits.apply_visibility()
+    shadows = bpy.data.collections["IGS Field shadow"].objects
+    assert not shadows[f"{item.albedo.name} shadow"].hide_render and shadows["IGS albedo shadow"].hide_render
+    after = added("after")
+    lit = before > 0.3 * before.max()
+    ratio = after[lit].mean() / before[lit].mean()
+    assert 0.8 / 0.5 * 0.95 < ratio < 0.8 / 0.5 * 1.05, ratio
