@@ -18,6 +18,10 @@ attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``
   back along each normal by :data:`OFFSET_SHORT` shortest and :data:`OFFSET_MID` middle standard
   deviations, seen by shadow rays only, casts them instead: onto meshes, onto the capture itself, with the
   splats' own opacity (a faint Gaussian tail casts a faint shadow).
+- **The capture's light on meshes** (:func:`environment`): in the view layer "IGS Scene" the artist's
+  meshes are lit by a copy of the composite preview (``A x S + R`` on the albedo's splats), seen by
+  indirect rays only (*IGS composite light*, collection "IGS Field environment"); the albedo splats,
+  which emit their colour A there, are then hidden from indirect rays.
 - **Other lights** (:func:`exclude_other_lights`): a light outside the collection must leave the capture
   untouched, so it gets the light-linking receiver collection :data:`NOT_LIT`, which excludes the albedo
   splats (a light with a receiver collection of the artist's own is left alone and named in the report).
@@ -31,7 +35,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from . import compat, lights, native_layers, scene_objects
+from . import compat, layers, lights, native_layers, scene_objects
 from .cameras import read_workspace_cameras
 from .errors import UserError
 from .point_attributes import get_point_attribute, set_point_attribute
@@ -41,6 +45,10 @@ NORMAL = "igs_normal"
 """FLOAT_VECTOR attribute of the albedo splats: each Gaussian's unit normal, in capture coordinates."""
 SHADOW_FIELD = "shadow"
 """The shadow proxies' field collection ("IGS Field shadow")."""
+ENVIRONMENT_FIELD = "environment"
+"""The capture's light for meshes: "IGS Field environment"."""
+ENVIRONMENT = "IGS composite light"
+INDIRECT = ("diffuse", "glossy", "transmission", "volume_scatter")
 PROXY_OF = "igs_shadow_of"
 """Custom property of a shadow proxy: the name of the albedo object it follows."""
 OFFSET_SHORT = 3.0
@@ -234,6 +242,31 @@ def _sync_proxies(albedos: list[bpy.types.Object]) -> None:
             scene_objects.remove_object(other)
 
 
+def environment(albedos: list[bpy.types.Object]) -> bpy.types.Object | None:
+    """The copy of the composite preview that lights the meshes (module docstring), made or brought up to
+    date; None (and the albedo splats seen by indirect rays, as before) when there is no composite preview."""
+    comp = layers.loaded_layers().get("composite")
+    env = bpy.data.objects.get(ENVIRONMENT)
+    if comp is None or not native_layers.is_native(comp):
+        scene_objects.remove_object(env)
+        env = None
+    elif env is None or env.get("igs_data") != comp.data.name or env.get("igs_points") != len(comp.data.points):
+        scene_objects.remove_object(env)
+        env = bpy.data.objects.new(ENVIRONMENT, comp.data)  # the same data: a rebuilt preview is a new datablock
+        native_layers.field_collection(ENVIRONMENT_FIELD).objects.link(env)
+        env.parent = comp.parent
+        env.matrix_parent_inverse = comp.matrix_parent_inverse.copy()
+        env.matrix_basis = comp.matrix_basis.copy()
+        env.visible_camera = env.visible_shadow = False
+        env.hide_viewport = env.hide_select = True
+        env["igs_data"], env["igs_points"] = comp.data.name, len(comp.data.points)
+    for obj in albedos:
+        for ray in INDIRECT:
+            if getattr(obj, f"visible_{ray}") != (env is None):
+                setattr(obj, f"visible_{ray}", env is None)
+    return env
+
+
 # -- the lights ---------------------------------------------------------------------------------------------------
 
 
@@ -293,6 +326,7 @@ def update(scene: bpy.types.Scene) -> list[str]:
             continue
         ensure_normals(obj, eyes)
     _sync_proxies(albedos)
+    environment(albedos)
     set_normal_matrix(lit_material(), normal_matrix())
     skipped = exclude_other_lights(scene, albedos)
     return [f"light '{n}' has a light-linking receiver collection of its own: it may light the capture"
@@ -310,6 +344,9 @@ def release(scene: bpy.types.Scene) -> None:
         bpy.data.collections.remove(coll)
     for obj in albedo_objects():
         obj.visible_shadow = True
-    shadows = bpy.data.collections.get(native_layers.field_collection_name(SHADOW_FIELD))
-    for obj in list(shadows.objects) if shadows is not None else []:
-        scene_objects.remove_object(obj)
+        for ray in INDIRECT:
+            setattr(obj, f"visible_{ray}", True)
+    for field in (SHADOW_FIELD, ENVIRONMENT_FIELD):
+        coll = bpy.data.collections.get(native_layers.field_collection_name(field))
+        for obj in list(coll.objects) if coll is not None else []:
+            scene_objects.remove_object(obj)

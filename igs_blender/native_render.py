@@ -10,11 +10,13 @@ resolution and output settings) the composite of the native splat fields (:mod:`
 - "IGS Scene": the artist's meshes (and any other object, lit by the scene's lights), with the albedo
   splats as a holdout, so a wall hides what stands behind it;
 - "IGS Edit Preview" (only while the selected edit is not baked yet): its proxy, unlit, showing its
-  texture or colour (an override material), the scene's objects as holdouts.
+  texture or colour (an override material), the scene's objects as holdouts;
+- "IGS Lit" (only while the lights collection holds a visible light): the albedo splats lit by those
+  lights, ``A x S_new`` (:mod:`.native_lighting`), the scene's objects as holdouts that cast shadows.
 
 The compositor effect "IGS Render" feeds the view layers into the node group "IGS Composite"
 (editable, like any node group) which computes, per pixel,
-``Image = A' * S + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
+``Image = A' * S + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
 proxy is in front of (or within ``Depth Tolerance`` of) the albedo's depth, as the viewport engine
 does. The fields are rendered over black, so the Scene layer (held out by the albedo) adds to the
 composite; A and R, held out by the meshes, are zero where a mesh covers them. The group's outputs
@@ -54,7 +56,8 @@ ROLES = {
     "albedo": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "shading": {"field:shading": "in", "fields": "out", "edits": "out", "scene": "out"},
     "residual": {"field:residual": "in", "fields": "out", "edits": "out", "scene": "hold"},
-    "scene": {"field:albedo": "hold", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "in"},
+    "scene": {"field:albedo": "hold", "field:shadow": "in", "field:environment": "in", "fields": "out", "edits": "out",
+              "scene": "in"},
     "edit": {"fields": "out", "edits": "in", "scene": "hold"},
     "lit": {"field:albedo": "in", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "hold"},
 }
@@ -68,7 +71,7 @@ def _own_collections() -> dict[str, str]:
     """Collection name -> what it is for the view layers: ``field:<f>``, ``edits``, or ``add-on`` (a folder of
     the add-on's whose children decide)."""
     kinds = {native_layers.field_collection_name(f): f"field:{f}"
-             for f in (*native_layers.FIELDS, native_lighting.SHADOW_FIELD)}
+             for f in (*native_layers.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.ENVIRONMENT_FIELD)}
     kinds.update({proxies.COLLECTION: "edits", scene_objects.COLLECTION_NAME: "add-on", layers.COLLECTION: "add-on",
                   camera_objects.COLLECTION: "add-on"})
     return kinds

@@ -390,3 +390,65 @@ def test_a_baked_edit_is_lit_in_its_new_colour(scene, tmp_path):
     lit = before > 0.3 * before.max()
     ratio = after[lit].mean() / before[lit].mean()
     assert 0.8 / 0.5 * 0.95 < ratio < 0.8 / 0.5 * 1.05, ratio
+
+
+def test_a_mesh_on_the_capture_takes_the_captures_light_not_its_albedo(scene, tmp_path):
+    """No lights: a white cube on a captured floor of albedo 0.5 under shading 2 is lit by the floor's
+    A x S + R (about 1.05), as a mesh floor emitting that lights it in Cycles, not by the albedo's 0.5."""
+    from backend.splats.ply import read_ply, write_ply
+
+    ws = tmp_path / "ws"
+    floor_workspace(ws)
+    g = read_ply(ws / "layers" / "shading.ply", kind="shading")[0]
+    g.params["colors"].data[:] = 2.0
+    write_ply(ws / "layers" / "shading.ply", g)
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.load_cameras() == {"FINISHED"}
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    sub("camera_objects").use_frame_camera(scene, bpy.data.objects["IGS frame_0000"])
+    cycles(scene, 64)
+    meshes = bpy.data.collections.new("Props")
+    scene.collection.children.link(meshes)
+    cube = add_cube(meshes)
+    cube.data.materials[0] = diffuse("white", 0.8)
+    bpy.context.view_layer.update()
+    got = render_outputs(scene, tmp_path / "native", ("Image",))["Image"].mean(axis=2)
+
+    ts = bpy.data.scenes.new("truth")
+    ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
+    ts.render.film_transparent = True
+    ts.view_settings.view_transform = "Standard"
+    cycles(ts, 64)
+    ts.camera = scene.camera
+    ts.collection.objects.link(cube)
+    mask = np.zeros_like(got)
+    images = sub("images")
+    floor_value = float(np.median(got[got > 0.5]))  # the captured floor's A x S + R as Blender renders it
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.active_object
+    for c in list(plane.users_collection):
+        c.objects.unlink(plane)
+    glow = bpy.data.materials.new("glow")
+    nodes = glow.node_tree.nodes
+    nodes.clear()
+    emit = nodes.new("ShaderNodeEmission")
+    emit.inputs["Color"].default_value = (floor_value,) * 3 + (1.0,)
+    glow.node_tree.links.new(emit.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    plane.data.materials.append(glow)
+    for tag, floor_on in (("mask", False), ("truth", True)):
+        plane.hide_render = not floor_on
+        if floor_on:
+            ts.collection.objects.link(plane)
+        ts.render.image_settings.file_format = "OPEN_EXR"
+        ts.render.filepath = str(tmp_path / f"{tag}.exr")
+        bpy.ops.render.render(write_still=True, scene=ts.name)
+        px = images.pixels(bpy.data.images.load(ts.render.filepath))
+        if tag == "mask":
+            mask = px[..., 3] > 0.99
+        else:
+            want = px[..., :3].mean(axis=2)
+    assert mask.sum() > 15, mask.sum()
+    ratio = got[mask].mean() / want[mask].mean()
+    print(f"\ncube lit by the capture: {got[mask].mean():.3f} (truth {want[mask].mean():.3f}, floor {floor_value:.3f})")
+    assert 0.85 < ratio < 1.15, ratio
+    assert bpy.data.objects["IGS composite light"].users_collection[0].name == "IGS Field environment"
