@@ -22,6 +22,12 @@ attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``
   meshes are lit by a copy of the composite preview (``A x S + R`` on the albedo's splats), seen by
   indirect rays only (*IGS composite light*, collection "IGS Field environment"); the albedo splats,
   which emit their colour A there, are then hidden from indirect rays.
+- **Occlusion** (:func:`occlusion_material`): the captured shading S is light that came from all around;
+  a mesh standing on the capture blocks some of it. Two view layers render the albedo splats with the
+  override material :data:`OCCLUSION` (Cycles' Ambient Occlusion of the scene around each splat, as an
+  emission), one with the meshes (holdouts that occlude), one without; the composite multiplies S by
+  their ratio, the share of the surroundings the meshes leave open (the captured light taken as the
+  same from every direction: ambient occlusion, contact shadows included).
 - **Other lights** (:func:`exclude_other_lights`): a light outside the collection must leave the capture
   untouched, so it gets the light-linking receiver collection :data:`NOT_LIT`, which excludes the albedo
   splats (a light with a receiver collection of the artist's own is left alone and named in the report).
@@ -41,6 +47,9 @@ from .errors import UserError
 from .point_attributes import get_point_attribute, set_point_attribute
 
 MATERIAL = "IGS Splat Lit"
+OCCLUSION = "IGS Splat Occlusion"
+OCCLUSION_DISTANCE = 1000.0
+"""How far the occlusion looks for meshes (Blender units): everywhere, as light from all around would be blocked."""
 NORMAL = "igs_normal"
 """FLOAT_VECTOR attribute of the albedo splats: each Gaussian's unit normal, in capture coordinates."""
 SHADOW_FIELD = "shadow"
@@ -127,6 +136,20 @@ def lit_material() -> bpy.types.Material:
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     color = native_layers.decoded_color(nodes, links)
+    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.location = (250, -200)
+    links.new(color, diffuse.inputs["Color"])
+    links.new(world_normal(nodes, links), diffuse.inputs["Normal"])
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (450, -200)
+    links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
+    set_normal_matrix(mat, np.eye(3))
+    return mat
+
+
+def world_normal(nodes, links) -> bpy.types.NodeSocket:
+    """Shader nodes (added to ``nodes``) whose output is the :data:`NORMAL` attribute in world coordinates: the
+    dot products with the rows :data:`ROWS` of the capture's normal matrix, normalised."""
     normal = nodes.new("ShaderNodeAttribute")
     normal.attribute_type = "GEOMETRY"
     normal.attribute_name = NORMAL
@@ -144,15 +167,7 @@ def lit_material() -> bpy.types.Material:
     unit.operation = "NORMALIZE"
     unit.location = (-100, -600)
     links.new(combine.outputs[0], unit.inputs[0])
-    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.location = (250, -200)
-    links.new(color, diffuse.inputs["Color"])
-    links.new(unit.outputs["Vector"], diffuse.inputs["Normal"])
-    out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (450, -200)
-    links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
-    set_normal_matrix(mat, np.eye(3))
-    return mat
+    return unit.outputs["Vector"]
 
 
 def set_normal_matrix(mat: bpy.types.Material, m: np.ndarray) -> None:
@@ -171,6 +186,41 @@ def normal_matrix() -> np.ndarray:
         return np.linalg.inv(m3).T
     except np.linalg.LinAlgError:
         return np.eye(3)
+
+
+def occlusion_material() -> bpy.types.Material:
+    """An emission of Cycles' Ambient Occlusion factor (:data:`OCCLUSION_DISTANCE`): 1 where nothing is
+    around a splat, less where something blocks its surroundings."""
+    mat = bpy.data.materials.get(OCCLUSION)
+    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get(ROWS[2]) is not None:
+        return mat
+    mat = mat or bpy.data.materials.new(OCCLUSION)
+    compat.use_nodes(mat)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    ao = nodes.new("ShaderNodeAmbientOcclusion")
+    ao.name = "IGS occlusion"
+    ao.samples = 16
+    ao.inputs["Distance"].default_value = OCCLUSION_DISTANCE
+    links.new(world_normal(nodes, links), ao.inputs["Normal"])
+    set_normal_matrix(mat, np.eye(3))
+    emission = nodes.new("ShaderNodeEmission")
+    emission.location = (250, 0)
+    links.new(ao.outputs["AO"], emission.inputs["Color"])
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (450, 0)
+    links.new(emission.outputs["Emission"], out.inputs["Surface"])
+    return mat
+
+
+def occluders(scene: bpy.types.Scene, own: set[str]) -> bool:
+    """Whether a mesh (or curve, surface, text, metaball) of the artist's renders: something that can block
+    the captured light. ``own``: the add-on's collection names."""
+    for obj in scene.objects:
+        if obj.type in ("MESH", "CURVE", "SURFACE", "FONT", "META") and not obj.hide_render \
+                and not any(c.name in own for c in obj.users_collection):
+            return True
+    return False
 
 
 def dark_world() -> bpy.types.World:

@@ -12,11 +12,13 @@ resolution and output settings) the composite of the native splat fields (:mod:`
 - "IGS Edit Preview" (only while the selected edit is not baked yet): its proxy, unlit, showing its
   texture or colour (an override material), the scene's objects as holdouts;
 - "IGS Lit" (only while the lights collection holds a visible light): the albedo splats lit by those
-  lights, ``A x S_new`` (:mod:`.native_lighting`), the scene's objects as holdouts that cast shadows.
+  lights, ``A x S_new`` (:mod:`.native_lighting`), the scene's objects as holdouts that cast shadows;
+- "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the albedo splats'
+  ambient occlusion with and without the meshes; their ratio O scales the captured shading.
 
 The compositor effect "IGS Render" feeds the view layers into the node group "IGS Composite"
 (editable, like any node group) which computes, per pixel,
-``Image = A' * S + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
+``Image = A' * S * O + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
 proxy is in front of (or within ``Depth Tolerance`` of) the albedo's depth, as the viewport engine
 does. The fields are rendered over black, so the Scene layer (held out by the albedo) adds to the
 composite; A and R, held out by the meshes, are zero where a mesh covers them. The group's outputs
@@ -38,7 +40,8 @@ from . import camera_objects, compat, layers, native_layers, native_lighting, pr
 from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
 
 VIEW_LAYERS = {"albedo": "IGS Albedo", "shading": "IGS Shading", "residual": "IGS Residual", "scene": "IGS Scene",
-               "edit": "IGS Edit Preview", "lit": "IGS Lit"}
+               "edit": "IGS Edit Preview", "lit": "IGS Lit", "occluded": "IGS Occlusion",
+               "open": "IGS Occlusion Open"}
 TREE = "IGS Render"
 GROUP = "IGS Composite"
 OVERRIDE = "IGS Edit Preview"
@@ -60,6 +63,8 @@ ROLES = {
               "scene": "in"},
     "edit": {"fields": "out", "edits": "in", "scene": "hold"},
     "lit": {"field:albedo": "in", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "hold"},
+    "occluded": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
+    "open": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "out"},
 }
 
 
@@ -168,15 +173,16 @@ def composite_group() -> bpy.types.NodeTree:
     """The node group "IGS Composite" (made once; an artist's changes to it are kept)."""
     group = bpy.data.node_groups.get(GROUP)
     if group is not None and group.bl_idname == "CompositorNodeTree":
-        if any(i.in_out == "INPUT" and i.name == "Lit" for i in group.interface.items_tree):
+        if any(i.in_out == "INPUT" and i.name == "Occluded" for i in group.interface.items_tree):
             return group
-        group.name = f"{GROUP} (before Lit)"  # made by an earlier version: kept beside the new one
+        group.name = f"{GROUP} (older)"  # made by an earlier version: kept beside the new one
     group = bpy.data.node_groups.new(GROUP, "CompositorNodeTree")
     for name, kind, default in (("Albedo", "NodeSocketColor", (0, 0, 0, 0)), ("Albedo Depth", "NodeSocketFloat", FAR),
                                 ("Shading", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Residual", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Scene", "NodeSocketColor", (0, 0, 0, 0)), ("Edit", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Lit", "NodeSocketColor", (0, 0, 0, 0)),
+                                ("Occluded", "NodeSocketColor", (1, 1, 1, 1)), ("Open", "NodeSocketColor", (1, 1, 1, 1)),
                                 ("Edit Depth", "NodeSocketFloat", FAR),
                                 ("Depth Tolerance", "NodeSocketFloat", DEPTH_TOLERANCE)):
         _socket(group, name, "INPUT", kind, default)
@@ -231,7 +237,17 @@ def composite_group() -> bpy.types.NodeTree:
     links.new(mask, albedo.inputs["Factor"])
     links.new(gin.outputs["Albedo"], albedo.inputs[4])
     links.new(shown, albedo.inputs[5])
-    product = vmath("MULTIPLY", albedo.outputs[1], gin.outputs["Shading"], 250, 0)
+    # S times the share of its surroundings the artist's meshes leave open (1 without meshes or albedo)
+    sep_o = node("CompositorNodeSeparateColor", -900, -600)
+    links.new(gin.outputs["Occluded"], sep_o.inputs[0])
+    sep_n = node("CompositorNodeSeparateColor", -900, -750)
+    links.new(gin.outputs["Open"], sep_n.inputs[0])
+    share = math("DIVIDE", sep_o.outputs["Red"], math("MAXIMUM", sep_n.outputs["Red"], 1e-4, -700, -750), -500, -650)
+    seen = math("GREATER_THAN", sep_n.outputs["Red"], 1e-3, -500, -800)
+    share = math("ADD", math("MULTIPLY", math("MINIMUM", share, 1.0, -300, -650), seen, -100, -650),
+                 math("SUBTRACT", 1.0, seen, -300, -800), 50, -700)
+    shading = vmath("SCALE", gin.outputs["Shading"], None, 150, -300, scale=share)
+    product = vmath("MULTIPLY", albedo.outputs[1], shading, 250, 0)
     # A * (S + S_new) = A * S + Lit, Lit the albedo splats lit by the lights collection (native_lighting)
     lit = vmath("ADD", product, gin.outputs["Lit"], 350, 100)
     full = vmath("ADD", vmath("ADD", lit, gin.outputs["Residual"], 450, 0), gin.outputs["Scene"], 650, 0)
@@ -270,7 +286,7 @@ def _render_tree(scene: bpy.types.Scene) -> bpy.types.NodeTree:
     return tree
 
 
-def _wire(scene: bpy.types.Scene, previewing: bool, lighting: bool) -> None:
+def _wire(scene: bpy.types.Scene, previewing: bool, lighting: bool, occluding: bool = False) -> None:
     """(Re)link the Render Layers to the group, and the group output Render > Layer picks to the tree's output."""
     tree = _render_tree(scene)
     nodes, links = tree.nodes, tree.links
@@ -281,6 +297,8 @@ def _wire(scene: bpy.types.Scene, previewing: bool, lighting: bool) -> None:
         wires += [("edit", "Image", "Edit"), ("edit", "Depth", "Edit Depth")]
     if lighting:
         wires.append(("lit", "Image", "Lit"))
+    if occluding:
+        wires += [("occluded", "Image", "Occluded"), ("open", "Image", "Open")]
     wanted = {(VIEW_LAYERS[role], out, into) for role, out, into in wires}
     for link in list(group.inputs[i] for i in range(len(group.inputs))):
         for lk in list(link.links):
@@ -363,7 +381,11 @@ def sync(scene: bpy.types.Scene) -> None:
     _albedo_visibility(props, proxy)
     native_lighting.update(scene)
     sync_lighting(scene)
-    _wire(scene, proxy is not None, lighting(scene))
+    _wire(scene, proxy is not None, lighting(scene), _occluding(scene))
+
+
+def _occluding(scene: bpy.types.Scene) -> bool:
+    return native_lighting.occluders(scene, set(_own_collections()) | set(VIEW_LAYERS.values()))
 
 
 def lighting(scene: bpy.types.Scene) -> bool:
@@ -381,9 +403,18 @@ def sync_lighting(scene: bpy.types.Scene) -> None:
     if vl is None:
         return
     on = lighting(scene)
-    rewire = vl.use != on or _lit_wired(scene) != on
+    occluding = _occluding(scene)
+    rewire = vl.use != on or _wired(scene, "Lit") != on or _wired(scene, "Open") != occluding
     if vl.use != on:
         vl.use = on
+    for role in ("occluded", "open"):
+        layer = scene.view_layers.get(VIEW_LAYERS[role])
+        if layer is None:
+            continue
+        if layer.use != occluding:
+            layer.use = occluding
+        if layer.material_override != native_lighting.occlusion_material():
+            layer.material_override = native_lighting.occlusion_material()
     mat = native_lighting.lit_material()
     if vl.material_override != mat:
         vl.material_override = mat
@@ -392,16 +423,17 @@ def sync_lighting(scene: bpy.types.Scene) -> None:
         vl.world_override = world
     albedos = native_lighting.albedo_objects()
     if albedos:
-        native_lighting.set_normal_matrix(mat, native_lighting.normal_matrix())
+        for material in (mat, native_lighting.occlusion_material()):
+            native_lighting.set_normal_matrix(material, native_lighting.normal_matrix())
         native_lighting.exclude_other_lights(scene, albedos)
     if rewire:  # only on a change: this runs on depsgraph updates, and every write triggers another
-        _wire(scene, preview_proxy(scene.igs) is not None, on)
+        _wire(scene, preview_proxy(scene.igs) is not None, on, occluding)
 
 
-def _lit_wired(scene: bpy.types.Scene) -> bool:
+def _wired(scene: bpy.types.Scene, into: str) -> bool:
     tree = bpy.data.node_groups.get(TREE)
     group = tree.nodes.get(GROUP) if tree is not None else None
-    socket = group.inputs.get("Lit") if group is not None else None
+    socket = group.inputs.get(into) if group is not None else None
     return socket is not None and socket.is_linked
 
 

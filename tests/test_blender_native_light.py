@@ -103,9 +103,14 @@ def point_light(name: str, coll, at=LIGHT, power: float = 60.0) -> bpy.types.Obj
 
 
 def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
-    """Cycles renders of the scene's own geometry (module docstring), linear (H, W, 3): the floor lit with the
-    cube ("cube"), without it ("open"), and the cube alone over nothing (its alpha: "cube_mask")."""
+    """Cycles renders of the scene's own geometry (module docstring), linear (H, W, 3), under a uniform sky
+    that gives the floor its captured shading S: the floor lit by the light with the cube ("cube"), without
+    it ("open"), the sky alone ("sky"), and the cube alone over nothing (its alpha: "cube_mask")."""
     ts = bpy.data.scenes.new("truth")
+    ts.world = bpy.data.worlds.new("truth sky")
+    background = next(n for n in ts.world.node_tree.nodes if n.type == "BACKGROUND")
+    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    background.inputs["Strength"].default_value = SHADING  # a diffuse floor under it reflects A * SHADING
     ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
     ts.render.resolution_percentage = 100
     ts.render.film_transparent = True
@@ -115,7 +120,7 @@ def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
     plane = bpy.context.active_object
     plane.data.materials.append(diffuse("truth floor", ALBEDO))
     cube = add_cube(ts.collection)
-    point_light("truth light", ts.collection)
+    sun = point_light("truth light", ts.collection)
     for obj in list(plane.users_collection):
         obj.objects.unlink(plane)
     ts.collection.objects.link(plane)
@@ -124,8 +129,9 @@ def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
     out = {}
     window = bpy.context.window
     previous = window.scene if window is not None else None
-    for tag, cube_on, floor_on in (("cube", True, True), ("open", False, True), ("cube_mask", True, False)):
-        cube.hide_render, plane.hide_render = not cube_on, not floor_on
+    for tag, cube_on, floor_on, light_on in (("cube", True, True, True), ("open", False, True, True),
+                                             ("sky", False, True, False), ("cube_mask", True, False, False)):
+        cube.hide_render, plane.hide_render, sun.hide_render = not cube_on, not floor_on, not light_on
         ts.render.image_settings.file_format = "OPEN_EXR"
         ts.render.image_settings.color_depth = "32"
         ts.render.filepath = str(tmp_path / f"truth_{tag}.exr")
@@ -205,21 +211,24 @@ def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(
     floor = (dark.max(axis=2) > 0.02) & (want["cube_mask"] < 0.01)  # the capture's floor, the cube not over it
     # the floor near the light brightens by what the mesh floor gets from it
     added = (open_floor - dark).mean(axis=2)
-    lit_truth = want["open"].mean(axis=2)
+    lit_truth = (want["open"] - want["sky"]).mean(axis=2)
     near = floor & (lit_truth > 0.5 * lit_truth[floor].max())
     assert near.sum() > 20, near.sum()
     ratio = added[near].mean() / lit_truth[near].mean()
     assert 0.85 < ratio < 1.15, ratio
-    # the cube's shadow on the floor: darker than the open floor by the truth's amount
+    # the cube's shadow on the floor (the light's, and the sky's the cube blocks): darker than the open floor
+    # by the truth's amount
     dark_truth = (want["open"] - want["cube"]).mean(axis=2)
     shadow = floor & (dark_truth > 0.5 * lit_truth)
     assert shadow.sum() > 10, shadow.sum()
     darker = (open_floor - shadowed).mean(axis=2)
     ratio = darker[shadow].mean() / dark_truth[shadow].mean()
     assert 0.85 < ratio < 1.15, ratio
-    # and outside the shadow the cube changes nothing (splats shadow no splat of the floor itself)
-    away = floor & (dark_truth < 0.01) & (lit_truth > 0.05)
-    assert abs(darker[away].mean()) < 0.02 * lit_truth[away].mean() + 1e-3
+    # and around it, where only the sky is blocked (the captured light: ambient occlusion)
+    around = floor & ~shadow & (dark_truth > 0.01)
+    assert around.sum() > 10, around.sum()
+    ratio = darker[around].mean() / dark_truth[around].mean()
+    assert 0.8 < ratio < 1.3, ratio  # the truth's cube also lights the floor it stands on (a bounce): less dark
     # Remove Render Setup gives the artist's lights and the splats back as they were
     other = point_light("Other", meshes, at=(0.4, 0.4, 0.4))
     bpy.context.view_layer.update()
@@ -228,7 +237,8 @@ def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(
     assert other.light_linking.receiver_collection is None and "IGS Not Lit By Scene Lights" not in bpy.data.collections
     assert bpy.data.objects["IGS albedo"].visible_shadow and "IGS albedo shadow" not in bpy.data.objects
     print(f"\nnative light: floor near the light +{added[near].mean():.3f} (truth {lit_truth[near].mean():.3f}); "
-          f"cube's shadow -{darker[shadow].mean():.3f} (truth {dark_truth[shadow].mean():.3f})")
+          f"cube's shadow -{darker[shadow].mean():.3f} (truth {dark_truth[shadow].mean():.3f}); "
+          f"around it -{darker[around].mean():.3f} (truth {dark_truth[around].mean():.3f})")
 
 
 PLATES = {"splat floor, opaque": (-0.7, 0.99), "splat floor, faint": (-0.3, 0.3),
