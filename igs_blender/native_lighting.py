@@ -368,19 +368,31 @@ def update(scene: bpy.types.Scene) -> list[str]:
     albedos = albedo_objects()
     if not albedos:
         return []
-    eyes = camera_centres(scene.igs.workspace) if scene.igs.workspace else None
-    for obj in albedos:
-        if eyes is None:
-            if obj.data.attributes.get(NORMAL) is None:
-                raise UserError("no workspace: the splats' normals face the capture's cameras (choose the workspace)")
-            continue
-        ensure_normals(obj, eyes)
+    notes = []
+    if any(o.data.attributes.get(NORMAL) is None or o.get("igs_normals_points") != len(o.data.points)
+           for o in albedos):
+        eyes, note = _eyes(scene)
+        notes += [note] if note else []
+        for obj in albedos:
+            ensure_normals(obj, eyes)
     _sync_proxies(albedos)
     environment(albedos)
     set_normal_matrix(lit_material(), normal_matrix())
     skipped = exclude_other_lights(scene, albedos)
-    return [f"light '{n}' has a light-linking receiver collection of its own: it may light the capture"
-            for n in skipped]
+    return notes + [f"light '{n}' has a light-linking receiver collection of its own: it may light the capture"
+                    for n in skipped]
+
+
+def _eyes(scene: bpy.types.Scene) -> tuple[np.ndarray, str]:
+    """(C, 3) where the capture was seen from (capture coordinates): the workspace's cameras, else the scene's
+    camera (with a note for the report: the normals then face it)."""
+    try:
+        return camera_centres(scene.igs.workspace), ""
+    except UserError as e:
+        cam = scene.camera
+        where = scene_objects.to_capture_space(cam.matrix_world)[:3, 3] if cam is not None else np.array([0, 0, 1e6])
+        return np.asarray(where, dtype=np.float64)[None], (f"the splats' normals face the scene camera, not the "
+                                                           f"capture's cameras ({e})")
 
 
 def release(scene: bpy.types.Scene) -> None:

@@ -462,3 +462,15 @@ def test_a_mesh_on_the_capture_takes_the_captures_light_not_its_albedo(scene, tm
     print(f"\ncube lit by the capture: {got[mask].mean():.3f} (truth {want[mask].mean():.3f}, floor {floor_value:.3f})")
     assert 0.85 < ratio < 1.15, ratio
     assert bpy.data.objects["IGS composite light"].users_collection[0].name == "IGS Field environment"
+
+
+def test_without_the_capture_cameras_the_normals_face_the_scene_camera_and_load_layers_says_so(scene, tmp_path):
+    ws = tmp_path / "ws"
+    floor_workspace(ws)
+    (ws / "transforms.json").unlink()  # a workspace from an older version
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    assert "the splats' normals face the scene camera" in scene.igs.last_report
+    normals = sub("point_attributes").get_point_attribute(bpy.data.objects["IGS albedo"].data, "igs_normal", 3,
+                                                         "vector", "albedo")
+    np.testing.assert_allclose(normals, np.tile([0.0, 0.0, 1.0], (len(normals), 1)), atol=1e-6)  # flat discs, up
