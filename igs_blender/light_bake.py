@@ -24,7 +24,7 @@ from pathlib import Path
 
 import bpy
 
-from . import backend_env, edits, jobs, layers, lights, preferences, scene_objects
+from . import backend_env, edits, jobs, layers, lights, native_layers, preferences, scene_objects
 from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
 from .client import BackendError, BackendJob
 from .errors import UserError
@@ -140,9 +140,13 @@ LIVE = _Live()
 
 
 def active(scene: bpy.types.Scene) -> bool:
-    """Live bakes are on and there is a shading layer to light."""
+    """Live bakes are on and there is a shading layer to light, drawn by the add-on: Blender's native splats
+    (5.3+) are lit by Blender itself (:mod:`.native_lighting`), so a light moved among them starts no job."""
     props = getattr(scene, "igs", None)
-    return props is not None and props.live_lights and bool(props.workspace) and shading_object() is not None
+    if props is None or not props.live_lights or not props.workspace:
+        return False
+    obj = shading_object()
+    return obj is not None and not native_layers.is_native(obj)
 
 
 def note_change(scene: bpy.types.Scene, now: float | None = None) -> bool:

@@ -62,16 +62,9 @@ def imported_collection() -> bpy.types.Collection:
 
 
 
-def linear_material() -> bpy.types.Material:
-    """Emission of the linear colour that ``radiance:base`` encodes (the inverse of the encoding, negative
-    values included), for plain-colour layers. Blender takes the splat's opacity and footprint as usual."""
-    mat = bpy.data.materials.get(MATERIAL)
-    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get("IGS emission") is not None:
-        return mat
-    mat = mat or bpy.data.materials.new(MATERIAL)
-    compat.use_nodes(mat)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
+def decoded_color(nodes, links) -> bpy.types.NodeSocket:
+    """Shader nodes (added to ``nodes``) whose output is the linear colour ``radiance:base`` encodes: the
+    inverse of :func:`.native_colors.encode`, negative values included."""
 
     def vmath(op: str, *inputs, x: int = 0, y: int = 0):
         node = nodes.new("ShaderNodeVectorMath")
@@ -105,11 +98,25 @@ def linear_material() -> bpy.types.Material:
     links.new(above, mix.inputs[1])  # the non-uniform factor
     links.new(low, mix.inputs[4])  # A (vector)
     links.new(high, mix.inputs[5])  # B (vector)
+    return mix.outputs[1]
+
+
+def linear_material() -> bpy.types.Material:
+    """Emission of the linear colour that ``radiance:base`` encodes (the inverse of the encoding, negative
+    values included), for plain-colour layers. Blender takes the splat's opacity and footprint as usual."""
+    mat = bpy.data.materials.get(MATERIAL)
+    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get("IGS emission") is not None:
+        return mat
+    mat = mat or bpy.data.materials.new(MATERIAL)
+    compat.use_nodes(mat)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    color = decoded_color(nodes, links)
     emission = nodes.new("ShaderNodeEmission")
     emission.name = "IGS emission"
     emission.inputs["Strength"].default_value = 1.0
     emission.location = (250, 0)
-    links.new(mix.outputs[1], emission.inputs["Color"])
+    links.new(color, emission.inputs["Color"])
     out = nodes.new("ShaderNodeOutputMaterial")
     out.location = (450, 0)
     links.new(emission.outputs["Emission"], out.inputs["Surface"])

@@ -10,11 +10,15 @@ resolution and output settings) the composite of the native splat fields (:mod:`
 - "IGS Scene": the artist's meshes (and any other object, lit by the scene's lights), with the albedo
   splats as a holdout, so a wall hides what stands behind it;
 - "IGS Edit Preview" (only while the selected edit is not baked yet): its proxy, unlit, showing its
-  texture or colour (an override material), the scene's objects as holdouts.
+  texture or colour (an override material), the scene's objects as holdouts;
+- "IGS Lit" (only while the lights collection holds a visible light): the albedo splats lit by those
+  lights, ``A x S_new`` (:mod:`.native_lighting`), the scene's objects as holdouts that cast shadows;
+- "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the albedo splats'
+  ambient occlusion with and without the meshes; their ratio O scales the captured shading.
 
 The compositor effect "IGS Render" feeds the view layers into the node group "IGS Composite"
 (editable, like any node group) which computes, per pixel,
-``Image = A' * S + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
+``Image = A' * S * O + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
 proxy is in front of (or within ``Depth Tolerance`` of) the albedo's depth, as the viewport engine
 does. The fields are rendered over black, so the Scene layer (held out by the albedo) adds to the
 composite; A and R, held out by the meshes, are zero where a mesh covers them. The group's outputs
@@ -32,11 +36,12 @@ import json
 
 import bpy
 
-from . import camera_objects, compat, layers, native_layers, proxies, scene_objects
+from . import camera_objects, compat, layers, native_layers, native_lighting, proxies, scene_objects
 from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
 
 VIEW_LAYERS = {"albedo": "IGS Albedo", "shading": "IGS Shading", "residual": "IGS Residual", "scene": "IGS Scene",
-               "edit": "IGS Edit Preview"}
+               "edit": "IGS Edit Preview", "lit": "IGS Lit", "occluded": "IGS Occlusion",
+               "open": "IGS Occlusion Open"}
 TREE = "IGS Render"
 GROUP = "IGS Composite"
 OVERRIDE = "IGS Edit Preview"
@@ -54,8 +59,12 @@ ROLES = {
     "albedo": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "shading": {"field:shading": "in", "fields": "out", "edits": "out", "scene": "out"},
     "residual": {"field:residual": "in", "fields": "out", "edits": "out", "scene": "hold"},
-    "scene": {"field:albedo": "hold", "fields": "out", "edits": "out", "scene": "in"},
+    "scene": {"field:albedo": "hold", "field:shadow": "in", "field:environment": "in", "fields": "out", "edits": "out",
+              "scene": "in"},
     "edit": {"fields": "out", "edits": "in", "scene": "hold"},
+    "lit": {"field:albedo": "in", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "hold"},
+    "occluded": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
+    "open": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "out"},
 }
 
 
@@ -66,7 +75,8 @@ def is_set_up(scene: bpy.types.Scene) -> bool:
 def _own_collections() -> dict[str, str]:
     """Collection name -> what it is for the view layers: ``field:<f>``, ``edits``, or ``add-on`` (a folder of
     the add-on's whose children decide)."""
-    kinds = {native_layers.field_collection_name(f): f"field:{f}" for f in native_layers.FIELDS}
+    kinds = {native_layers.field_collection_name(f): f"field:{f}"
+             for f in (*native_layers.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.ENVIRONMENT_FIELD)}
     kinds.update({proxies.COLLECTION: "edits", scene_objects.COLLECTION_NAME: "add-on", layers.COLLECTION: "add-on",
                   camera_objects.COLLECTION: "add-on"})
     return kinds
@@ -163,12 +173,16 @@ def composite_group() -> bpy.types.NodeTree:
     """The node group "IGS Composite" (made once; an artist's changes to it are kept)."""
     group = bpy.data.node_groups.get(GROUP)
     if group is not None and group.bl_idname == "CompositorNodeTree":
-        return group
+        if any(i.in_out == "INPUT" and i.name == "Occluded" for i in group.interface.items_tree):
+            return group
+        group.name = f"{GROUP} (older)"  # made by an earlier version: kept beside the new one
     group = bpy.data.node_groups.new(GROUP, "CompositorNodeTree")
     for name, kind, default in (("Albedo", "NodeSocketColor", (0, 0, 0, 0)), ("Albedo Depth", "NodeSocketFloat", FAR),
                                 ("Shading", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Residual", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Scene", "NodeSocketColor", (0, 0, 0, 0)), ("Edit", "NodeSocketColor", (0, 0, 0, 0)),
+                                ("Lit", "NodeSocketColor", (0, 0, 0, 0)),
+                                ("Occluded", "NodeSocketColor", (1, 1, 1, 1)), ("Open", "NodeSocketColor", (1, 1, 1, 1)),
                                 ("Edit Depth", "NodeSocketFloat", FAR),
                                 ("Depth Tolerance", "NodeSocketFloat", DEPTH_TOLERANCE)):
         _socket(group, name, "INPUT", kind, default)
@@ -223,8 +237,20 @@ def composite_group() -> bpy.types.NodeTree:
     links.new(mask, albedo.inputs["Factor"])
     links.new(gin.outputs["Albedo"], albedo.inputs[4])
     links.new(shown, albedo.inputs[5])
-    product = vmath("MULTIPLY", albedo.outputs[1], gin.outputs["Shading"], 250, 0)
-    full = vmath("ADD", vmath("ADD", product, gin.outputs["Residual"], 450, 0), gin.outputs["Scene"], 650, 0)
+    # S times the share of its surroundings the artist's meshes leave open (1 without meshes or albedo)
+    sep_o = node("CompositorNodeSeparateColor", -900, -600)
+    links.new(gin.outputs["Occluded"], sep_o.inputs[0])
+    sep_n = node("CompositorNodeSeparateColor", -900, -750)
+    links.new(gin.outputs["Open"], sep_n.inputs[0])
+    share = math("DIVIDE", sep_o.outputs["Red"], math("MAXIMUM", sep_n.outputs["Red"], 1e-4, -700, -750), -500, -650)
+    seen = math("GREATER_THAN", sep_n.outputs["Red"], 1e-3, -500, -800)
+    share = math("ADD", math("MULTIPLY", math("MINIMUM", share, 1.0, -300, -650), seen, -100, -650),
+                 math("SUBTRACT", 1.0, seen, -300, -800), 50, -700)
+    shading = vmath("SCALE", gin.outputs["Shading"], None, 150, -300, scale=share)
+    product = vmath("MULTIPLY", albedo.outputs[1], shading, 250, 0)
+    # A * (S + S_new) = A * S + Lit, Lit the albedo splats lit by the lights collection (native_lighting)
+    lit = vmath("ADD", product, gin.outputs["Lit"], 350, 100)
+    full = vmath("ADD", vmath("ADD", lit, gin.outputs["Residual"], 450, 0), gin.outputs["Scene"], 650, 0)
     # every output opaque over black, as igs render writes its PNGs (a vector becomes an opaque colour)
     links.new(full, gout.inputs["Image"])
     links.new(albedo.outputs[1], gout.inputs["Albedo"])
@@ -260,7 +286,7 @@ def _render_tree(scene: bpy.types.Scene) -> bpy.types.NodeTree:
     return tree
 
 
-def _wire(scene: bpy.types.Scene, previewing: bool) -> None:
+def _wire(scene: bpy.types.Scene, previewing: bool, lighting: bool, occluding: bool = False) -> None:
     """(Re)link the Render Layers to the group, and the group output Render > Layer picks to the tree's output."""
     tree = _render_tree(scene)
     nodes, links = tree.nodes, tree.links
@@ -269,6 +295,10 @@ def _wire(scene: bpy.types.Scene, previewing: bool) -> None:
              ("residual", "Image", "Residual"), ("scene", "Image", "Scene")]
     if previewing:
         wires += [("edit", "Image", "Edit"), ("edit", "Depth", "Edit Depth")]
+    if lighting:
+        wires.append(("lit", "Image", "Lit"))
+    if occluding:
+        wires += [("occluded", "Image", "Occluded"), ("open", "Image", "Open")]
     wanted = {(VIEW_LAYERS[role], out, into) for role, out, into in wires}
     for link in list(group.inputs[i] for i in range(len(group.inputs))):
         for lk in list(link.links):
@@ -317,6 +347,7 @@ def setup(scene: bpy.types.Scene) -> list[str]:
         vl = scene.view_layers.get(name) or scene.view_layers.new(name)
         vl.use_pass_combined = True
         vl.use_pass_z = role in ("albedo", "edit")
+    notes += native_lighting.update(scene)
     r = scene.render
     r.film_transparent = True
     r.use_single_layer = False
@@ -348,7 +379,62 @@ def sync(scene: bpy.types.Scene) -> None:
             vl.use = proxy is not None
     _gather_proxies(props)
     _albedo_visibility(props, proxy)
-    _wire(scene, proxy is not None)
+    native_lighting.update(scene)
+    sync_lighting(scene)
+    _wire(scene, proxy is not None, lighting(scene), _occluding(scene))
+
+
+def _occluding(scene: bpy.types.Scene) -> bool:
+    return native_lighting.occluders(scene, set(_own_collections()) | set(VIEW_LAYERS.values()))
+
+
+def lighting(scene: bpy.types.Scene) -> bool:
+    """Blender lights the capture (the view layer "IGS Lit" renders): the lights collection holds a visible
+    light and the shading layer shows no backend bake (``light-bake``'s lights are in it already)."""
+    shading = layers.loaded_layers().get("shading")
+    baked = shading is not None and bool(shading.get("igs_lights"))  # light_bake.KEY
+    return native_lighting.lights_on(scene) and not baked
+
+
+def sync_lighting(scene: bpy.types.Scene) -> None:
+    """The lights' part of :func:`sync`, cheap enough for every depsgraph update that touches a light: the lit
+    view layer on or off, the other lights kept off the capture, the normals' matrix, the wiring."""
+    vl = scene.view_layers.get(VIEW_LAYERS["lit"])
+    if vl is None:
+        return
+    on = lighting(scene)
+    occluding = _occluding(scene)
+    rewire = vl.use != on or _wired(scene, "Lit") != on or _wired(scene, "Open") != occluding
+    if vl.use != on:
+        vl.use = on
+    for role in ("occluded", "open"):
+        layer = scene.view_layers.get(VIEW_LAYERS[role])
+        if layer is None:
+            continue
+        if layer.use != occluding:
+            layer.use = occluding
+        if layer.material_override != native_lighting.occlusion_material():
+            layer.material_override = native_lighting.occlusion_material()
+    mat = native_lighting.lit_material()
+    if vl.material_override != mat:
+        vl.material_override = mat
+    world = native_lighting.dark_world()
+    if vl.world_override != world:
+        vl.world_override = world
+    albedos = native_lighting.albedo_objects()
+    if albedos:
+        for material in (mat, native_lighting.occlusion_material()):
+            native_lighting.set_normal_matrix(material, native_lighting.normal_matrix())
+        native_lighting.exclude_other_lights(scene, albedos)
+    if rewire:  # only on a change: this runs on depsgraph updates, and every write triggers another
+        _wire(scene, preview_proxy(scene.igs) is not None, on, occluding)
+
+
+def _wired(scene: bpy.types.Scene, into: str) -> bool:
+    tree = bpy.data.node_groups.get(TREE)
+    group = tree.nodes.get(GROUP) if tree is not None else None
+    socket = group.inputs.get(into) if group is not None else None
+    return socket is not None and socket.is_linked
 
 
 HOME = "igs_home_collections"
@@ -410,6 +496,7 @@ def teardown(scene: bpy.types.Scene) -> None:
             vl.use = True
             del vl["igs_use_before"]
     compat.remove_compositor_tree(scene, TREE)
+    native_lighting.release(scene)
 
 
 _SIGNATURE: dict[str, tuple] = {}
@@ -420,10 +507,17 @@ def _signature(scene) -> tuple:
 
 
 @bpy.app.handlers.persistent
-def _on_depsgraph(scene, _depsgraph=None) -> None:
-    """A collection added after the setup gets its flags in the IGS view layers (a cheap check per update)."""
+def _on_depsgraph(scene, depsgraph=None) -> None:
+    """A collection added after the setup gets its flags in the IGS view layers (a cheap check per update); a
+    light added, moved or hidden turns the lit view layer on or off and keeps the other lights off the capture."""
     if not is_set_up(scene) or not hasattr(scene, "igs"):
         return
+    if depsgraph is None or any(isinstance(u.id, (bpy.types.Object, bpy.types.Light, bpy.types.Collection))
+                                for u in depsgraph.updates):
+        try:
+            sync_lighting(scene)
+        except ReferenceError:  # a scene being torn down; the next update looks again
+            pass
     sig = _signature(scene)
     if _SIGNATURE.get(scene.name) != sig:
         _SIGNATURE[scene.name] = sig

@@ -38,7 +38,7 @@ class IGS_OT_load_layers(bpy.types.Operator):
         edits.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"
         if native:
-            msg += "; F12 renders A×S+R (view layers IGS Albedo/Shading/Residual/Scene, compositor group IGS Composite)"
+            msg += "; F12 renders A×S+R (view layers IGS Albedo/Shading/Residual/Scene/Lit, compositor group IGS Composite)"
             msg += "".join(f"; {n}" for n in notes)
         on_disk = [n for n in edits.workspace_edits(ws) if edits.find(props, n)[1] is None]
         if on_disk:

@@ -12,6 +12,7 @@ from ..igs_blender import (
     layers,
     light_bake,
     lights,
+    native_layers,
     native_render,
     preferences,
     scene_objects,
@@ -258,7 +259,10 @@ class IGS_PT_lights(_SubPanel, bpy.types.Panel):
         col.prop(props, "live_lights")
         layout.operator("igs.bake_lights", icon="RENDER_STILL")
         shading = light_bake.shading_object()
-        if shading is not None:
+        if shading is not None and native_layers.is_native(shading) and not shading.get(light_bake.KEY):
+            _lines(layout.box(), "F12: Blender lights the capture itself (view layer IGS Lit, shadows both ways); "
+                   "no bake runs", icon="SHADING_RENDERED", context=context)
+        elif shading is not None:
             shown = shading.get(light_bake.KEY)
             count = len(json.loads(shown)) if shown else 0
             _lines(layout.box(), f"Viewport shading: lit by {count} light(s) ({light_bake.LIT})" if count else

@@ -169,6 +169,7 @@ def test_load_layers_makes_native_splats_with_blenders_attributes(scene, tmp_pat
         names = {a.name for a in obj.data.attributes if not a.name.startswith(".")}
         want = {"position", "scale", "rotation", "radiance:base", "igs_index"}
         want |= {f"radiance:sh_{k}" for k in range(layer.f_rest.shape[1])}
+        want |= {"igs_normal"} if kind == "albedo" else set()  # what Blender's lights shade it with
         assert names == want
         np.testing.assert_allclose(attr(obj, "position", 3, "vector"), layer.means, atol=1e-6)
         np.testing.assert_allclose(attr(obj, "scale", 3, "vector"), layer.scales, rtol=1e-5)

@@ -1,0 +1,414 @@
+"""Blender lights the albedo field itself (Blender 5.3+): a lit material, per-Gaussian normals, a shadow proxy.
+
+The lights of the IGS lights collection (:mod:`.lights`) add ``A x S_new`` to the render, with ``S_new``
+computed by Cycles or EEVEE: the view layer "IGS Lit" (:mod:`.native_render`) renders the albedo
+field with the override material :data:`MATERIAL`, a Diffuse BSDF of the albedo colour (the splats'
+``radiance:base`` decoded, as the emission of :data:`.native_layers.MATERIAL` does) and of the normal
+attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``S_new = E / pi`` is what
+``light-bake`` adds to the shading, so the composite ``A * S + Lit + R`` is ``A * (S + S_new) + R``.
+
+- **Normals** (:func:`gaussian_normals`): each Gaussian's shortest axis, turned towards the capture's
+  cameras, the ``--normals axes`` estimate of ``light-bake`` (without its per-view visibility test, which
+  needs the backend's renderer: every camera counts). Stored in capture coordinates; the material turns
+  them into world coordinates with the capture's matrix (:func:`update`), since Cycles' Vector Transform
+  node returns no usable vector on splats (measured on 5.3.0).
+- **Shadows** (:func:`shadow_proxy`): splats lit by a point on their own surface shadow themselves, since
+  a shadow ray leaving a splat crosses the overlapping neighbours at its start (a flat floor of splats
+  renders at a third of a mesh floor's light). The albedo splats cast no shadow; a copy of them moved
+  back along each normal by :data:`OFFSET_SHORT` shortest and :data:`OFFSET_MID` middle standard
+  deviations, seen by shadow rays only, casts them instead: onto meshes, onto the capture itself, with the
+  splats' own opacity (a faint Gaussian tail casts a faint shadow).
+- **The capture's light on meshes** (:func:`environment`): in the view layer "IGS Scene" the artist's
+  meshes are lit by a copy of the composite preview (``A x S + R`` on the albedo's splats), seen by
+  indirect rays only (*IGS composite light*, collection "IGS Field environment"); the albedo splats,
+  which emit their colour A there, are then hidden from indirect rays.
+- **Occlusion** (:func:`occlusion_material`): the captured shading S is light that came from all around;
+  a mesh standing on the capture blocks some of it. Two view layers render the albedo splats with the
+  override material :data:`OCCLUSION` (Cycles' Ambient Occlusion of the scene around each splat, as an
+  emission), one with the meshes (holdouts that occlude), one without; the composite multiplies S by
+  their ratio, the share of the surroundings the meshes leave open (the captured light taken as the
+  same from every direction: ambient occlusion, contact shadows included).
+- **Other lights** (:func:`exclude_other_lights`): a light outside the collection must leave the capture
+  untouched, so it gets the light-linking receiver collection :data:`NOT_LIT`, which excludes the albedo
+  splats (a light with a receiver collection of the artist's own is left alone and named in the report).
+  The world does not light them either: the lit view layer's world is :data:`DARK_WORLD`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from . import compat, layers, lights, native_layers, scene_objects
+from .cameras import read_workspace_cameras
+from .errors import UserError
+from .point_attributes import get_point_attribute, set_point_attribute
+
+MATERIAL = "IGS Splat Lit"
+OCCLUSION = "IGS Splat Occlusion"
+OCCLUSION_DISTANCE = 1000.0
+"""How far the occlusion looks for meshes (Blender units): everywhere, as light from all around would be blocked."""
+NORMAL = "igs_normal"
+"""FLOAT_VECTOR attribute of the albedo splats: each Gaussian's unit normal, in capture coordinates."""
+SHADOW_FIELD = "shadow"
+"""The shadow proxies' field collection ("IGS Field shadow")."""
+ENVIRONMENT_FIELD = "environment"
+"""The capture's light for meshes: "IGS Field environment"."""
+ENVIRONMENT = "IGS composite light"
+INDIRECT = ("diffuse", "glossy", "transmission", "volume_scatter")
+PROXY_OF = "igs_shadow_of"
+"""Custom property of a shadow proxy: the name of the albedo object it follows."""
+OFFSET_SHORT = 3.0
+OFFSET_MID = 1.0
+"""The proxy lies behind each Gaussian by 3 shortest standard deviations (its own thickness) plus one middle
+one (the neighbours' scatter about the surface). Measured on a floor of tilted splats under a sun (Cycles,
+the light reaching it against a floor that casts no shadow; docs/blender.md): with the centres scattered
+by 0, 1/3 and 2/3 of the middle deviation along the normal, the splats themselves keep 0.61-0.65 of it,
+a proxy at 3 + 0.25 keeps 1.00 / 0.95 / 0.83, at 3 + 1 1.00 / 1.00 / 0.96. The price: a shadow starts that
+far from where an occluder touches the surface."""
+NOT_LIT = "IGS Not Lit By Scene Lights"
+DARK_WORLD = "IGS No World Light"
+ROWS = ("IGS normal row x", "IGS normal row y", "IGS normal row z")
+WHAT = "an albedo splat layer"
+
+
+# -- normals ----------------------------------------------------------------------------------------------------
+
+
+def quat_matrices(quats: np.ndarray) -> np.ndarray:
+    """(N, 4) unit wxyz quaternions -> (N, 3, 3) rotation matrices (columns: the local axes)."""
+    w, x, y, z = (quats[:, i].astype(np.float64) for i in range(4))
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
+
+
+def gaussian_normals(means: np.ndarray, scales: np.ndarray, quats: np.ndarray, eyes: np.ndarray,
+                     chunk: int = 65536) -> np.ndarray:
+    """(N, 3) float32 unit normals: the shortest axis of each Gaussian (``scales`` (N, 3) standard deviations,
+    ``quats`` (N, 4) wxyz) turned towards the camera centres ``eyes`` (C, 3): the sum of the unit directions
+    from its centre ``means`` (N, 3) to them, as ``light-bake --normals axes`` turns a Gaussian no view saw."""
+    rot = quat_matrices(quats)
+    axis = rot[np.arange(len(rot)), :, np.argmin(scales, axis=1)]
+    towards = np.empty_like(axis)
+    for s in range(0, len(means), chunk):
+        d = eyes[None].astype(np.float64) - means[s:s + chunk, None].astype(np.float64)
+        towards[s:s + chunk] = (d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)).sum(1)
+    flip = (axis * towards).sum(1) < 0
+    axis[flip] *= -1
+    return axis.astype(np.float32)
+
+
+def camera_centres(workspace: str) -> np.ndarray:
+    """(C, 3) the capture's camera centres (capture coordinates), from the workspace's ``transforms.json``."""
+    views = read_workspace_cameras(Path(workspace))
+    if not views:
+        raise UserError(f"{Path(workspace) / 'transforms.json'} lists no camera: the splats' normals face them")
+    return np.array([v.center for v in views], dtype=np.float64)
+
+
+def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray) -> None:
+    """Give the albedo splats of ``obj`` their :data:`NORMAL` attribute (kept when it already covers them)."""
+    pc = obj.data
+    if pc.attributes.get(NORMAL) is not None and obj.get("igs_normals_points") == len(pc.points):
+        return
+    means = get_point_attribute(pc, "position", 3, "vector", WHAT)
+    scales = get_point_attribute(pc, "scale", 3, "vector", WHAT)
+    quats = get_point_attribute(pc, "rotation", 4, "value", WHAT)
+    set_point_attribute(pc, NORMAL, "FLOAT_VECTOR", gaussian_normals(means, scales, quats, eyes), "vector")
+    obj["igs_normals_points"] = len(pc.points)
+
+
+# -- the lit material -------------------------------------------------------------------------------------------
+
+
+def lit_material() -> bpy.types.Material:
+    """Diffuse BSDF of the decoded albedo colour, its normal the :data:`NORMAL` attribute turned into world
+    coordinates by the rows :data:`ROWS` (the capture's normal matrix, set by :func:`update`)."""
+    mat = bpy.data.materials.get(MATERIAL)
+    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get(ROWS[2]) is not None:
+        return mat
+    mat = mat or bpy.data.materials.new(MATERIAL)
+    compat.use_nodes(mat)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    color = native_layers.decoded_color(nodes, links)
+    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.location = (250, -200)
+    links.new(color, diffuse.inputs["Color"])
+    links.new(world_normal(nodes, links), diffuse.inputs["Normal"])
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (450, -200)
+    links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
+    set_normal_matrix(mat, np.eye(3))
+    return mat
+
+
+def world_normal(nodes, links) -> bpy.types.NodeSocket:
+    """Shader nodes (added to ``nodes``) whose output is the :data:`NORMAL` attribute in world coordinates: the
+    dot products with the rows :data:`ROWS` of the capture's normal matrix, normalised."""
+    normal = nodes.new("ShaderNodeAttribute")
+    normal.attribute_type = "GEOMETRY"
+    normal.attribute_name = NORMAL
+    normal.location = (-800, -600)
+    combine = nodes.new("ShaderNodeCombineXYZ")
+    combine.location = (-300, -600)
+    for i, (row, axis) in enumerate(zip(ROWS, "XYZ")):
+        dot = nodes.new("ShaderNodeVectorMath")
+        dot.operation = "DOT_PRODUCT"
+        dot.name = dot.label = row
+        dot.location = (-550, -500 - 150 * i)
+        links.new(normal.outputs["Vector"], dot.inputs[0])
+        links.new(dot.outputs["Value"], combine.inputs[axis])
+    unit = nodes.new("ShaderNodeVectorMath")
+    unit.operation = "NORMALIZE"
+    unit.location = (-100, -600)
+    links.new(combine.outputs[0], unit.inputs[0])
+    return unit.outputs["Vector"]
+
+
+def set_normal_matrix(mat: bpy.types.Material, m: np.ndarray) -> None:
+    """Write the (3, 3) normal matrix ``m`` (capture -> world) into the material's rows (only on change, so an
+    F12 does not recompile the shader)."""
+    for row, values in zip(ROWS, m):
+        socket = mat.node_tree.nodes[row].inputs[1]
+        if not np.allclose(tuple(socket.default_value), values, atol=1e-7):
+            socket.default_value = tuple(float(v) for v in values)
+
+
+def normal_matrix() -> np.ndarray:
+    """The inverse transpose of the capture empty's 3x3 (a normal's transform capture -> world)."""
+    m3 = np.array(scene_objects.capture_matrix(), dtype=np.float64)[:3, :3]
+    try:
+        return np.linalg.inv(m3).T
+    except np.linalg.LinAlgError:
+        return np.eye(3)
+
+
+def occlusion_material() -> bpy.types.Material:
+    """An emission of Cycles' Ambient Occlusion factor (:data:`OCCLUSION_DISTANCE`): 1 where nothing is
+    around a splat, less where something blocks its surroundings."""
+    mat = bpy.data.materials.get(OCCLUSION)
+    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get(ROWS[2]) is not None:
+        return mat
+    mat = mat or bpy.data.materials.new(OCCLUSION)
+    compat.use_nodes(mat)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    ao = nodes.new("ShaderNodeAmbientOcclusion")
+    ao.name = "IGS occlusion"
+    ao.samples = 16
+    ao.inputs["Distance"].default_value = OCCLUSION_DISTANCE
+    links.new(world_normal(nodes, links), ao.inputs["Normal"])
+    set_normal_matrix(mat, np.eye(3))
+    emission = nodes.new("ShaderNodeEmission")
+    emission.location = (250, 0)
+    links.new(ao.outputs["AO"], emission.inputs["Color"])
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (450, 0)
+    links.new(emission.outputs["Emission"], out.inputs["Surface"])
+    return mat
+
+
+def occluders(scene: bpy.types.Scene, own: set[str]) -> bool:
+    """Whether a mesh (or curve, surface, text, metaball) of the artist's renders: something that can block
+    the captured light. ``own``: the add-on's collection names."""
+    for obj in scene.objects:
+        if obj.type in ("MESH", "CURVE", "SURFACE", "FONT", "META") and not obj.hide_render \
+                and not any(c.name in own for c in obj.users_collection):
+            return True
+    return False
+
+
+def dark_world() -> bpy.types.World:
+    """A black world: the lit view layer's, so the scene's world does not light the capture a second time."""
+    world = bpy.data.worlds.get(DARK_WORLD)
+    if world is None:  # made once: a setting written on every depsgraph update would trigger another
+        world = bpy.data.worlds.new(DARK_WORLD)
+        world.color = (0.0, 0.0, 0.0)
+        if world.node_tree is not None:
+            bg = next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
+            if bg is not None:
+                bg.inputs["Strength"].default_value = 0.0
+    return world
+
+
+# -- the shadow proxy -------------------------------------------------------------------------------------------
+
+
+def albedo_objects() -> list[bpy.types.Object]:
+    """The native albedo splat objects (the workspace's and the edits' baked albedos)."""
+    coll = bpy.data.collections.get(native_layers.field_collection_name("albedo"))
+    return [o for o in coll.objects if native_layers.is_native(o)] if coll is not None else []
+
+
+def proxy_name(obj: bpy.types.Object) -> str:
+    return f"{obj.name} shadow"
+
+
+def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
+    """The shadow proxy of the albedo splats ``obj`` (module docstring), made or brought up to date."""
+    name = proxy_name(obj)
+    proxy = bpy.data.objects.get(name)
+    points = len(obj.data.points)
+    if proxy is not None and proxy.get(PROXY_OF) == obj.name and proxy.get("igs_points") == points \
+            and proxy.get("igs_source") == obj.get("igs_ply"):
+        return proxy
+    scene_objects.remove_object(proxy)
+    data = obj.data.copy()
+    data.name = name
+    pos = get_point_attribute(data, "position", 3, "vector", WHAT).astype(np.float64)
+    scales = np.sort(get_point_attribute(data, "scale", 3, "vector", WHAT).astype(np.float64), axis=1)
+    normals = get_point_attribute(data, NORMAL, 3, "vector", WHAT).astype(np.float64)
+    back = OFFSET_SHORT * scales[:, 0] + OFFSET_MID * scales[:, 1]
+    set_point_attribute(data, "position", "FLOAT_VECTOR", pos - normals * back[:, None], "vector")
+    proxy = bpy.data.objects.new(name, data)
+    native_layers.field_collection(SHADOW_FIELD).objects.link(proxy)
+    proxy.parent = obj.parent
+    proxy.matrix_parent_inverse = obj.matrix_parent_inverse.copy()
+    proxy.matrix_basis = obj.matrix_basis.copy()
+    for ray in ("camera", "diffuse", "glossy", "transmission", "volume_scatter"):
+        setattr(proxy, f"visible_{ray}", False)
+    proxy.hide_select = True
+    proxy[PROXY_OF], proxy["igs_points"], proxy["igs_source"] = obj.name, points, obj.get("igs_ply", "")
+    return proxy
+
+
+def _sync_proxies(albedos: list[bpy.types.Object]) -> None:
+    """One proxy per albedo object, rendering when it renders; proxies of albedos that went are removed."""
+    names = set()
+    for obj in albedos:
+        obj.visible_shadow = False  # the proxy casts its shadows
+        proxy = shadow_proxy(obj)
+        proxy.hide_render = obj.hide_render
+        proxy.hide_viewport = True
+        names.add(proxy.name)
+    coll = bpy.data.collections.get(native_layers.field_collection_name(SHADOW_FIELD))
+    for other in list(coll.objects) if coll is not None else []:
+        if other.name not in names:
+            scene_objects.remove_object(other)
+
+
+def environment(albedos: list[bpy.types.Object]) -> bpy.types.Object | None:
+    """The copy of the composite preview that lights the meshes (module docstring), made or brought up to
+    date; None (and the albedo splats seen by indirect rays, as before) when there is no composite preview."""
+    comp = layers.loaded_layers().get("composite")
+    env = bpy.data.objects.get(ENVIRONMENT)
+    if comp is None or not native_layers.is_native(comp):
+        scene_objects.remove_object(env)
+        env = None
+    elif env is None or env.get("igs_data") != comp.data.name or env.get("igs_points") != len(comp.data.points):
+        scene_objects.remove_object(env)
+        env = bpy.data.objects.new(ENVIRONMENT, comp.data)  # the same data: a rebuilt preview is a new datablock
+        native_layers.field_collection(ENVIRONMENT_FIELD).objects.link(env)
+        env.parent = comp.parent
+        env.matrix_parent_inverse = comp.matrix_parent_inverse.copy()
+        env.matrix_basis = comp.matrix_basis.copy()
+        env.visible_camera = env.visible_shadow = False
+        env.hide_viewport = env.hide_select = True
+        env["igs_data"], env["igs_points"] = comp.data.name, len(comp.data.points)
+    for obj in albedos:
+        for ray in INDIRECT:
+            if getattr(obj, f"visible_{ray}") != (env is None):
+                setattr(obj, f"visible_{ray}", env is None)
+    return env
+
+
+# -- the lights ---------------------------------------------------------------------------------------------------
+
+
+def not_lit_collection(albedos: list[bpy.types.Object]) -> bpy.types.Collection:
+    """The light-linking receiver collection that excludes the albedo splats (kept out of the scene)."""
+    coll = bpy.data.collections.get(NOT_LIT) or bpy.data.collections.new(NOT_LIT)
+    for obj in albedos:
+        if obj.name not in coll.objects:
+            coll.objects.link(obj)
+    for obj in list(coll.objects):
+        if obj not in albedos:
+            coll.objects.unlink(obj)
+    for entry in coll.collection_objects:
+        if entry.light_linking.link_state != "EXCLUDE":
+            entry.light_linking.link_state = "EXCLUDE"
+    return coll
+
+
+def exclude_other_lights(scene: bpy.types.Scene, albedos: list[bpy.types.Object]) -> list[str]:
+    """Lights outside the lights collection do not light the albedo splats; a light moved into it lights them
+    again. Returns the names of the lights left alone (a receiver collection of the artist's)."""
+    coll = not_lit_collection(albedos)
+    ours = {o.name for o in lights.scene_lights(scene)}
+    mine = lights.collection(scene.igs)
+    inside = {o.name for o in mine.all_objects} if mine is not None else set()
+    skipped = []
+    for obj in scene.objects:
+        if obj.type != "LIGHT":
+            continue
+        link = obj.light_linking
+        if obj.name in ours or obj.name in inside:
+            if link.receiver_collection == coll:
+                link.receiver_collection = None
+        elif link.receiver_collection is None:
+            link.receiver_collection = coll
+        elif link.receiver_collection != coll:
+            skipped.append(obj.name)
+    return skipped
+
+
+def lights_on(scene: bpy.types.Scene) -> bool:
+    """Blender lights the capture: Use Lights on and the collection holds a visible light."""
+    return bool(scene.igs.use_lights) and bool(lights.scene_lights(scene))
+
+
+def update(scene: bpy.types.Scene) -> list[str]:
+    """Bring the lighting up to date: normals, proxies, the material's normal matrix, the other lights'
+    exclusion. Returns notes for the report (lights left alone)."""
+    albedos = albedo_objects()
+    if not albedos:
+        return []
+    notes = []
+    if any(o.data.attributes.get(NORMAL) is None or o.get("igs_normals_points") != len(o.data.points)
+           for o in albedos):
+        eyes, note = _eyes(scene)
+        notes += [note] if note else []
+        for obj in albedos:
+            ensure_normals(obj, eyes)
+    _sync_proxies(albedos)
+    environment(albedos)
+    set_normal_matrix(lit_material(), normal_matrix())
+    skipped = exclude_other_lights(scene, albedos)
+    return notes + [f"light '{n}' has a light-linking receiver collection of its own: it may light the capture"
+                    for n in skipped]
+
+
+def _eyes(scene: bpy.types.Scene) -> tuple[np.ndarray, str]:
+    """(C, 3) where the capture was seen from (capture coordinates): the workspace's cameras, else the scene's
+    camera (with a note for the report: the normals then face it)."""
+    try:
+        return camera_centres(scene.igs.workspace), ""
+    except UserError as e:
+        cam = scene.camera
+        where = scene_objects.to_capture_space(cam.matrix_world)[:3, 3] if cam is not None else np.array([0, 0, 1e6])
+        return np.asarray(where, dtype=np.float64)[None], (f"the splats' normals face the scene camera, not the "
+                                                           f"capture's cameras ({e})")
+
+
+def release(scene: bpy.types.Scene) -> None:
+    """Undo :func:`update` (Remove Render Setup): the other lights lose the receiver collection it gave them,
+    the albedo splats cast their own shadows again, the proxies and the collection go."""
+    coll = bpy.data.collections.get(NOT_LIT)
+    for obj in scene.objects:
+        if obj.type == "LIGHT" and coll is not None and obj.light_linking.receiver_collection == coll:
+            obj.light_linking.receiver_collection = None
+    if coll is not None:
+        bpy.data.collections.remove(coll)
+    for obj in albedo_objects():
+        obj.visible_shadow = True
+        for ray in INDIRECT:
+            setattr(obj, f"visible_{ray}", True)
+    for field in (SHADOW_FIELD, ENVIRONMENT_FIELD):
+        coll = bpy.data.collections.get(native_layers.field_collection_name(field))
+        for obj in list(coll.objects) if coll is not None else []:
+            scene_objects.remove_object(obj)
