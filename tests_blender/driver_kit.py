@@ -149,6 +149,8 @@ def scroll_sidebar(clicks: int):
         xdo("click", "5" if clicks > 0 else "4")
     yield from wait_until(lambda: sidebar_top() != before, 60, "the sidebar to scroll")
     yield from at_rest(sidebar_top, "the sidebar's scroll")
+    xdo("mousemove", str(ui.x // 2), str(y))  # off the sidebar, so no tooltip covers the screenshots
+    yield from drawn()
 
 
 def at_rest(value, what: str, timeout_s: float = 60.0):
