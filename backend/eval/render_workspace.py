@@ -33,6 +33,8 @@ from backend.eval.render_views import (
 )
 from backend.render import Backend
 from backend.train.intrinsic.stages import layer_splats
+from igs_contract import numbers
+from igs_contract.errors import ContractError
 
 DEFAULT_LAYERS = "A,S,R,full"
 
@@ -82,13 +84,18 @@ class RenderConfig:
     """Renderer backend."""
 
 
-def _vector(text: str, flag: str) -> np.ndarray:
+def _vector(text: str, flag: str, unit: bool = False) -> np.ndarray:
+    """(3,) ``x,y,z`` typed for ``flag``, each a world coordinate (the contract's number check);
+    ``unit``: a direction, scaled to unit length (the zero vector refused)."""
     try:
-        v = np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
-    except ValueError:
-        raise IGSError(f"{flag} must be x,y,z, got {text!r}") from None
-    if not np.isfinite(v).all():
-        raise IGSError(f"{flag} must be finite x,y,z, got {text!r}")
+        v = np.array(numbers.parse_list(text, flag, 3), dtype=np.float64)
+    except ContractError as e:
+        raise IGSError(str(e)) from None
+    if unit:
+        n = float(np.linalg.norm(v))
+        if n < 1e-9:
+            raise IGSError(f"{flag} must be a non-zero x,y,z direction, got {text!r}")
+        v = v / n
     return v
 
 
@@ -125,7 +132,7 @@ def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]
             template = Camera(template.name, int(cfg.size[0]), int(cfg.size[1]), template.fx, template.fx,
                               cfg.size[0] / 2, cfg.size[1] / 2, template.R, template.t)
         frames = [f.camera for f in capture.frames]
-        up = _vector(cfg.up, "--up") if cfg.up else capture_up(frames)
+        up = _vector(cfg.up, "--up", unit=True) if cfg.up else capture_up(frames)
         center, radius, height = capture_orbit(frames, capture.points, up)
         if cfg.center:
             center = _vector(cfg.center, "--center")
