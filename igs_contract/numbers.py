@@ -127,3 +127,18 @@ def parse_list(texts: Sequence[str] | str, what: str, n: int, rng: Range = Range
         raise ContractError(f"{what} must be {n} numbers{' as ' + sep.join('xyzw'[:n]) if isinstance(texts, str) else ''}"
                             f", got {_show(texts)}")
     return [float(parse(p, what, rng)) for p in parts]
+
+
+def check_tree(value, where: str, rng: Range = Range(-MAX_MAGNITUDE, MAX_MAGNITUDE)) -> None:
+    """Every number anywhere in the parsed JSON ``value`` is finite and in ``rng``; the error names the
+    key path (``where: 'vertices'[3][1] must be ...``). Run before a reader turns lists into arrays, so
+    that no number overflows the conversion. Bools are not numbers and are left to the reader's own check."""
+    stack = [(value, "")]
+    while stack:
+        v, path = stack.pop()
+        if isinstance(v, dict):
+            stack.extend((item, f"{path}[{k!r}]" if path else repr(k)) for k, item in v.items())
+        elif isinstance(v, list):
+            stack.extend((item, f"{path}[{i}]") for i, item in enumerate(v))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            check(v, f"{where}: {path or 'the value'}", rng)

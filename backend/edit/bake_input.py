@@ -3,6 +3,7 @@
 ``plane.json`` (the convenience form of ``--plane``): ``{"center": [3], "normal": [3], "u_axis": [3],
 "v_axis": [3], "size": [w, h]}`` in world units (the ``"plane"`` entry of a fit's edit.json, or the
 ``"surface"`` of a synthetic ``gt_edit/<edit>/edit.json``); UV (0, 0) at ``center - w/2 u - h/2 v``.
+Every coordinate is within +-1e6 and each side of ``size`` in [1e-6, 1e6] (:mod:`igs_contract.numbers`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ import numpy as np
 from backend.core.errors import IGSError
 from backend.core.imageio import read_linear
 from backend.edit.proxy import ProxyMesh, plane_proxy
+from igs_contract import numbers
+from igs_contract.errors import ContractError
 
 
 @dataclass
@@ -45,16 +48,19 @@ def parse_color(text: str, what: str = "--color") -> np.ndarray:
     return c
 
 
-def _vec(d: dict, key: str, n: int, where: str) -> np.ndarray:
+PLANE_SIZE = numbers.Range(1e-6, numbers.MAX_COORD)
+"""A plane's width and height, world units."""
+
+
+def _vec(d: dict, key: str, n: int, where: str, rng: numbers.Range = numbers.Range(-numbers.MAX_COORD, numbers.MAX_COORD)
+         ) -> np.ndarray:
+    """``d[key]``: ``n`` numbers, each in ``rng`` (the contract's number check; default a world coordinate)."""
+    if key not in d:
+        raise IGSError(f"{where}: missing '{key}'")
     try:
-        v = np.asarray(d[key], dtype=np.float64).reshape(n)
-    except KeyError:
-        raise IGSError(f"{where}: missing '{key}'") from None
-    except (TypeError, ValueError):
-        raise IGSError(f"{where}: '{key}' must be {n} numbers") from None
-    if not np.isfinite(v).all():
-        raise IGSError(f"{where}: '{key}' has NaN or infinite values")
-    return v
+        return np.asarray(numbers.check_vector(d[key], f"{where}: '{key}'", n, rng), dtype=np.float64)
+    except ContractError as e:
+        raise IGSError(str(e)) from None
 
 
 def plane_from_json(path: str | Path, texture: str | None, color: str | None, name: str) -> ProxyMesh:
@@ -76,7 +82,7 @@ def plane_from_json(path: str | Path, texture: str | None, color: str | None, na
         raise IGSError(f"{path}: expected a JSON object with center, normal, u_axis, v_axis, size")
     where = str(path)
     c, n, u, v = (_vec(data, k, 3, where) for k in ("center", "normal", "u_axis", "v_axis"))
-    size = _vec(data, "size", 2, where)
+    size = _vec(data, "size", 2, where, PLANE_SIZE)
     tex = None
     if texture is not None:
         tp = Path(texture)
