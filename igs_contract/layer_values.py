@@ -18,11 +18,19 @@ whose squares vanish below about 1e-19 and overflow above about 1e19 (and torch'
 at least 1e-12)."""
 
 
+LOG_SCALE_MAX = 30.0
+"""The largest log-scale a Gaussian may have (a scale of about 1e13 world units): the covariance squares
+the scale, and above about exp(44) that overflows float32 (the Gaussian fills the view with infinities)."""
+MEAN_MAX = 1e12
+"""The largest size of a Gaussian's centre coordinate: projecting it squares it, still finite in float32."""
+
+
 def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout) -> dict[str, np.ndarray]:
     """float32 arrays of the vertex ``data`` (a structured array): ``means`` (N, 3), ``f_dc`` (N, 3),
     ``f_rest`` (N, 3(K-1)) channel-major as stored, ``opacity`` (N,), ``scales`` (N, 3), ``rot`` (N, 4)
     and ``eps2d`` (N,) when the file has it. Non-finite values, quaternions outside :data:`QUAT_RANGE`
-    and negative low-pass values are one ContractError naming the file and the first bad vertex."""
+    log-scales above :data:`LOG_SCALE_MAX`, centres beyond :data:`MEAN_MAX` and negative low-pass values
+    are one ContractError naming the file and the first bad vertex."""
     n = len(data)
 
     def columns(names) -> np.ndarray:
@@ -43,6 +51,11 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
             rows = np.unique(np.nonzero(bad)[0])
             raise ContractError(f"{path}: {len(rows)} of {n} Gaussians have NaN/inf values in '{name}' "
                                 f"(first at vertex {rows[0]})")
+    for name, limit, what in (("scales", LOG_SCALE_MAX, "a log-scale above"), ("means", MEAN_MAX, "a centre beyond +-")):
+        bad = (arrays[name] > limit).any(axis=1) if name == "scales" else (np.abs(arrays[name]) > limit).any(axis=1)
+        if bad.any():
+            raise ContractError(f"{path}: {int(bad.sum())} of {n} Gaussians have {what}{limit:g} (too large to "
+                                f"render); first at vertex {int(np.nonzero(bad)[0][0])}")
     # By the largest component, not the norm, whose square would overflow (or vanish) in float32.
     size = np.abs(arrays["rot"]).max(axis=1) if n else np.zeros(0, np.float32)
     low, high = QUAT_RANGE
