@@ -51,7 +51,7 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
             rows = np.unique(np.nonzero(bad)[0])
             raise ContractError(f"{path}: {len(rows)} of {n} Gaussians have NaN/inf values in '{name}' "
                                 f"(first at vertex {rows[0]})")
-    for name, limit, what in (("scales", LOG_SCALE_MAX, "a log-scale above"), ("means", MEAN_MAX, "a centre beyond +-")):
+    for name, limit, what in (("scales", LOG_SCALE_MAX, "a log-scale above "), ("means", MEAN_MAX, "a centre beyond +-")):
         bad = (arrays[name] > limit).any(axis=1) if name == "scales" else (np.abs(arrays[name]) > limit).any(axis=1)
         if bad.any():
             raise ContractError(f"{path}: {int(bad.sum())} of {n} Gaussians have {what}{limit:g} (too large to "
