@@ -38,14 +38,11 @@ class BakeInput:
 
 
 def parse_color(text: str, what: str = "--color") -> np.ndarray:
-    """'r,g,b' linear RGB in [0, 1] -> (3,) float32."""
+    """'r,g,b' linear RGB in [0, 1] -> (3,) float32 (each value through the contract's number check)."""
     try:
-        c = np.array([float(v) for v in str(text).split(",")], dtype=np.float32)
-    except ValueError:
-        c = np.zeros(0)
-    if c.shape != (3,) or not np.isfinite(c).all() or (c < 0).any() or (c > 1).any():
-        raise IGSError(f"{what} must be three linear RGB values in [0, 1] as r,g,b, got {text!r}")
-    return c
+        return np.array(numbers.parse_list(str(text), what, 3, numbers.Range(0.0, 1.0)), dtype=np.float32)
+    except ContractError:
+        raise IGSError(f"{what} must be three linear RGB values in [0, 1] as r,g,b, got {text!r:.60}") from None
 
 
 PLANE_SIZE = numbers.Range(1e-6, numbers.MAX_COORD)
