@@ -68,10 +68,10 @@ NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 # Blender's own defaults (bpy.data.lights.new) for a key left out
 DEFAULTS = {"color": [1.0, 1.0, 1.0], "radius": 0.0, "spot_size": math.pi / 4, "spot_blend": 0.15,
             "angle": 0.009180432, "shape": "square", "size": 0.25}
-MAX_LIGHTS = 256
-"""Lights one file may hold: each adds its shadow maps (6 faces of 256^2 float32 depth and ids, about
-3 MB, for a point light; an area light one set per cell) and one shading pass per view (about 30 ms
-and 10 MB per light for a 640x480 view on the CPU)."""
+MAX_LIGHTS = 64
+"""Lights one file may hold. Each adds its shadow maps (a point light 6 faces of 256^2 texels by
+default; an area light one set per cell) and a shading pass per view: about 0.5 s and 3 MB per point
+light for a 4-view 64x48 turntable on 2 CPU cores (docs/relighting.md)."""
 POWER = numbers.Range(0.0, 1e6)
 """W (W/m^2 for a sun): Blender's slider goes to 1e6; beyond it the shading leaves float32's range."""
 COLOR = numbers.Range(0.0, 1e3)
