@@ -29,8 +29,7 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
     """float32 arrays of the vertex ``data`` (a structured array): ``means`` (N, 3), ``f_dc`` (N, 3),
     ``f_rest`` (N, 3(K-1)) channel-major as stored, ``opacity`` (N,), ``scales`` (N, 3), ``rot`` (N, 4)
     and ``eps2d`` (N,) when the file has it. Non-finite values, quaternions outside :data:`QUAT_RANGE`
-    log-scales above :data:`LOG_SCALE_MAX`, centres beyond :data:`MEAN_MAX` and negative low-pass values
-    are one ContractError naming the file and the first bad vertex."""
+    and negative low-pass values are one ContractError naming the file and the first bad vertex."""
     n = len(data)
 
     def columns(names) -> np.ndarray:
@@ -51,11 +50,6 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
             rows = np.unique(np.nonzero(bad)[0])
             raise ContractError(f"{path}: {len(rows)} of {n} Gaussians have NaN/inf values in '{name}' "
                                 f"(first at vertex {rows[0]})")
-    for name, limit, what in (("scales", LOG_SCALE_MAX, "a log-scale above "), ("means", MEAN_MAX, "a centre beyond +-")):
-        bad = (arrays[name] > limit).any(axis=1) if name == "scales" else (np.abs(arrays[name]) > limit).any(axis=1)
-        if bad.any():
-            raise ContractError(f"{path}: {int(bad.sum())} of {n} Gaussians have {what}{limit:g} (too large to "
-                                f"render); first at vertex {int(np.nonzero(bad)[0][0])}")
     # By the largest component, not the norm, whose square would overflow (or vanish) in float32.
     size = np.abs(arrays["rot"]).max(axis=1) if n else np.zeros(0, np.float32)
     low, high = QUAT_RANGE
@@ -65,6 +59,19 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
             raise ContractError(f"{path}: {int(bad.sum())} Gaussians have {what}; first at vertex "
                                 f"{int(np.nonzero(bad)[0][0])})")
     return arrays
+
+
+def check_renderable(path: str | os.PathLike, log_scales: np.ndarray, means: np.ndarray) -> None:
+    """A layer about to be drawn (the add-on's objects, ``igs render``): log-scales (N, 3) at most
+    :data:`LOG_SCALE_MAX` and centres (N, 3) within :data:`MEAN_MAX`, else one ContractError naming
+    the file and the first bad vertex. Readers that only convert a file keep such values (a writer
+    clips what its format cannot store)."""
+    for arr, limit, what in ((np.asarray(log_scales), LOG_SCALE_MAX, "a log-scale above "),
+                             (np.abs(np.asarray(means)), MEAN_MAX, "a centre beyond +-")):
+        bad = (arr > limit).any(axis=1) if arr.size else np.zeros(0, bool)
+        if bad.any():
+            raise ContractError(f"{path}: {int(bad.sum())} of {len(arr)} Gaussians have {what}{limit:g} (too "
+                                f"large to render); first at vertex {int(np.nonzero(bad)[0][0])}")
 
 
 def coefficient_major(f_rest: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import shutil
 import warnings
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
@@ -232,15 +233,15 @@ def test_k_a_capture_json_of_an_unknown_schema_is_refused(tmp_path):
     refused(igs("info", tmp_path / "ws"), "'schema' is 2; this igs reads schema 1")
 
 
-def test_k_a_layer_with_a_log_scale_of_1e30_is_refused(ws, tmp_path):
-    src = ws / "layers" / "albedo.ply"
-    g, _ = read_ply(src)
-    arrays = read_splat_file(src).arrays
+def test_k_a_layer_with_a_log_scale_of_1e30_is_refused_for_rendering(ws, tmp_path):
+    shutil.copytree(ws, tmp_path / "ws")
+    path = tmp_path / "ws" / "layers" / "albedo.ply"
+    arrays = read_splat_file(path).arrays
     arrays.log_scales[3, 1] = 1e30
-    (tmp_path / "big.ply").write_bytes(ply_bytes(arrays, ["igs_kind albedo"]))
-    with pytest.raises(IGSError, match="a log-scale above 30"):
-        read_ply(tmp_path / "big.ply", kind="albedo")
-    assert len(g) > 3
+    path.write_bytes(ply_bytes(arrays, ["igs_kind albedo", "igs_color rgb01", "igs_space linear"]))
+    assert len(read_ply(path)[0]) == len(arrays.means)  # read as a file (export clips what it cannot store)
+    refused(igs("render", tmp_path / "ws", "--turntable", "--frames", "1", "--layers", "A"),
+            "albedo.ply: 1 of", "a log-scale above 30")
 
 
 def test_l_a_ply_declaring_faces_it_does_not_hold_is_refused(ws, tmp_path):

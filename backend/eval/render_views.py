@@ -45,7 +45,7 @@ from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.composite import compose
 from backend.train.intrinsic.stages import layer_splats
-from igs_contract import numbers
+from igs_contract import layer_values, numbers
 from igs_contract.camera_json import FOV_DEG, SIDE, check_intrinsics
 from igs_contract.errors import ContractError
 
@@ -245,6 +245,11 @@ def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, 
         if not path.exists():
             raise IGSError(f"{path}: layer not found; run `igs decompose` first (or ask only for other --layers)")
         layers[kind], _ = read_ply(path, kind=kind)
+        try:
+            layer_values.check_renderable(path, layers[kind].params["log_scales"].detach().cpu().numpy(),
+                                          layers[kind].params["means"].detach().cpu().numpy())
+        except ContractError as e:
+            raise IGSError(str(e)) from None
     return layers
 
 
