@@ -9,6 +9,8 @@
   workspace's transforms.json the add-on reads its cameras from.
 - ``light_json``: the lights file the add-on writes for ``igs render --light`` (and ``igs synth
   --lights`` reads and writes).
+- ``numbers``: the one check of every number read from a JSON file or the command line (finite,
+  in range, whole where whole, small enough to compute with).
 - ``workspace_lock``: the lock file a writing command holds in a workspace, and the line naming
   its holder that both sides show.
 
