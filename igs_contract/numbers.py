@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from numbers import Integral, Real
 
 from .errors import ContractError
 
@@ -73,9 +74,9 @@ def _show(value) -> str:
 def check(value, what: str, rng: Range = Range()) -> float | int:
     """``value`` (parsed JSON) as a float, or an int when ``rng.integral``; ContractError
     ``<what> must be <range>, got <value>`` otherwise."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if ok and isinstance(value, int):
-        ok = abs(value) < 2**1000  # a huge int is refused by its size before float() could overflow
+    ok = isinstance(value, Real) and not isinstance(value, bool)  # numpy's numbers too, not its bool_
+    if ok and isinstance(value, Integral):
+        ok = abs(int(value)) < 2**1000  # a huge int is refused by its size before float() could overflow
     if ok:
         v = float(value)
         ok = math.isfinite(v) and (not rng.integral or v.is_integer()) and rng.holds(v)
@@ -140,5 +141,5 @@ def check_tree(value, where: str, rng: Range = Range(-MAX_MAGNITUDE, MAX_MAGNITU
             stack.extend((item, f"{path}[{k!r}]" if path else repr(k)) for k, item in v.items())
         elif isinstance(v, list):
             stack.extend((item, f"{path}[{i}]") for i, item in enumerate(v))
-        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+        elif isinstance(v, Real) and not isinstance(v, bool):
             check(v, f"{where}: {path or 'the value'}", rng)
