@@ -193,7 +193,7 @@ def test_fuzz_numeric_options_through_render(ws, tmp_path, capfd):
     line, the valid ones write images that are neither black nor NaN."""
     t = Tally()
     base = ["render", str(ws), "--turntable", "--frames", "2", "--layers", "full"]
-    cases = [[], ["--radius", "1e308"], ["--radius", "1e-300"], ["--height", "1e308"], ["--height", "-1e308"],
+    cases = [[], ["--radius", "1e308"], ["--radius", "1e-300"], ["--radius", "1e5"], ["--radius", "3"], ["--height", "1e308"], ["--height", "-1e308"],
              ["--center", "1e308,0,0"], ["--up", "0,0,1e308"], ["--up", "0,0,1e-300"], ["--fov", "1e-300"],
              ["--fov", "179.99999999"], ["--fov", "40"], ["--size", "48", "36"], ["--size", "32.5", "24"],
              ["--frames", "9" * 400], ["--fps", "nan"], ["--shadow-size", "-0"]]

@@ -196,6 +196,12 @@ def test_e_k_turntable_numbers_out_of_range_are_one_error_without_warnings(ws, t
     refused(igs("render", ws, "--turntable", "--frames", "1", "--out", tmp_path / "r", *argv), *words)
 
 
+def test_e_a_turntable_too_far_to_see_the_scene_is_refused_not_black(ws, tmp_path):
+    refused(igs("render", ws, "--turntable", "--frames", "1", "--radius", "1e6", "--out", tmp_path / "r"),
+            "--radius/--height put the turntable", "the images would be black")
+    assert not (tmp_path / "r").exists()
+
+
 @pytest.mark.parametrize("change, words", [
     ({"fx": 1e300}, ["'fx' (pixels; a field of view of 0.1-170 degrees over 32 px)"]),
     ({"width": 32.5}, ["'width' must be a whole number >= 1 and <= 16384, got 32.5"]),

@@ -99,6 +99,20 @@ def _vector(text: str, flag: str, unit: bool = False) -> np.ndarray:
     return v
 
 
+def _check_in_view(cam: Camera, points: np.ndarray, center: np.ndarray) -> None:
+    """A turntable camera so far from the scene that it spans under a pixel renders black images:
+    one error naming the options instead (the scene's size: the SfM points' 90th percentile distance
+    from the orbit's centre)."""
+    if len(points) == 0:
+        return
+    size = float(np.quantile(np.linalg.norm(points - center, axis=1), 0.9))
+    distance = float(np.linalg.norm(cam.center - center))
+    if size > 0 and cam.fx * size / max(distance, 1e-12) < 1.0:
+        raise IGSError(f"--radius/--height put the turntable {distance:.3g} from its centre, where the scene "
+                       f"({size:.3g} across) spans under a pixel: the images would be black; give a smaller "
+                       "--radius or --height (or leave them out for the capture's own orbit)")
+
+
 def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]:
     """Render ``cfg.layers`` of the workspace for the cameras asked for; returns the output folder, the
     number of views, the layers and the videos written."""
@@ -142,6 +156,7 @@ def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]
         events.log(f"render: turntable around {np.round(center, 3).tolist()}, radius {radius:.3g}, height "
                    f"{height:.3g} along up {np.round(up, 3).tolist()}")
         cams = turntable(center, radius, height, cfg.frames, template, cfg.fov, up)
+        _check_in_view(cams[0], capture.points, center)
     needed = set().union(*(NEEDS[w] for w in wanted)) | ({"albedo"} if lights else set())
     layers = load_layers(ws.root, cfg.edit, needed)
     name = plain_name(cfg.edit, "--edit") if cfg.edit else "layers"
