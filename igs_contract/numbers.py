@@ -125,8 +125,8 @@ def parse_list(texts: Sequence[str] | str, what: str, n: int, rng: Range = Range
     """``n`` numbers typed as one ``a,b,c`` text (or as separate texts), each in ``rng``."""
     parts = texts.split(sep) if isinstance(texts, str) else list(texts)
     if len(parts) != n:
-        raise ContractError(f"{what} must be {n} numbers{' as ' + sep.join('xyzw'[:n]) if isinstance(texts, str) else ''}"
-                            f", got {_show(texts)}")
+        shape = f"{sep.join('xyzw'[:n])} ({n} numbers)" if isinstance(texts, str) else f"{n} numbers"
+        raise ContractError(f"{what} must be {shape}, got {_show(texts)}")
     return [float(parse(p, what, rng)) for p in parts]
 
 
