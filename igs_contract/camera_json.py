@@ -124,7 +124,11 @@ def _number(spec: dict, key: str, where: str, positive: bool = False) -> float:
 
 
 def _side(spec: dict, key: str, where: str) -> int:
-    return int(numbers.check(spec[key], f"{where}: '{key}' (pixels)", SIDE))
+    try:
+        return int(numbers.check(spec[key], f"{where}: '{key}'", SIDE))
+    except ContractError:
+        raise ContractError(f"{where}: '{key}' must be a whole number of pixels 1..{MAX_SIDE}, "
+                            f"got {spec[key]!r:.40}") from None
 
 
 def _image_name(file_path, where: str) -> str:

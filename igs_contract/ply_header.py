@@ -53,9 +53,9 @@ class Element:
 
     def min_row_size(self, fmt: str) -> int:
         """The fewest bytes one row can take: binary, its scalars and list lengths (every list empty);
-        ASCII, one digit and one separator per value."""
+        ASCII, a byte per value and one for the line's end (a loose bound: the reader checks the tokens)."""
         if fmt == "ascii":
-            return 2 * max(1, len(self.properties))
+            return len(self.properties) + 1
         return sum(int(TYPES[p.count_type or p.type][1]) for p in self.properties)
 
 
@@ -140,7 +140,7 @@ def check_data_size(path: str | os.PathLike, header: PlyHeader) -> None:
     element counts are wrong (a count smaller than the data would silently drop rows). Past the first
     element with list properties the size no longer follows from the header: from there on each row
     counts its fewest bytes (every list empty), so an element declared with no data behind it is still
-    refused. An ASCII file is only checked for those fewest bytes (a digit and a separator per value)."""
+    refused. An ASCII file is only checked for those fewest bytes (a byte per value and per line)."""
     expected, exact = header.data_offset, header.format != "ascii"
     for el in header.elements:
         if el.has_lists or not exact:
