@@ -274,3 +274,15 @@ def test_k_light_bake_with_a_power_of_1e308_is_refused_up_front(ws, tmp_path):
     p = _light(tmp_path, power=1e308)
     refused(igs("light-bake", ws, "--light", p), "'power' must be a finite number >= 0 and <= 1000000")
     assert not (ws / "layers" / "lit").exists()
+
+
+def test_a_layer_not_written_for_nan_never_names_a_temporary_file(ws, tmp_path):
+    from backend.core.atomic_io import atomic_paths
+    from backend.splats.ply import write_ply
+
+    g, _ = read_ply(ws / "layers" / "shading.ply")
+    g.params["colors"].data[0, 0] = float("nan")
+    with pytest.raises(IGSError) as e, atomic_paths([tmp_path / "lit" / "shading.ply"]) as (part,):
+        write_ply(part, g)
+    assert ".tmp" not in str(e.value) and str(tmp_path / "lit") in str(e.value), str(e.value)
+    assert not (tmp_path / "lit" / "shading.ply").exists()
