@@ -79,6 +79,12 @@ def layer_paths(workspace: Path) -> dict[str, Path]:
     return {k: workspace / "layers" / f"{k}.ply" for k in LAYER_KINDS if (workspace / "layers" / f"{k}.ply").is_file()}
 
 
+def composite_missing(kinds) -> list[str]:
+    """The layer PLYs a render of A x S + R needs that ``kinds`` (the loaded layers) lacks: albedo and
+    shading (a missing residual counts as 0), as ``layers/<kind>.ply``."""
+    return [f"layers/{k}.ply" for k in ("albedo", "shading") if k not in kinds]
+
+
 def subsample_index(n: int, limit: int, seed: int = 0) -> np.ndarray:
     """Sorted indices of at most ``limit`` of ``n`` points (all of them when ``limit`` <= 0 or >= n)."""
     if limit <= 0 or n <= limit:

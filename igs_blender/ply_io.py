@@ -107,6 +107,10 @@ def read_splat_ply(path: str | os.PathLike) -> SplatLayer:
     except OSError as e:
         raise UserError(f"{path}: unreadable PLY ({e.strerror or e})") from None
     layout, arrays = read.layout, read.arrays
+    try:  # every layer read here is drawn: a scale beyond float32's range would be infinite in the objects
+        layer_values.check_renderable(path, arrays["scales"], arrays["means"])
+    except ContractError as e:
+        raise UserError(str(e)) from None
     keep = [c for c in read.comments if (c.split() or [""])[0] not in layer_ply.COMMENT_KEYS]  # for round trips
     return SplatLayer(layout.kind, arrays["means"], arrays["f_dc"], layer_values.coefficient_major(arrays["f_rest"]).copy(),
                       arrays["opacity"], arrays["scales"], arrays["rot"], encoding=layout.encoding, space=layout.space,

@@ -11,6 +11,8 @@
   --lights`` reads and writes).
 - ``small_file``: the one reader of small files (JSON, lock records): size-capped, regular files
   only, never blocking on a FIFO.
+- ``numbers``: the one check of every number read from a JSON file or the command line (finite,
+  in range, whole where whole, small enough to compute with).
 - ``workspace_lock``: the lock file a writing command holds in a workspace, and the line naming
   its holder that both sides show.
 

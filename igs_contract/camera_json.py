@@ -29,6 +29,7 @@ import math
 import os
 from pathlib import Path, PurePosixPath
 
+from . import numbers
 from .errors import ContractError
 from .small_file import read_json
 
@@ -39,6 +40,27 @@ DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")  # OPENCV: with every coefficient 0
 IMAGES = "images"
 MAX_SIDE = 16384  # pixels
+FOV_DEG = numbers.Range(0.1, 170.0)
+"""The field of view a camera may have on each axis, degrees: a focal length outside it sees nothing
+(a 1e-300 degree view) or everything smeared to a point (a 179.99 degree one)."""
+SIDE = numbers.Range(1, MAX_SIDE, integral=True)
+
+
+def check_intrinsics(width, height, fx, fy, cx, cy, where: str) -> tuple[int, int, float, float, float, float]:
+    """(width, height, fx, fy, cx, cy) of one camera read from a file, checked: whole pixel counts
+    1..MAX_SIDE, focal lengths (pixels) whose field of view on each axis is in :data:`FOV_DEG`, and a
+    principal point within one image side of the image; one ContractError naming ``where`` and the key."""
+    w = numbers.check(width, f"{where}: 'width'", SIDE)
+    h = numbers.check(height, f"{where}: 'height'", SIDE)
+    out = [w, h]
+    for key, f, side in (("fx", fx, w), ("fy", fy, h)):
+        lo = side / (2 * math.tan(math.radians(FOV_DEG.hi) / 2))
+        hi = side / (2 * math.tan(math.radians(FOV_DEG.lo) / 2))
+        out.append(numbers.check(f, f"{where}: '{key}' (pixels; a field of view of {FOV_DEG.lo:g}-{FOV_DEG.hi:g} "
+                                    f"degrees over {side} px)", numbers.Range(round(lo, 3), round(hi, 1))))
+    for key, c, side in (("cx", cx, w), ("cy", cy, h)):
+        out.append(numbers.check(c, f"{where}: '{key}' (pixels)", numbers.Range(-side, 2 * side)))
+    return tuple(out)  # type: ignore[return-value]
 
 
 def camera_entry(name: str, width: int, height: int, fx: float, fy: float, cx: float, cy: float, R, t) -> dict:
@@ -88,6 +110,7 @@ def _frame(spec: dict, where: str) -> dict:
     fy = _number(spec, "fl_y", where, positive=True) if spec.get("fl_y") is not None else fx
     cx = _number(spec, "cx", where) if spec.get("cx") is not None else w / 2
     cy = _number(spec, "cy", where) if spec.get("cy") is not None else h / 2
+    w, h, fx, fy, cx, cy = check_intrinsics(w, h, fx, fy, cx, cy, where)
     c2w = _matrix(spec.get(MATRIX), where)
     # OpenGL camera-to-world -> OpenCV world-to-camera: R = (C[:3, :3] diag(1, -1, -1))^T, t = -R C[:3, 3]
     R = [[c2w[j][i] * (1.0 if i == 0 else -1.0) for j in range(3)] for i in range(3)]
@@ -96,17 +119,16 @@ def _frame(spec: dict, where: str) -> dict:
 
 
 def _number(spec: dict, key: str, where: str, positive: bool = False) -> float:
-    v = spec[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
-        raise ContractError(f"{where}: '{key}' must be a finite number{' > 0' if positive else ''}, got {v!r:.40}")
-    return float(v)
+    return float(numbers.check(spec[key], f"{where}: '{key}'", numbers.Range(0, lo_open=True) if positive
+                               else numbers.Range()))
 
 
 def _side(spec: dict, key: str, where: str) -> int:
-    f = _number(spec, key, where, positive=True)
-    if f != int(f) or f > MAX_SIDE:
-        raise ContractError(f"{where}: '{key}' must be a whole number of pixels 1..{MAX_SIDE}, got {spec[key]!r}")
-    return int(f)
+    try:
+        return int(numbers.check(spec[key], f"{where}: '{key}'", SIDE))
+    except ContractError:
+        raise ContractError(f"{where}: '{key}' must be a whole number of pixels 1..{MAX_SIDE}, "
+                            f"got {spec[key]!r:.40}") from None
 
 
 def _image_name(file_path, where: str) -> str:
@@ -123,10 +145,7 @@ def _matrix(value, where: str) -> list[list[float]]:
     rows = value if isinstance(value, list) else []
     if len(rows) == 3:
         rows = [*rows, [0.0, 0.0, 0.0, 1.0]]
-    ok = len(rows) == 4 and all(isinstance(r, list) and len(r) == 4 for r in rows) and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for r in rows for v in r)
-    if not ok:
-        raise ContractError(f"{where}: '{MATRIX}' must be a finite 4x4 matrix of numbers")
+    rows = numbers.check_matrix(rows, f"{where}: '{MATRIX}'", 4, 4, numbers.Range(-numbers.MAX_COORD, numbers.MAX_COORD))
     cols = [[float(rows[r][c]) for r in range(3)] for c in range(3)]
     gram = max(abs(sum(a * b for a, b in zip(cols[i], cols[j])) - (i == j)) for i in range(3) for j in range(3))
     x, y, z = cols

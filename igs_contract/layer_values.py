@@ -18,6 +18,13 @@ whose squares vanish below about 1e-19 and overflow above about 1e19 (and torch'
 at least 1e-12)."""
 
 
+LOG_SCALE_MAX = 30.0
+"""The largest log-scale a Gaussian may have (a scale of about 1e13 world units): the covariance squares
+the scale, and above about exp(44) that overflows float32 (the Gaussian fills the view with infinities)."""
+MEAN_MAX = 1e12
+"""The largest size of a Gaussian's centre coordinate: projecting it squares it, still finite in float32."""
+
+
 def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout) -> dict[str, np.ndarray]:
     """float32 arrays of the vertex ``data`` (a structured array): ``means`` (N, 3), ``f_dc`` (N, 3),
     ``f_rest`` (N, 3(K-1)) channel-major as stored, ``opacity`` (N,), ``scales`` (N, 3), ``rot`` (N, 4)
@@ -52,6 +59,19 @@ def layer_arrays(path: str | os.PathLike, data: np.ndarray, layout: LayerLayout)
             raise ContractError(f"{path}: {int(bad.sum())} Gaussians have {what}; first at vertex "
                                 f"{int(np.nonzero(bad)[0][0])})")
     return arrays
+
+
+def check_renderable(path: str | os.PathLike, log_scales: np.ndarray, means: np.ndarray) -> None:
+    """A layer about to be drawn (the add-on's objects, ``igs render``): log-scales (N, 3) at most
+    :data:`LOG_SCALE_MAX` and centres (N, 3) within :data:`MEAN_MAX`, else one ContractError naming
+    the file and the first bad vertex. Readers that only convert a file keep such values (a writer
+    clips what its format cannot store)."""
+    for arr, limit, what in ((np.asarray(log_scales), LOG_SCALE_MAX, "a log-scale above "),
+                             (np.abs(np.asarray(means)), MEAN_MAX, "a centre beyond +-")):
+        bad = (arr > limit).any(axis=1) if arr.size else np.zeros(0, bool)
+        if bad.any():
+            raise ContractError(f"{path}: {int(bad.sum())} of {len(arr)} Gaussians have {what}{limit:g} (too "
+                                f"large to render); first at vertex {int(np.nonzero(bad)[0][0])}")
 
 
 def coefficient_major(f_rest: np.ndarray) -> np.ndarray:

@@ -18,24 +18,28 @@ light object:
 
 - ``type``: ``point``, ``spot``, ``sun`` or ``area`` (Blender's ``Light.type``, any case).
 - ``power``: Blender's ``Light.energy``: watts for point, spot and area lights (the UI's Power), the
-  irradiance in W/m^2 for a sun (the UI's Strength). >= 0.
-- ``color``: linear RGB, each >= 0 (default white); the light emits ``power * color``.
-- ``position``: world position, the workspace's world (Blender's scene after import); a sun has none
-  (one given is ignored).
+  irradiance in W/m^2 for a sun (the UI's Strength). 0 to 1e6 (the end of Blender's slider).
+- ``color``: linear RGB, each 0 to 1000 (default white); the light emits ``power * color``.
+- ``position``: world position, the workspace's world (Blender's scene after import), each coordinate
+  within +-1e6; a sun has none (one given is ignored).
 - ``direction``: where the light points (the object's local -Z axis); spot, sun and area lights (a
   point light's is ignored).
 - ``matrix_world``: instead of ``position`` and ``direction``, the object's 4x4 matrix (rows as Blender
-  prints them): the translation is the position, -Z the direction, X the area's ``x_axis``. A scale
+  prints them, each entry within +-1e6): the translation is the position, -Z the direction, X the area's ``x_axis``. A scale
   multiplies an area light's ``size`` (X) and ``size_y`` (Y), as in Blender; other lights ignore it.
-- ``radius``: point and spot: Blender's Radius (``shadow_soft_size``), metres, >= 0 (default 0).
-- ``spot_size``: the spot's full cone angle in radians, (0, pi] (default pi/4); ``spot_blend`` in
-  [0, 1] (default 0.15): the edge's smooth fraction.
+- ``radius``: point and spot: Blender's Radius (``shadow_soft_size``), metres, 0 to 1e6 (default 0).
+- ``spot_size``: the spot's full cone angle in radians, [1 degree, pi] as Blender's (default pi/4);
+  ``spot_blend`` in [0, 1] (default 0.15): the edge's smooth fraction.
 - ``angle``: a sun's angular diameter in radians, [0, pi] (default 0.00918, Blender's).
 - ``shape``: area: ``square``, ``rectangle``, ``disk`` or ``ellipse`` (default square); ``size`` (X)
-  and ``size_y`` (Y, rectangle and ellipse only), metres > 0 (default 0.25); ``x_axis``: the area's X
+  and ``size_y`` (Y, rectangle and ellipse only), metres, 1e-6 to 1e6 also after the matrix's scale
+  (default 0.25); ``x_axis``: the area's X
   direction (default: any direction perpendicular to ``direction``). An area light emits from its
   front (the ``direction`` side) as a Lambertian emitter: Blender's default Spread of 180 degrees.
 - ``name``: letters, digits, ``_``, ``-`` and ``.`` (default ``light_<index>``), unique in the file.
+
+A file holds at most :data:`MAX_LIGHTS` lights. Every number goes through the contract's one number
+check (:mod:`igs_contract.numbers`): a bool, NaN, an infinity or a value out of its range is one error.
 
 :func:`read_lights` returns each light in its canonical form (:func:`canonical`: every key present,
 ``direction`` and ``x_axis`` unit vectors, ``position`` None for a sun, ``direction`` None for a point
@@ -51,6 +55,7 @@ import os
 import re
 from pathlib import Path
 
+from . import numbers
 from .errors import ContractError
 from .small_file import read_json
 
@@ -63,6 +68,19 @@ NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 # Blender's own defaults (bpy.data.lights.new) for a key left out
 DEFAULTS = {"color": [1.0, 1.0, 1.0], "radius": 0.0, "spot_size": math.pi / 4, "spot_blend": 0.15,
             "angle": 0.009180432, "shape": "square", "size": 0.25}
+MAX_LIGHTS = 64
+"""Lights one file may hold. Each adds its shadow maps (a point light 6 faces of 256^2 texels by
+default; an area light one set per cell) and a shading pass per view: about 0.5 s and 3 MB per point
+light for a 4-view 64x48 turntable on 2 CPU cores (docs/relighting.md)."""
+POWER = numbers.Range(0.0, 1e6)
+"""W (W/m^2 for a sun): Blender's slider goes to 1e6; beyond it the shading leaves float32's range."""
+COLOR = numbers.Range(0.0, 1e3)
+LENGTH = numbers.Range(0.0, numbers.MAX_COORD)
+"""A point or spot light's radius, metres."""
+SIZE = numbers.Range(1e-6, numbers.MAX_COORD)
+"""An area light's sides after its matrix's scale, metres: its radiance power / area stays finite."""
+SPOT_SIZE = numbers.Range(math.radians(1.0), math.pi)
+"""Blender's range for the cone angle (1 to 180 degrees): a narrower cone divides by almost 0."""
 # which keys a type may carry besides name/type/power/color and its placement
 OWN_KEYS = {"point": {"radius"}, "spot": {"radius", "spot_size", "spot_blend"}, "sun": {"angle"},
             "area": {"shape", "size", "size_y", "x_axis"}}
@@ -82,6 +100,9 @@ def parse_lights(data, where: str) -> list[dict]:
     items = data.get(LIGHTS) if isinstance(data, dict) else data
     if not isinstance(items, list) or not items:
         raise ContractError(f"{where}: expected a non-empty '{LIGHTS}' list (or {{\"{LIGHTS}\": [...]}})")
+    if len(items) > MAX_LIGHTS:
+        raise ContractError(f"{where}: {len(items)} lights; at most {MAX_LIGHTS} (each adds its shadow maps and a "
+                            "shading pass per view)")
     out = [canonical(item, f"{where} light {i}", i) for i, item in enumerate(items)]
     seen: set[str] = set()
     for i, light in enumerate(out):
@@ -113,25 +134,23 @@ def canonical(spec, where: str, index: int = 0) -> dict:
         raise ContractError(f"{where}: '{extra[0]}' does not apply to a {kind} light")
     if "power" not in spec:
         raise ContractError(f"{where}: missing 'power' ({'W/m^2' if kind == 'sun' else 'W'})")
-    light = {"name": name, "type": kind, "power": _number(spec, "power", where, lo=0.0),
-             "color": _vector(spec.get("color", DEFAULTS["color"]), "color", where)}
-    if any(c < 0 for c in light["color"]):
-        raise ContractError(f"{where}: 'color' must be >= 0 in every channel, got {light['color']}")
+    light = {"name": name, "type": kind, "power": _number(spec, "power", where, POWER),
+             "color": _vector(spec.get("color", DEFAULTS["color"]), "color", where, COLOR)}
     position, direction, x_axis, scale = _placement(spec, kind, where)
     light.update(position=position, direction=direction)
-    light["radius"] = _number(spec, "radius", where, lo=0.0) if kind in ("point", "spot") else 0.0
-    light["spot_size"] = _number(spec, "spot_size", where, lo=0.0, hi=math.pi, lo_open=True) if kind == "spot" else 0.0
-    light["spot_blend"] = _number(spec, "spot_blend", where, lo=0.0, hi=1.0) if kind == "spot" else 0.0
-    light["angle"] = _number(spec, "angle", where, lo=0.0, hi=math.pi) if kind == "sun" else 0.0
+    light["radius"] = _number(spec, "radius", where, LENGTH) if kind in ("point", "spot") else 0.0
+    light["spot_size"] = _number(spec, "spot_size", where, SPOT_SIZE) if kind == "spot" else 0.0
+    light["spot_blend"] = _number(spec, "spot_blend", where, numbers.Range(0.0, 1.0)) if kind == "spot" else 0.0
+    light["angle"] = _number(spec, "angle", where, numbers.Range(0.0, math.pi)) if kind == "sun" else 0.0
     light.update(shape=None, size=0.0, size_y=0.0, x_axis=None)
     if kind == "area":
         shape = spec.get("shape", DEFAULTS["shape"])
         if not isinstance(shape, str) or shape.lower() not in SHAPES:
             raise ContractError(f"{where}: 'shape' must be one of {', '.join(SHAPES)}, got {shape!r:.40}")
         shape = shape.lower()
-        size = _number(spec, "size", where, lo=0.0, lo_open=True)
+        size = _number(spec, "size", where, SIZE)
         if shape in ("rectangle", "ellipse"):
-            size_y = _number({**{"size_y": size}, **spec}, "size_y", where, lo=0.0, lo_open=True)
+            size_y = _number({**{"size_y": size}, **spec}, "size_y", where, SIZE)
         elif "size_y" in spec:
             raise ContractError(f"{where}: 'size_y' applies to a rectangle or ellipse, not a {shape}")
         else:
@@ -141,7 +160,10 @@ def canonical(spec, where: str, index: int = 0) -> dict:
         if x_axis is None:
             x_axis = _perpendicular(direction)
         x_axis = _orthogonalised(x_axis, direction, where)
-        light.update(shape=shape, size=size * scale[0], size_y=size_y * scale[1], x_axis=x_axis)
+        scaled = " (times the matrix's scale)" if "matrix_world" in spec else ""
+        light.update(shape=shape, x_axis=x_axis,
+                     size=numbers.check(size * scale[0], f"{where}: 'size'{scaled}", SIZE),
+                     size_y=numbers.check(size_y * scale[1], f"{where}: 'size_y'{scaled}", SIZE))
     return light
 
 
@@ -179,25 +201,16 @@ def _compact(light: dict) -> dict:
 # values
 
 
-def _number(spec: dict, key: str, where: str, lo: float | None = None, hi: float | None = None,
-            lo_open: bool = False) -> float:
-    v = spec.get(key, DEFAULTS.get(key))
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ContractError(f"{where}: '{key}' must be a finite number, got {v!r:.40}")
-    v = float(v)
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        raise ContractError(f"{where}: '{key}' must be {'>' if lo_open else '>='} {lo:g}, got {v:g}")
-    if hi is not None and v > hi:
-        raise ContractError(f"{where}: '{key}' must be <= {hi:g}, got {v:g}")
-    return v
+def _number(spec: dict, key: str, where: str, rng: numbers.Range) -> float:
+    return float(numbers.check(spec.get(key, DEFAULTS.get(key)), f"{where}: '{key}'", rng))
 
 
-def _vector(value, key: str, where: str) -> list[float]:
-    ok = isinstance(value, list) and len(value) == 3 and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
-    if not ok:
+def _vector(value, key: str, where: str, rng: numbers.Range = numbers.Range(-numbers.MAX_COORD, numbers.MAX_COORD)
+            ) -> list[float]:
+    """3 numbers, each in ``rng`` (default: a world coordinate)."""
+    if not isinstance(value, list):
         raise ContractError(f"{where}: '{key}' must be 3 finite numbers, got {value!r:.60}")
-    return [float(v) for v in value]
+    return numbers.check_vector(value, f"{where}: '{key}'", 3, rng)
 
 
 def _unit(v: list[float], key: str, where: str) -> list[float]:
@@ -232,12 +245,7 @@ def _placement(spec: dict, kind: str, where: str) -> tuple[list[float] | None, l
         clash = [k for k in ("position", "direction", "x_axis") if k in spec]
         if clash:
             raise ContractError(f"{where}: give either 'matrix_world' or '{clash[0]}', not both")
-        m = spec["matrix_world"]
-        rows = m if isinstance(m, list) else []
-        ok = len(rows) == 4 and all(isinstance(r, list) and len(r) == 4 for r in rows) and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for r in rows for v in r)
-        if not ok:
-            raise ContractError(f"{where}: 'matrix_world' must be a finite 4x4 matrix of numbers")
+        rows = numbers.check_matrix(spec["matrix_world"], f"{where}: 'matrix_world'", 4, 4)
         cols = [[float(rows[r][c]) for r in range(3)] for c in range(3)]
         lengths = [math.sqrt(sum(v * v for v in col)) for col in cols]
         if min(lengths) < 1e-9:

@@ -17,7 +17,7 @@ without its extension, and without a tool's suffix such as ``.compressed``), ``<
 for every splat extension and ``<stem>.igs.json``; the first whose hash matches wins, else the first
 that exists. Failing those, any ``*.igs.json`` in the folder whose hash matches (a renamed file).
 
-Standard library only (no numpy; of ours only the contract's ``layer_ply`` names), so the Blender add-on imports it as
+Standard library only (no numpy; of ours only the contract's ``layer_ply`` names and number check), so the Blender add-on imports it as
 ``from ..igs_contract import manifest`` and the backend as ``from igs_contract import manifest``.
 Writing is the caller's job (atomically: ``to_json`` gives the text).
 """
@@ -34,6 +34,7 @@ from typing import Any, Literal
 from . import small_file
 from .errors import ContractError
 from .layer_ply import KINDS, SPACES
+from .numbers import MAX_INT, Range, check
 
 SUFFIX = ".igs.json"
 SCHEMA = 1
@@ -149,9 +150,12 @@ def read(path: str | os.PathLike) -> Manifest:
     for key, allowed in (("kind", KINDS), ("space", SPACES)):
         if data[key] not in allowed:
             raise ManifestError(f"{path}: field {key!r} must be one of {', '.join(allowed)}, got {data[key]!r}")
-    for key in ("sh_degree", "count", "size"):
-        if data[key] < 0:
-            raise ManifestError(f"{path}: field {key!r} must not be negative, got {data[key]!r}")
+    for key, rng in (("sh_degree", Range(0, 3, integral=True)), ("count", Range(0, MAX_INT, integral=True)),
+                     ("size", Range(0, MAX_INT, integral=True))):
+        try:
+            check(data[key], f"{path}: field {key!r}", rng)
+        except ContractError as e:
+            raise ManifestError(str(e)) from None
     source, writer, schema = data.get("source", {}), data.get("writer", ""), data.get("schema", SCHEMA)
     if not isinstance(source, dict):
         raise ManifestError(f"{path}: field 'source' must be an object")

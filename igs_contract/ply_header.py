@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+from . import numbers
 from .errors import ContractError
 
 FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
@@ -49,6 +50,13 @@ class Element:
     def row_size(self) -> int:
         """Bytes of one row in a binary file (scalar properties only)."""
         return sum(int(TYPES[p.type][1]) for p in self.properties)
+
+    def min_row_size(self, fmt: str) -> int:
+        """The fewest bytes one row can take: binary, its scalars and list lengths (every list empty);
+        ASCII, a byte per value and one for the line's end (a loose bound: the reader checks the tokens)."""
+        if fmt == "ascii":
+            return len(self.properties) + 1
+        return sum(int(TYPES[p.count_type or p.type][1]) for p in self.properties)
 
 
 @dataclass
@@ -103,7 +111,9 @@ def read_header(path: str | os.PathLike) -> PlyHeader:
             elif key == "element":
                 if len(parts) != 3 or not parts[2].isdigit():
                     raise ContractError(f"{path}: malformed PLY header line '{line}'")
-                elements.append(Element(parts[1], int(parts[2])))
+                count = numbers.parse(parts[2], f"{path}: the count of PLY element '{parts[1]}'",
+                                      numbers.Range(0, numbers.MAX_INT, integral=True))
+                elements.append(Element(parts[1], int(count)))
             elif key == "property":
                 if not elements:
                     raise ContractError(f"{path}: PLY property before any element: '{line}'")
@@ -128,17 +138,19 @@ def _property(path, line: str, parts: list[str]) -> Property:
 def check_data_size(path: str | os.PathLike, header: PlyHeader) -> None:
     """A binary PLY holds the bytes its header declares: fewer is a truncated file, more means the
     element counts are wrong (a count smaller than the data would silently drop rows). Past the first
-    element with list properties the size no longer follows from the header; ASCII files are not checked."""
-    if header.format == "ascii":
-        return
-    expected, exact = header.data_offset, True
+    element with list properties the size no longer follows from the header: from there on each row
+    counts its fewest bytes (every list empty), so an element declared with no data behind it is still
+    refused. An ASCII file is only checked for those fewest bytes (a byte per value and per line)."""
+    expected, exact = header.data_offset, header.format != "ascii"
     for el in header.elements:
-        if el.has_lists:
+        if el.has_lists or not exact:
             exact = False
-            break
-        expected += el.count * el.row_size
+            expected += el.count * el.min_row_size(header.format)
+        else:
+            expected += el.count * el.row_size
     size = os.path.getsize(path)
-    declared = f"{', '.join(f'{el.count} {el.name}' for el in header.elements)} ({expected} bytes)"
+    declared = (f"{', '.join(f'{el.count} {el.name}' for el in header.elements)} "
+                f"({'' if exact else 'at least '}{expected} bytes)")
     if size < expected:
         raise ContractError(f"{path}: truncated PLY: the header declares {declared} but the file has {size} bytes")
     if exact and size > expected:

@@ -33,11 +33,15 @@ class IGS_OT_load_layers(bpy.types.Operator):
             return {"CANCELLED"}
         ws, objs = loaded
         props.metrics_info = metrics_summary(ws)
+        missing = layers.composite_missing(objs)
         native = layers.use_native()
-        notes = native_render.setup(context.scene) if native else []
+        # F12's A x S + R needs both fields: without one the render would be a wrong image, so say so instead
+        notes = native_render.setup(context.scene) if native and not missing else []
         edits.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"
-        if native:
+        if native and missing:
+            msg += f"; F12 does not render A×S+R: {' and '.join(missing)} missing (run Decompose)"
+        elif native:
             msg += "; F12 renders A×S+R (view layers IGS Albedo/Shading/Residual/Scene/Lit, compositor group IGS Composite)"
             msg += "".join(f"; {n}" for n in notes)
         on_disk = [n for n in edits.workspace_edits(ws) if edits.find(props, n)[1] is None]

@@ -198,7 +198,7 @@ def test_a_rerun_replaces_the_bake_and_a_failed_one_keeps_it(box, tmp_path, monk
 
 @pytest.mark.parametrize("change, words", [
     ({"direction": [0, 0, 0], "type": "spot"}, "light 0 ('b'): 'direction' must not be the zero vector"),
-    ({"power": -1.0}, "light 0 ('b'): 'power' must be >= 0"),
+    ({"power": -1.0}, "light 0 ('b'): 'power' must be a finite number >= 0 and <= 1000000"),
     ({"size": 2.0}, "light 0 ('b'): 'size'"),
 ])
 def test_a_bad_lights_file_is_one_error_naming_the_file_and_nothing_is_written(box, tmp_path, capsys, change, words):

@@ -74,7 +74,9 @@ def add_config_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGro
         choices = _literal_choices(annotation)
         if choices is not None:
             kwargs["choices"] = choices
-            if not isinstance(choices[0], str):
+            if isinstance(choices[0], int) and not isinstance(choices[0], bool):  # through the number check
+                kwargs["type"] = opt.integer(min(choices), max(choices))
+            elif not isinstance(choices[0], str):
                 kwargs["type"] = type(choices[0])
         parse = o.type or (None if choices is not None else _checked_type(annotation))
         if parse is not None:

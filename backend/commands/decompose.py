@@ -65,7 +65,8 @@ OPTIONS = (
            "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
            "default) or 'points' (the SfM points, as in the paper)"),
     Option("--residual-points", "spawn.points",
-           f"residual Gaussians spawned at high-error pixels (default {_D.spawn.points})", type=opt.COUNT0),
+           f"residual Gaussians spawned at high-error pixels (default {_D.spawn.points}; at most 10000000)",
+           type=opt.integer(0, 10_000_000)),
 )
 
 

@@ -25,6 +25,7 @@ from backend.edit.bake_config import BakeConfig
 from backend.edit.bake_input import BakeInput, resolve_bake_input
 from backend.edit.fit import FitConfig
 from backend.edit.fit_workflow import ProjectConfig, ProxyFitConfig, ProxyKind, fit_proxy, project_albedo
+from igs_contract.camera_json import MAX_SIDE
 
 BASE = Option("--base", "base", "edit the albedo of <ws>/edits/BASE (stacking) instead of <ws>/layers")
 COMMON = (BASE, shared.backend())  # then --seed, which goes where each command keeps it
@@ -147,8 +148,8 @@ def _add_fit(sub, kind: ProxyKind) -> None:
     p.add_argument("workspace", help="workspace folder")
     add_config_arguments(p, ProxyFitConfig, COMMON + (shared.seed("fit.seed"),))
     p.add_argument("--view", required=True, help="edit view name (e.g. frame_0009.png)")
-    p.add_argument("--rect", type=opt.number(), nargs=4, required=True, metavar=("X0", "Y0", "X1", "Y1"),
-                   help="rectangle in pixels of the view (origin top-left, x right, y down)")
+    p.add_argument("--rect", type=opt.number(-MAX_SIDE, MAX_SIDE), nargs=4, required=True, metavar=("X0", "Y0", "X1", "Y1"),
+                   help=f"rectangle in pixels of the view (origin top-left, x right, y down; each within +-{MAX_SIDE})")
     p.add_argument("--name", default=kind, help=f"edit name (folder under <ws>/edits, default {kind})")
     add_config_arguments(p, ProxyFitConfig, fit_options(kind))
     locking.writes(p, locking.workspace_arg)

@@ -15,6 +15,7 @@ from backend.core import events
 from backend.core.output_paths import EXPORTS, RENDERS, check_output
 from backend.eval.render_views import MAX_SIDE
 from backend.eval.render_workspace import RenderConfig, render_workspace
+from igs_contract.camera_json import FOV_DEG
 
 OPTIONS = (
     Option("--edit", "edit", "use <ws>/edits/EDIT/albedo.ply as the albedo"),
@@ -25,14 +26,14 @@ OPTIONS = (
     Option("--up", "up", "turntable axis x,y,z (default: the capture's up, read from its cameras: the direction "
            "most nearly perpendicular to their x axes)"),
     Option("--radius", "radius", "turntable radius (default: 85%% of the cameras' mean distance from the axis)",
-           type=opt.POSITIVE),
+           type=opt.LENGTH),
     Option("--height", "height", "camera height above the centre along --up (default: the cameras' mean height)",
-           type=opt.number()),
+           type=opt.COORD),
     Option("--frames", "frames", "turntable frames (default 60)", type=opt.integer(1, 100_000)),
     Option("--size", "size", "turntable image size (default: the capture's)", type=opt.integer(1, MAX_SIDE),
            nargs=2, metavar=("W", "H")),
     Option("--fov", "fov", "turntable horizontal field of view in degrees (default: the capture's)",
-           type=opt.number(0, 180, lo_open=True, hi_open=True)),
+           type=opt.number(FOV_DEG.lo, FOV_DEG.hi)),
     Option("--layers", "layers", "comma list of A, S, R, full and, with --light, light: the shading the lights add "
            "(default A,S,R,full, and light with --light)"),
     Option("--out", "out", "output folder (default <ws>/renders/<edit or 'layers'>, with --light "

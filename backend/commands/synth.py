@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="size and quality: " + "; ".join(
                        f"{k}: {v.views} views {v.width}x{v.height}, {v.samples} spp" for k, v in PRESETS.items()))
     p.add_argument("--seed", type=opt.SEED, default=0, help="scene, camera path and sampling seed (default 0)")
-    p.add_argument("--scene-seed", type=int, default=None, metavar="K",
+    p.add_argument("--scene-seed", type=opt.SEED, default=None, metavar="K",
                    help="render scene K >= 0 of the procedural scene family (other room sizes, layouts, "
                         "materials and lights, open to the world) instead of the room; --seed then sets "
                         "only the camera path and the sampling")

@@ -108,6 +108,10 @@ class Workspace:
         if not isinstance(data, dict):
             raise IGSError(f"{self.capture_json}: expected a JSON object, got {type(data).__name__}; "
                            "re-run `igs import` or `igs synth` to rewrite it")
+        schema = data.get("schema", CAPTURE_SCHEMA)
+        if schema != CAPTURE_SCHEMA or isinstance(schema, bool):
+            raise IGSError(f"{self.capture_json}: 'schema' is {schema!r:.40}; this igs reads schema {CAPTURE_SCHEMA} "
+                           "(a workspace written by another version: re-run `igs import` or `igs synth`)")
         for key, kind in _CAPTURE_TYPES.items():
             if data.get(key) is not None and not isinstance(data[key], kind):
                 raise IGSError(f"{self.capture_json}: '{key}' must be {_KIND_NAMES[kind]}, got {data[key]!r:.60}; "

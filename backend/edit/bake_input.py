@@ -3,6 +3,7 @@
 ``plane.json`` (the convenience form of ``--plane``): ``{"center": [3], "normal": [3], "u_axis": [3],
 "v_axis": [3], "size": [w, h]}`` in world units (the ``"plane"`` entry of a fit's edit.json, or the
 ``"surface"`` of a synthetic ``gt_edit/<edit>/edit.json``); UV (0, 0) at ``center - w/2 u - h/2 v``.
+Every coordinate is within +-1e6 and each side of ``size`` in [1e-6, 1e6] (:mod:`igs_contract.numbers`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from backend.core.errors import IGSError
 from backend.core.imageio import read_linear
 from backend.core.small_reads import read_json
 from backend.edit.proxy import ProxyMesh, plane_proxy
+from igs_contract import numbers
+from igs_contract.errors import ContractError
 
 
 @dataclass
@@ -35,26 +38,26 @@ class BakeInput:
 
 
 def parse_color(text: str, what: str = "--color") -> np.ndarray:
-    """'r,g,b' linear RGB in [0, 1] -> (3,) float32."""
+    """'r,g,b' linear RGB in [0, 1] -> (3,) float32 (each value through the contract's number check)."""
     try:
-        c = np.array([float(v) for v in str(text).split(",")], dtype=np.float32)
-    except ValueError:
-        c = np.zeros(0)
-    if c.shape != (3,) or not np.isfinite(c).all() or (c < 0).any() or (c > 1).any():
-        raise IGSError(f"{what} must be three linear RGB values in [0, 1] as r,g,b, got {text!r}")
-    return c
+        return np.array(numbers.parse_list(str(text), what, 3, numbers.Range(0.0, 1.0)), dtype=np.float32)
+    except ContractError:
+        raise IGSError(f"{what} must be three linear RGB values in [0, 1] as r,g,b, got {text!r:.60}") from None
 
 
-def _vec(d: dict, key: str, n: int, where: str) -> np.ndarray:
+PLANE_SIZE = numbers.Range(1e-6, numbers.MAX_COORD)
+"""A plane's width and height, world units."""
+
+
+def _vec(d: dict, key: str, n: int, where: str, rng: numbers.Range = numbers.Range(-numbers.MAX_COORD, numbers.MAX_COORD)
+         ) -> np.ndarray:
+    """``d[key]``: ``n`` numbers, each in ``rng`` (the contract's number check; default a world coordinate)."""
+    if key not in d:
+        raise IGSError(f"{where}: missing '{key}'")
     try:
-        v = np.asarray(d[key], dtype=np.float64).reshape(n)
-    except KeyError:
-        raise IGSError(f"{where}: missing '{key}'") from None
-    except (TypeError, ValueError):
-        raise IGSError(f"{where}: '{key}' must be {n} numbers") from None
-    if not np.isfinite(v).all():
-        raise IGSError(f"{where}: '{key}' has NaN or infinite values")
-    return v
+        return np.asarray(numbers.check_vector(d[key], f"{where}: '{key}'", n, rng), dtype=np.float64)
+    except ContractError as e:
+        raise IGSError(str(e)) from None
 
 
 def plane_from_json(path: str | Path, texture: str | None, color: str | None, name: str) -> ProxyMesh:
@@ -71,7 +74,7 @@ def plane_from_json(path: str | Path, texture: str | None, color: str | None, na
         raise IGSError(f"{path}: expected a JSON object with center, normal, u_axis, v_axis, size")
     where = str(path)
     c, n, u, v = (_vec(data, k, 3, where) for k in ("center", "normal", "u_axis", "v_axis"))
-    size = _vec(data, "size", 2, where)
+    size = _vec(data, "size", 2, where, PLANE_SIZE)
     tex = None
     if texture is not None:
         tp = Path(texture)

@@ -75,6 +75,8 @@ from backend.core.cameras import POSE_LIMIT, check_pose_values
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_linear
 from backend.core.small_reads import read_json
+from igs_contract import numbers
+from igs_contract.errors import ContractError
 
 PROXY_SCHEMA = 1
 DEGENERATE_AREA_RATIO = 1e-10
@@ -395,6 +397,10 @@ def load_proxy(path: str | os.PathLike) -> ProxyMesh:
     data = read_json(path, "proxy file")
     if not isinstance(data, dict):
         raise IGSError(f"{where}: the top level must be a JSON object")
+    try:  # every number, before any becomes an array: a 400-digit one would overflow the conversion
+        numbers.check_tree(data, where, numbers.Range(-POSE_LIMIT, POSE_LIMIT))
+    except ContractError as e:
+        raise IGSError(str(e)) from None
     if data.get("schema") != PROXY_SCHEMA:
         raise IGSError(f"{where}: 'schema' must be {PROXY_SCHEMA}, got {data.get('schema')!r}")
     name = data.get("name")
@@ -404,9 +410,10 @@ def load_proxy(path: str | os.PathLike) -> ProxyMesh:
         raise IGSError(f"{where}: missing key 'primitive' (use {{\"type\": \"mesh\"}} for any mesh)")
     vertices, faces, uv_flat, matrix = _json_mesh(data, where)
     texture, alpha, color, tex_path = _json_appearance(data, path, where)
-    opacity = data.get("opacity", 1.0)
-    if isinstance(opacity, bool) or not isinstance(opacity, int | float):
-        raise IGSError(f"{where}: 'opacity' must be a number in [0, 1], got {opacity!r}")
+    try:
+        opacity = numbers.check(data.get("opacity", 1.0), f"{where}: 'opacity'", numbers.Range(0.0, 1.0))
+    except ContractError as e:
+        raise IGSError(str(e)) from None
     proxy = ProxyMesh(
         name=name, local_vertices=vertices, faces=faces,
         uvs=uv_flat.reshape(-1, 3, 2) if len(uv_flat) else np.zeros((0, 3, 2)),

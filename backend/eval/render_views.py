@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from backend.core import events, layer_set, small_reads
-from backend.core.cameras import Camera, check_pose_values, from_blender_matrix_world
+from backend.core.cameras import POSE_LIMIT, Camera, check_pose_values, from_blender_matrix_world
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
 from backend.core.paths import plain_name
@@ -44,6 +44,9 @@ from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.composite import compose
 from backend.train.intrinsic.stages import layer_splats
+from igs_contract import layer_values, numbers
+from igs_contract.camera_json import FOV_DEG, SIDE, check_intrinsics
+from igs_contract.errors import ContractError
 
 LAYERS = ("A", "S", "R", "full", "light")
 MAX_SIDE = 16384  # pixels: larger images would not fit a render buffer
@@ -52,38 +55,38 @@ NEEDS = {"A": ("albedo",), "S": ("shading",), "R": ("residual",), "full": ("albe
 GL_TO_CV = np.diag([1.0, -1.0, -1.0])
 
 
-def _num(d: dict, key: str, where: str, default: float | None = None) -> float:
+def _num(d: dict, key: str, where: str, default: float | None = None, rng: numbers.Range = numbers.Range()) -> float:
+    """``d[key]`` through the contract's number check (``default`` when left out; None: required)."""
     if key not in d:
         if default is None:
             raise IGSError(f"{where}: missing '{key}'")
         return default
     try:
-        v = float(d[key])
-    except (TypeError, ValueError):
-        raise IGSError(f"{where}: '{key}' must be a number, got {d[key]!r}") from None
-    if not np.isfinite(v):
-        raise IGSError(f"{where}: '{key}' is not finite")
-    return v
+        return float(numbers.check(d[key], f"{where}: '{key}'", rng))
+    except ContractError as e:
+        raise IGSError(str(e)) from None
 
 
 def camera_from_dict(d: Any, where: str) -> Camera:
     """One entry of cameras.json (module docstring) -> :class:`Camera`."""
     if not isinstance(d, dict):
         raise IGSError(f"{where}: a camera must be a JSON object")
-    w, h = int(_num(d, "width", where)), int(_num(d, "height", where))
-    if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
-        raise IGSError(f"{where}: width and height must be 1..{MAX_SIDE} pixels, got {w}x{h}")
+    for key in ("width", "height"):
+        if key not in d:
+            raise IGSError(f"{where}: missing '{key}'")
+    w, h = d["width"], d["height"]
     if "fx" in d:
-        fx = _num(d, "fx", where)
-        fy = _num(d, "fy", where, fx)
+        fx = d["fx"]
+        fy = d.get("fy", fx)
     else:
-        fov = _num(d, "fov_x_deg", where)
-        if not 0 < fov < 180:
-            raise IGSError(f"{where}: 'fov_x_deg' must be in (0, 180)")
-        fx = fy = 0.5 * w / np.tan(np.radians(fov) / 2)
-    if not (fx > 0 and fy > 0):
-        raise IGSError(f"{where}: focal lengths must be > 0, got fx {fx:g}, fy {fy:g}")
-    cx, cy = _num(d, "cx", where, w / 2), _num(d, "cy", where, h / 2)
+        fov = _num(d, "fov_x_deg", where, rng=FOV_DEG)
+        side = _num(d, "width", where, rng=SIDE)
+        fx = fy = 0.5 * side / np.tan(np.radians(fov) / 2)
+    try:
+        w, h, fx, fy, cx, cy = check_intrinsics(w, h, fx, fy, d.get("cx", w / 2 if _plain(w) else w),
+                                                d.get("cy", h / 2 if _plain(h) else h), where)
+    except ContractError as e:
+        raise IGSError(str(e)) from None
     try:
         if "matrix_world" in d:
             m = np.asarray(d["matrix_world"], dtype=np.float64).reshape(4, 4)
@@ -95,8 +98,9 @@ def camera_from_dict(d: Any, where: str) -> Camera:
             check_pose_values(np.concatenate([R.ravel(), t]), where, "the pose ('R' and 't')")
         else:
             raise IGSError(f"{where}: needs 'matrix_world' (Blender) or 'R' and 't' (OpenCV world->camera)")
-    except (TypeError, ValueError):
-        raise IGSError(f"{where}: 'matrix_world' must be 4x4 numbers, 'R' 3x3 and 't' 3") from None
+    except (TypeError, ValueError, OverflowError):
+        raise IGSError(f"{where}: 'matrix_world' must be 4x4 numbers, 'R' 3x3 and 't' 3, each at most "
+                       f"{POSE_LIMIT:g} in size") from None
     # Nearest rotation (a Blender matrix may carry a scale); a mirror or a singular matrix is an error.
     u, sv, vt = np.linalg.svd(R)
     if sv.min() < 1e-9 or np.linalg.det(u @ vt) < 0:
@@ -108,6 +112,11 @@ def camera_from_dict(d: Any, where: str) -> Camera:
 def _read_json(path: Path, what: str) -> Any:
     """The JSON value in ``path``; a missing or unreadable file is one error naming ``what`` it is."""
     return small_reads.read_json(path, what)
+
+
+def _plain(v) -> bool:
+    """Whether ``v`` is a number small enough to halve (the default principal point) before its check."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) < 1e12
 
 
 def read_cameras(path: str | Path) -> list[Camera]:
@@ -143,8 +152,8 @@ def read_path(path: str | Path) -> list[Camera]:
             c2w = np.asarray(merged["transform_matrix"], dtype=np.float64).reshape(4, 4)
         except KeyError:
             raise IGSError(f"{where}: missing 'transform_matrix'") from None
-        except (TypeError, ValueError):
-            raise IGSError(f"{where}: 'transform_matrix' must be 4x4 numbers") from None
+        except (TypeError, ValueError, OverflowError):
+            raise IGSError(f"{where}: 'transform_matrix' must be 4x4 numbers, each at most {POSE_LIMIT:g} in size") from None
         check_pose_values(c2w, where, "'transform_matrix'")
         R = (c2w[:3, :3] @ GL_TO_CV).T
         w, h = _num(merged, "w", where), _num(merged, "h", where)
@@ -237,6 +246,11 @@ def load_layers(ws_root: Path, edit: str | None, needed: set[str]) -> dict[str, 
         if not path.exists():
             raise IGSError(f"{path}: layer not found; run `igs decompose` first (or ask only for other --layers)")
         layers[kind], _ = read_ply(path, kind=kind)
+        try:
+            layer_values.check_renderable(path, layers[kind].params["log_scales"].detach().cpu().numpy(),
+                                          layers[kind].params["means"].detach().cpu().numpy())
+        except ContractError as e:
+            raise IGSError(str(e)) from None
     return layers
 
 

@@ -33,6 +33,8 @@ from backend.eval.render_views import (
 )
 from backend.render import Backend
 from backend.train.intrinsic.stages import layer_splats
+from igs_contract import numbers
+from igs_contract.errors import ContractError
 
 DEFAULT_LAYERS = "A,S,R,full"
 
@@ -82,14 +84,33 @@ class RenderConfig:
     """Renderer backend."""
 
 
-def _vector(text: str, flag: str) -> np.ndarray:
+def _vector(text: str, flag: str, unit: bool = False) -> np.ndarray:
+    """(3,) ``x,y,z`` typed for ``flag``, each a world coordinate (the contract's number check);
+    ``unit``: a direction, scaled to unit length (the zero vector refused)."""
     try:
-        v = np.array([float(v) for v in text.split(",")], dtype=np.float64).reshape(3)
-    except ValueError:
-        raise IGSError(f"{flag} must be x,y,z, got {text!r}") from None
-    if not np.isfinite(v).all():
-        raise IGSError(f"{flag} must be finite x,y,z, got {text!r}")
+        v = np.array(numbers.parse_list(text, flag, 3), dtype=np.float64)
+    except ContractError as e:
+        raise IGSError(str(e)) from None
+    if unit:
+        n = float(np.linalg.norm(v))
+        if n < 1e-9:
+            raise IGSError(f"{flag} must be a non-zero x,y,z direction, got {text!r}")
+        v = v / n
     return v
+
+
+def _check_in_view(cam: Camera, points: np.ndarray, center: np.ndarray) -> None:
+    """A turntable camera so far from the scene that it spans under a pixel renders black images:
+    one error naming the options instead (the scene's size: the SfM points' 90th percentile distance
+    from the orbit's centre)."""
+    if len(points) == 0:
+        return
+    size = float(np.quantile(np.linalg.norm(points - center, axis=1), 0.9))
+    distance = float(np.linalg.norm(cam.center - center))
+    if size > 0 and cam.fx * size / max(distance, 1e-12) < 1.0:
+        raise IGSError(f"--radius/--height put the turntable {distance:.3g} from its centre, where the scene "
+                       f"({size:.3g} across) spans under a pixel: the images would be black; give a smaller "
+                       "--radius or --height (or leave them out for the capture's own orbit)")
 
 
 def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]:
@@ -125,7 +146,7 @@ def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]
             template = Camera(template.name, int(cfg.size[0]), int(cfg.size[1]), template.fx, template.fx,
                               cfg.size[0] / 2, cfg.size[1] / 2, template.R, template.t)
         frames = [f.camera for f in capture.frames]
-        up = _vector(cfg.up, "--up") if cfg.up else capture_up(frames)
+        up = _vector(cfg.up, "--up", unit=True) if cfg.up else capture_up(frames)
         center, radius, height = capture_orbit(frames, capture.points, up)
         if cfg.center:
             center = _vector(cfg.center, "--center")
@@ -135,6 +156,7 @@ def render_workspace(workspace: str | Path, cfg: RenderConfig) -> dict[str, Any]
         events.log(f"render: turntable around {np.round(center, 3).tolist()}, radius {radius:.3g}, height "
                    f"{height:.3g} along up {np.round(up, 3).tolist()}")
         cams = turntable(center, radius, height, cfg.frames, template, cfg.fov, up)
+        _check_in_view(cams[0], capture.points, center)
     needed = set().union(*(NEEDS[w] for w in wanted)) | ({"albedo"} if lights else set())
     layers = load_layers(ws.root, cfg.edit, needed)
     name = plain_name(cfg.edit, "--edit") if cfg.edit else "layers"

@@ -138,11 +138,13 @@ def read_splat_file(path: str | Path, kind: str | None = None, space: str | None
         arrays = _read_dot_splat(path)
     else:
         arrays = _read_sog(path)
-    identity = _identity(path, comments, kind, space)
+    identity = _identity(path, comments, kind, space, len(arrays.means))
     return SplatFile(path, fmt, arrays, identity)
 
 
-def _identity(path: Path, comments: list[str], kind: str | None, space: str | None) -> Identity:
+def _identity(path: Path, comments: list[str], kind: str | None, space: str | None, count: int) -> Identity:
+    """What the file is: its ``igs_*`` comments, else its manifest (whose count must be the ``count``
+    Gaussians read: a manifest that miscounts its own file is not trusted), else unknown."""
     try:
         from_comments = layer_ply.comment_identity(path, comments)
         raster = layer_ply.raster_mode(comments, path) if from_comments is not None else "classic"
@@ -159,6 +161,11 @@ def _identity(path: Path, comments: list[str], kind: str | None, space: str | No
                 raise IGSError(f"{why}; fix or delete it, or say what the file holds with "
                               "`igs convert --kind K --space S`")
             events.log(f"warning: {why}; skipped")
+        if ident.manifest is not None and ident.status == "manifest" and ident.manifest.count != count \
+                and not told:
+            raise IGSError(f"{ident.path}: says {ident.manifest.count} Gaussians, but {path} holds {count}; the manifest "
+                           "is not this file's: fix or delete it, or say what the file holds with "
+                           "`igs convert --kind K --space S`")
         if ident.manifest is not None:
             found = Identity(ident.manifest.kind, ident.manifest.space, ident.status, str(ident.path),
                              raster=ident.manifest.raster)

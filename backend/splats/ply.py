@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from backend.core.atomic_io import write_bytes
+from backend.core.atomic_io import is_tmp_name, write_bytes
 from backend.core.errors import IGSError
 from backend.splats.gaussians import FILTER, SH_KINDS, GaussianSet
 from igs_contract import layer_ply, layer_values, ply_data, ply_header
@@ -61,7 +61,9 @@ def write_ply(path: str | Path, gaussians: GaussianSet, space: str = "linear") -
     data = torch.cat(cols, dim=1).numpy()
     bad = ~np.isfinite(data).all(axis=1)
     if bad.any():  # a diverged optimisation: never replace a layer with NaNs
-        raise IGSError(f"{path}: not written: {int(bad.sum())} of {n} Gaussians have NaN or infinite values "
+        # a group's temporary part means nothing to the user: its folder is named instead
+        shown = f"{Path(path).parent}: a layer" if is_tmp_name(Path(path).name) else f"{path}:"
+        raise IGSError(f"{shown} not written: {int(bad.sum())} of {n} Gaussians have NaN or infinite values "
                        "(the optimisation diverged; lower the loss weights or the learning rates)")
     comments = layer_ply.header_comments(gaussians.kind, ENCODINGS[gaussians.kind], space, gaussians.sh_degree,
                                          gaussians.raster_mode)

@@ -91,6 +91,7 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 MIN_VIEW_SIDE = 4  # pixels: below this a downscaled view holds nothing to fit
+MAX_VIEW_SIDE = 16384  # pixels: above this an image does not fit a render buffer
 
 
 def view_camera(camera: Camera, downscale: float) -> Camera:
@@ -100,6 +101,10 @@ def view_camera(camera: Camera, downscale: float) -> Camera:
         most = min(camera.width, camera.height) / MIN_VIEW_SIDE
         raise IGSError(f"--downscale {downscale:g} leaves {camera.name} ({camera.width}x{camera.height}) under "
                        f"{MIN_VIEW_SIDE} pixels a side; at most {most:g} for this capture")
+    if max(camera.width, camera.height) / downscale > MAX_VIEW_SIDE + 0.5:
+        least = max(camera.width, camera.height) / MAX_VIEW_SIDE
+        raise IGSError(f"--downscale {downscale:g} makes {camera.name} ({camera.width}x{camera.height}) over "
+                       f"{MAX_VIEW_SIDE} pixels a side; at least {least:g} for this capture")
     return camera if downscale == 1 else camera.scaled(1.0 / downscale)
 
 

@@ -128,6 +128,10 @@ def light_bake(workspace: str | Path, light_file: str | Path, cfg: LightBakeConf
     events.check_cancel()
     s_new = torch.stack(list(added.values())).sum(0)
     base = shading.params["colors"].detach().to(torch.float64)
+    bad = int((~torch.isfinite((base + s_new).to(torch.float32))).any(-1).sum())
+    if bad:  # checked before anything is written; the lights file's ranges keep this from happening
+        raise IGSError(f"light-bake: the lights of {light_file} give {bad} of {len(shading)} shading Gaussians a "
+                       "shading beyond float32's range; lower the lights' power (docs/relighting.md)")
     out = lit_dir(root)
     files = {"shading": out / SHADING_FILE, "light_only": out / LIGHT_ONLY_FILE, "light_json": out / LIGHT_JSON}
     doc = lights_document(
