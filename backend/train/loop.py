@@ -13,13 +13,10 @@ cancel (a checkpoint is written, then :class:`Cancelled` propagates), and tqdm/J
 from __future__ import annotations
 
 import contextlib
-import io
-import json
 import math
 import random
 import shutil
 import time
-import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,22 +26,27 @@ import numpy as np
 import torch
 
 from backend.core import events
-from backend.core.atomic_io import clean_stale_tmp, os_error, write_bytes, write_json
+from backend.core.atomic_io import clean_stale_tmp, os_error, write_json
 from backend.core.errors import Cancelled, IGSError
 from backend.render import Backend, RenderOutput, render
 from backend.render.threads import torch_threads
 from backend.render.types import RasterMode
 from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
+from backend.train.checkpoint import (  # noqa: F401  (CHECKPOINT_NAME, load_checkpoint: the loop's interface)
+    CHECKPOINT_NAME,
+    CONFIG_NAME,
+    _check_resumable,
+    _checkpoint_path,
+    config_dict,
+    load_checkpoint,
+    save_checkpoint,
+)
 from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
 from backend.train.memory import PeakMemory, keep_freed_memory
 from backend.train.phases import phase
 from backend.train.views import ColorSpace, View, to_display
-
-CHECKPOINT_VERSION = 1
-CHECKPOINT_NAME = "checkpoint.pt"
-CONFIG_NAME = "config.json"
 
 
 @dataclass
@@ -163,8 +165,9 @@ class Stage:
         self._gaussians = g
 
     def to(self, device: torch.device | str) -> Stage:
-        """Move the optimised set, the views (with their cached layers) and :meth:`frozen` sets to
-        ``device``; the loop calls it before training, stages may call it earlier."""
+        """Move the optimised set and :meth:`frozen` sets to ``device``; the loop calls it before
+        training, stages may call it earlier. Compact views (:func:`backend.train.views.load_views`)
+        stay on the host, pinned for a GPU: each step copies its view there (:meth:`View.working`)."""
         self.device = torch.device(device)
         self.gaussians = self.gaussians.to(self.device)
         for v in self.train_views + self.test_views:
@@ -309,10 +312,6 @@ class ViewSampler:
         self.rng.bit_generator.state = state["rng"]
 
 
-def config_dict(config: TrainConfig) -> dict[str, Any]:
-    return json.loads(json.dumps(asdict(config)))
-
-
 def depth_loss_applies(cfg: TrainConfig, view: View) -> bool:
     """Whether the depth term is on and ``view`` has a depth prior: the one test that both the loss and
     the render's ``with_depth`` follow."""
@@ -323,118 +322,12 @@ def evaluate(stage: Stage, views: Sequence[View]) -> dict[str, Any]:
     """Held-out metrics of the stage's prediction (sRGB display space): means and per view."""
     per_view = {}
     with torch.no_grad():
-        for view in views:
+        for view in views:  # one float32 working view at a time, on the stage's device
+            view = view.working(stage.device)
             out = stage.render(view)
             pred, target = stage.display(view, stage.predict(view, out))
             per_view[view.name] = image_metrics(pred.cpu(), target.cpu())
     return {**mean_metrics(list(per_view.values())), "views": len(per_view), "per_view": per_view}
-
-
-def _checkpoint_path(ckpt_dir: Path) -> Path:
-    return Path(ckpt_dir) / CHECKPOINT_NAME
-
-
-def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler,
-                    step: int, train_seconds: float, extra: dict[str, Any]) -> Path:
-    """Atomically write everything needed to continue bit-identically from ``step``."""
-    g = stage.gaussians
-    state = {
-        "version": CHECKPOINT_VERSION,
-        "stage": stage.name,
-        "step": step,
-        "config": config_dict(stage.config),
-        "kind": g.kind,
-        "sh_degree": g.sh_degree,
-        "active_sh_degree": g.active_sh_degree,
-        "params": g.tensors(),
-        "optimizer": optimizer.state_dict(),
-        "strategy": stage.strategy.state_dict() if stage.strategy else None,
-        "sampler": sampler.state(),
-        "rng": {"torch": torch.get_rng_state(), "python": random.getstate(),
-                "numpy": np.random.get_state()},
-        "train_views": [v.name for v in stage.train_views],
-        "train_seconds": train_seconds,
-        "extra": extra,
-        "stage_state": stage.extra_state(),
-    }
-    path = _checkpoint_path(ckpt_dir)
-    buf = io.BytesIO()  # serialised in memory: a full disk is then a clear error, not torch's "unexpected pos"
-    torch.save(_plain(state), buf)
-    write_bytes(path, buf.getvalue())
-    return path
-
-
-def _plain(obj: Any) -> Any:
-    """``obj`` with numpy arrays and scalars turned into Python values, so that the checkpoint holds
-    only tensors, containers and plain values and loads with ``weights_only=True``."""
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(_plain(v) for v in obj)
-    if isinstance(obj, (np.ndarray, np.generic)):
-        return obj.tolist()
-    return obj
-
-
-def load_checkpoint(ckpt_dir: Path) -> dict[str, Any] | None:
-    """The checkpoint in ``ckpt_dir`` (None when there is none).
-
-    Loaded with ``weights_only=True``: a checkpoint may hold tensors, numbers, strings and
-    containers only, so a crafted file cannot run code. Anything else is refused.
-    """
-    path = _checkpoint_path(ckpt_dir)
-    if not path.exists():
-        return None
-    try:
-        with warnings.catch_warnings():
-            # torch warns about a pickle protocol other than its own before it reads on (or refuses
-            # the file, which is reported below): the user gets the one line, not the warning too.
-            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
-            ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        reason = _unpickler_reason(e)
-        if "GLOBAL" in reason:  # a class or function reference: only a pickle that can run code needs one
-            raise IGSError(f"{path}: the checkpoint holds more than tensors and plain values ({reason}); "
-                           "it is not loaded because it could run code; run again with --restart to start over") from e
-        raise IGSError(f"{path}: unreadable checkpoint ({reason}); run again with --restart to start over") from e
-    missing = [] if isinstance(ckpt, dict) else ["a dictionary"]
-    if not missing:
-        missing = [k for k in _CHECKPOINT_KEYS if k not in ckpt]
-    if missing:
-        raise IGSError(f"{path}: not an igs checkpoint (missing {', '.join(missing)}); "
-                       "run again with --restart to start over")
-    return ckpt
-
-
-def _unpickler_reason(e: Exception) -> str:
-    """The useful part of a ``torch.load`` error (torch wraps the unpickler's reason in advice)."""
-    text = str(e)
-    if "WeightsUnpickler error:" in text:
-        text = text.split("WeightsUnpickler error:", 1)[1]
-    boilerplate = ("Weights only load failed", "Check the documentation", "Please file an issue")
-    parts = [" ".join(p.split()) for p in text.split("\n\n")]
-    parts = [p for p in parts if p and not p.startswith(boilerplate)]
-    reason = parts[0].split(". Please", 1)[0][:200] if parts else ""
-    return f"{type(e).__name__}: {reason}" if reason else type(e).__name__
-
-
-_CHECKPOINT_KEYS = ("version", "stage", "step", "config", "kind", "sh_degree", "active_sh_degree", "params",
-                    "optimizer", "strategy", "sampler", "rng", "train_views", "train_seconds", "extra")
-
-
-def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
-    if ckpt.get("version") != CHECKPOINT_VERSION:
-        raise IGSError(f"{path}: checkpoint format {ckpt.get('version')} is not supported; use --restart")
-    if ckpt["stage"] != stage.name or ckpt["kind"] != stage.gaussians.kind:
-        raise IGSError(f"{path}: checkpoint is for stage {ckpt['stage']} ({ckpt['kind']}), not {stage.name}")
-    now = config_dict(stage.config)
-    diffs = [k for k in now if now[k] != ckpt["config"].get(k)]
-    if diffs:
-        shown = ", ".join(f"{k}: {ckpt['config'].get(k)} -> {now[k]}" for k in diffs[:4])
-        raise IGSError(f"{path}: the checkpoint was made with other settings ({shown}); "
-                       "run with the same settings to resume, or --restart to start over")
-    if ckpt["train_views"] != [v.name for v in stage.train_views]:
-        raise IGSError(f"{path}: the checkpoint was made with other training views; use --restart")
 
 
 def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None,
@@ -585,7 +478,7 @@ def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSamp
         if group["name"] == "means":
             group["lr"] = means_lr(step, cfg, stage.scene_extent)
     stage.iteration = step
-    view = stage.train_views[sampler.next()]
+    view = stage.train_views[sampler.next()].working(stage.device)  # this step's view, float32 on the device
     with phase("render"):
         out = stage.render(view)
         pred = stage.predict(view, out)

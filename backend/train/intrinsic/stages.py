@@ -88,7 +88,7 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
             if key == "AS" and ALBEDO_KEYS <= v.extras.keys():
                 # the albedo this process already rendered for the shading stage: only S is rendered
                 (s,) = render_layers(splats[1:], v.camera, backend=backend, with_depth=False)
-                v.extras["AS"] = compose(v.extras.pop("A"), s.color).contiguous()
+                v.extras["AS"] = compose(v.extras.pop("A").to(s.color.device), s.color).contiguous()
                 bar.update(1)
                 continue
             outs = render_layers(splats, v.camera, backend=backend)
@@ -103,16 +103,17 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
 def albedo_renders(views: Sequence[View]) -> dict[str, dict[str, torch.Tensor]]:
     """G_A's cached renders of ``views`` by view name, to put into the same views of a later stage
     (:func:`reuse_albedo_renders`) when it freezes the same albedo layer in the same process."""
-    return {v.name: {k: v.extras[k] for k in ALBEDO_KEYS} for v in views if ALBEDO_KEYS <= v.extras.keys()}
+    return {v.name: {k: v.extras.raw(k) for k in ALBEDO_KEYS} for v in views if ALBEDO_KEYS <= v.extras.keys()}
 
 
 def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, torch.Tensor]]) -> int:
-    """Put the renders of :func:`albedo_renders` into ``views`` (matched by name, on each view's
-    device); returns how many views took them."""
+    """Put the renders of :func:`albedo_renders` into ``views`` (matched by name, as they are stored);
+    returns how many views took them."""
     n = 0
     for v in views:
         if (r := renders.get(v.name)) is not None:
-            v.extras.update({k: t.to(v.image.device) for k, t in r.items()})
+            for k, t in r.items():
+                v.extras.put_raw(k, t)
             n += 1
     return n
 
@@ -168,7 +169,7 @@ class ShadingStage(Stage):
         with torch.no_grad():
             for v in self.train_views:
                 (out,) = render_layers([s], v.camera, backend=self.config.backend, with_depth=False)
-                v.extras["AS"] = compose(v.extras["A"], out.color)
+                v.extras["AS"] = compose(v.extras["A"].to(out.color.device), out.color)
             residual = self.joint.spawn(self.train_views)
         for v in self.train_views:
             del v.extras["AS"]
@@ -271,6 +272,7 @@ def shading_gain(shading: GaussianSet, views: Sequence[View], backend: Backend, 
     with torch.no_grad():
         for v in picked:
             (out,) = render_layers([layer_splats(shading)], v.camera, backend=backend)
+            v = v.working(out.color.device)
             a = v.extras["A"]
             lum_as = luminance(compose(a, out.color))
             keep = (v.extras["alpha_A"] > 0.5) & (luminance(a) > dark_level) & (lum_as > 1e-3)
