@@ -16,18 +16,7 @@ from pathlib import Path
 
 import torch
 
-
-def proc_status_kib(pid: int | str = "self") -> dict[str, int]:
-    """The sizes in KiB of /proc/PID/status (VmHWM, VmRSS, ...) by key; empty where it cannot be read."""
-    sizes = {}
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            key, _, rest = line.partition(":")
-            if rest.strip().endswith(" kB"):
-                sizes[key] = int(rest.split()[0])
-    except (OSError, ValueError):
-        return {}
-    return sizes
+from backend.core.proc_status import proc_status_kib  # noqa: F401  (also read from here)
 
 
 @dataclass

@@ -105,7 +105,7 @@ def joint_residual(cfg: DecomposeConfig, shading: TrainConfig) -> JointResidual 
     length = round(cfg.joint_residual * shading.iterations)
     if length == 0:
         return None
-    return JointResidual(start=shading.iterations - length, spawn=lambda views: spawn_residual(views, cfg),
+    return JointResidual(start=shading.iterations - length, spawn=lambda views, diffuse_of: spawn_residual(views, cfg, diffuse_of),
                          config=replace(cfg.residual, iterations=length), weight=cfg.joint_residual_weight)
 
 

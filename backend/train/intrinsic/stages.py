@@ -128,8 +128,8 @@ class JointResidual:
 
     start: int
     """The shading stage's iteration at which the residual joins."""
-    spawn: Callable[[Sequence[View]], GaussianSet]
-    """The initial residual from the training views' cached ``AS`` (:func:`spawn_residual`)."""
+    spawn: Callable[[Sequence[View], Callable[[View], torch.Tensor]], GaussianSet]
+    """The initial residual from the training views and each view's ``A * S`` (:func:`spawn_residual`)."""
     config: TrainConfig
     """The residual's training settings: learning rates, depth and scale weights, and the SH and
     position-rate schedules over its ``iterations`` (the joint part's length)."""
@@ -166,13 +166,13 @@ class ShadingStage(Stage):
     def _join(self) -> None:
         """Spawn G_R where A * S (the shading as trained so far) leaves the largest error."""
         s = layer_splats(self.gaussians)
+
+        def diffuse(v: View) -> torch.Tensor:  # A * S of one view, rendered when asked (none is kept)
+            (out,) = render_layers([s], v.camera, backend=self.config.backend, with_depth=False)
+            return compose(v.extras["A"].to(out.color.device), out.color)
+
         with torch.no_grad():
-            for v in self.train_views:
-                (out,) = render_layers([s], v.camera, backend=self.config.backend, with_depth=False)
-                v.extras["AS"] = compose(v.extras["A"].to(out.color.device), out.color)
-            residual = self.joint.spawn(self.train_views)
-        for v in self.train_views:
-            del v.extras["AS"]
+            residual = self.joint.spawn(self.train_views, diffuse)
         self._set_residual(residual)
         events.log(f"shading: the residual joins at iteration {self.iteration} with {len(residual)} Gaussians")
 

@@ -1,0 +1,83 @@
+"""Views are held compactly on the host (8/16-bit codes, float16 depth and cached layers) and decode to
+exactly what the float32 path gave; a training step works on a float32 copy of its view only."""
+
+import tempfile
+
+import numpy as np
+import pytest
+import torch
+
+from _synth_capture import needs_synth_renderer
+from backend.capture.load import load_capture
+from backend.core.imageio import read_depth, read_image, srgb_to_linear
+from backend.splats.gaussians import GaussianSet
+from backend.train.intrinsic.stages import cache_frozen
+from backend.train.loop import Stage, TrainConfig, train
+from backend.train.views import View, load_views
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    needs_synth_renderer()
+    synth = pytest.importorskip("backend.synth.run")
+    ws = tmp_path_factory.mktemp("compact") / "ws"
+    synth.synthesize(ws, preset="test", seed=0)
+    return load_capture(ws, need_albedo=True)
+
+
+def _raw(v: View) -> list[torch.Tensor]:
+    """The tensors a view holds, as stored."""
+    return [v._image, *([v._depth] if v._depth is not None else []), *(v.extras.raw(k) for k in v.extras)]
+
+
+def test_compact_views_decode_to_the_float32_values(capture):
+    frames = capture.frames[:3]
+    views = load_views(frames, range(3), "linear", with_depth=True)
+    albedo = load_views(frames, range(3), "linear", image_of=lambda f: f.albedo)
+    for v, a, f in zip(views, albedo, frames):
+        px = f.camera.width * f.camera.height
+        assert v._image.dtype == torch.uint8 and a._image.dtype == torch.uint16  # the files' bit depths
+        assert v._depth.dtype == torch.float16
+        assert v.nbytes() == px * (3 + 2)  # 3 bytes of image + 2 of depth per pixel
+        # bit-identical to decoding the file as float32 and applying the sRGB curve
+        assert torch.equal(v.image, torch.from_numpy(srgb_to_linear(read_image(f.image))))
+        assert torch.equal(a.image, torch.from_numpy(srgb_to_linear(read_image(f.albedo))))
+        ref = read_depth(f.depth)
+        assert np.allclose(v.depth.numpy(), ref, rtol=1e-3, atol=0)
+        w = v.working(torch.device("cpu"))  # the step's copy: float32, the same values
+        assert not w.compact and w.image.dtype == torch.float32 and torch.equal(w.image, v.image)
+        assert torch.equal(w.depth, v.depth)
+    srgb = load_views(frames[:1], [0], "srgb")[0]
+    assert torch.equal(srgb.image, torch.from_numpy(read_image(frames[0].image)))
+
+
+def test_cached_layers_are_half_precision_on_the_host(capture):
+    views = load_views(capture.frames[:2], range(2), "linear")
+    n = 200
+    g = GaussianSet("albedo", {"means": torch.randn(n, 3) * 0.3, "quats": torch.nn.functional.normalize(
+        torch.randn(n, 4), dim=-1), "log_scales": torch.full((n, 3), -3.0), "opacity_logits": torch.zeros(n),
+        "colors": torch.zeros(n, 3)}, 0, 0)
+    cache_frozen(views, [g], "cpu", "albedo")
+    for v in views:
+        assert {k: v.extras.raw(k).dtype for k in v.extras} == {"A": torch.float16, "depth_A": torch.float16,
+                                                               "alpha_A": torch.float16}
+        assert v.extras["A"].dtype == torch.float32 and torch.equal(v.extras["A"], v.extras.raw("A").float())
+        px = v.camera.width * v.camera.height
+        assert v.nbytes() == px * (3 + 6 + 2 + 2)  # image + A + depth_A + alpha_A
+
+
+def test_training_keeps_the_views_compact(capture):
+    frames = capture.frames[:4]
+    views = load_views(frames, range(4), "srgb")
+    before = [[t.clone() for t in _raw(v)] for v in views]
+    n = 300
+    g = GaussianSet("radiance", {"means": torch.randn(n, 3) * 0.3, "quats": torch.nn.functional.normalize(
+        torch.randn(n, 4), dim=-1), "log_scales": torch.full((n, 3), -3.0), "opacity_logits": torch.zeros(n),
+        "sh0": torch.zeros(n, 1, 3), "shN": torch.zeros(n, 0, 3)}, 0, 0)
+    stage = Stage("t", g, views[:3], views[3:], TrainConfig(iterations=4, backend="cpu", checkpoint_every=100), 1.0)
+    with tempfile.TemporaryDirectory() as d:
+        result = train(stage, d, device="cpu")
+    assert result.step == 4 and result.metrics["views"] == 1
+    for v, old in zip(views, before):  # the stored views are untouched: no float32 copy of them stays
+        assert v.compact and v._image.dtype == torch.uint8
+        assert all(torch.equal(a, b) for a, b in zip(_raw(v), old))
