@@ -6,8 +6,8 @@ import tempfile
 import numpy as np
 import pytest
 import torch
-
 from _synth_capture import needs_synth_renderer
+
 from backend.capture.load import load_capture
 from backend.core.imageio import read_depth, read_image, srgb_to_linear
 from backend.splats.gaussians import GaussianSet
