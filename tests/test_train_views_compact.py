@@ -1,4 +1,4 @@
-"""Views are held compactly on the host (8/16-bit codes, float16 depth and cached layers) and decode to
+"""Views are held compactly on the host (8/16-bit codes, float16 cached layers) and decode to
 exactly what the float32 path gave; a training step works on a float32 copy of its view only."""
 
 import tempfile
@@ -37,13 +37,12 @@ def test_compact_views_decode_to_the_float32_values(capture):
     for v, a, f in zip(views, albedo, frames):
         px = f.camera.width * f.camera.height
         assert v._image.dtype == torch.uint8 and a._image.dtype == torch.uint16  # the files' bit depths
-        assert v._depth.dtype == torch.float16
-        assert v.nbytes() == px * (3 + 2)  # 3 bytes of image + 2 of depth per pixel
+        assert v._depth.dtype == torch.float32  # the depth prior as it is
+        assert v.nbytes() == px * (3 + 4)  # 3 bytes of image + 4 of depth per pixel
         # bit-identical to decoding the file as float32 and applying the sRGB curve
         assert torch.equal(v.image, torch.from_numpy(srgb_to_linear(read_image(f.image))))
         assert torch.equal(a.image, torch.from_numpy(srgb_to_linear(read_image(f.albedo))))
-        ref = read_depth(f.depth)
-        assert np.allclose(v.depth.numpy(), ref, rtol=1e-3, atol=0)
+        assert np.array_equal(v.depth.numpy(), read_depth(f.depth))
         w = v.working(torch.device("cpu"))  # the step's copy: float32, the same values
         assert not w.compact and w.image.dtype == torch.float32 and torch.equal(w.image, v.image)
         assert torch.equal(w.depth, v.depth)

@@ -3,7 +3,7 @@
 Images are loaded once, optionally downscaled, and kept as the files' 8/16-bit codes; a view
 decodes them to the stage's working colour space when read (``srgb``: the values as they are, as
 vanilla 3DGS trains; ``linear``: inverse sRGB curve, the pipeline's space for compositing A * S + R).
-Depth and cached layers are kept in half precision: host memory per view-pixel stays at a few bytes.
+Cached layers are kept in half precision: host memory per view-pixel stays at a few bytes.
 """
 
 from __future__ import annotations
@@ -29,10 +29,6 @@ from backend.render.threads import get_threads
 ColorSpace = Literal["srgb", "linear"]
 COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
 MAX_LOAD_THREADS = 8
-
-
-HALF_DEPTH_LIMIT = 60_000.0
-"""Largest depth kept in half precision (float16 ends at 65504); a map beyond it stays float32."""
 
 
 def _halved(t: torch.Tensor) -> torch.Tensor:
@@ -107,8 +103,8 @@ class View:
     or None; ``extras``: stage-specific per-view tensors (albedo, cached frozen layers).
 
     A *compact* view (the image given as uint8/uint16 sRGB codes, as :func:`load_views` makes them)
-    holds its tensors on the host at 8/16 bits per channel (image), float16 (depth, cached layers),
-    and gives float32 on reading (``image``, ``depth``, ``extras[k]``). The loop trains on
+    holds its tensors on the host at 8/16 bits per channel (image), float16 (cached layers) and
+    float32 (the depth prior), and gives float32 on reading (``image``, ``depth``, ``extras[k]``). The loop trains on
     :meth:`working` copies: float32 on the training device, made per iteration for the views in use,
     so that neither the host nor the GPU holds float32 tensors for the whole capture."""
 
@@ -121,9 +117,7 @@ class View:
         """The working colour space a compact image decodes to."""
         self._image = image
         compact = not image.is_floating_point()
-        if compact and depth is not None and (depth.numel() == 0 or float(depth.max()) <= HALF_DEPTH_LIMIT):
-            depth = _halved(depth)
-        self._depth = depth
+        self._depth = depth  # float32: the depth prior's exact values (half precision moved the fit)
         self.extras = Extras(extras, compact=compact)
 
     @property
@@ -248,7 +242,7 @@ def view_camera(camera: Camera, downscale: float) -> Camera:
 def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpace = "srgb", downscale: float = 1.0,
                with_depth: bool = False, image_of=None) -> list[View]:
     """Load the images (and depth maps) of ``frames`` as compact views (:class:`View`): 8/16-bit codes
-    as the files hold them, depth in float16.
+    as the files hold them.
 
     ``image_of(frame) -> Path`` picks which image of the frame is the target (default: the input
     photo; a stage may pass the albedo map instead).

@@ -68,8 +68,9 @@ def initial_albedo(capture: Capture, views: Sequence[View], cfg: DecomposeConfig
 
 def _depth_points(views: Sequence[View], colour: Callable[[View], torch.Tensor], n: int,
                   seed: int) -> tuple[np.ndarray, np.ndarray]:
-    return points_from_depth([v.camera for v in views], [v.depth.cpu().numpy() for v in views],
-                             [colour(v).cpu().numpy() for v in views], n, seed)
+    # generators: one view's depth and colours decoded at a time
+    return points_from_depth([v.camera for v in views], (v.depth.cpu().numpy() for v in views),
+                             (colour(v).cpu().numpy() for v in views), n, seed)
 
 
 def initial_shading(capture: Capture, views: Sequence[View], cfg: DecomposeConfig,

@@ -38,6 +38,7 @@ from backend.train.intrinsic.stages import (
 )
 from backend.train.intrinsic.state import STATE_DIR, DecomposeState, file_hash, jsonable, stage_settings
 from backend.train.loop import Stage, TrainConfig, train
+from backend.train.memory import release_freed_memory
 from backend.train.views import View
 
 MODE = "three-set"
@@ -128,6 +129,9 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     ``carried`` to :func:`_stage_with_init`."""
     tcfg = cfg.stage(name)
     t0 = time.perf_counter()
+    # the previous stage's views and caches sit in reference cycles (its stage and strategy): free them,
+    # and give their memory back, before this stage loads its own, or both stages' views stay resident
+    release_freed_memory()
     with_depth = tcfg.lambda_depth > 0
     target = "albedo" if name == "albedo" else "image"
     train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual")

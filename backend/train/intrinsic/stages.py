@@ -63,19 +63,26 @@ def layer_splats(g: GaussianSet) -> Splats:
     return Splats(**g.render_args())
 
 
-ALBEDO_KEYS = frozenset(("A", "depth_A", "alpha_A"))
-"""The extras :func:`cache_frozen` leaves for G_A (:func:`albedo_renders` hands them to the next stage)."""
+ALBEDO_KEYS = frozenset(("A", "alpha_A"))
+"""The extras :func:`cache_frozen` leaves for G_A (:func:`albedo_renders` hands them to the next stage),
+with ``depth_A`` for a view without a depth prior."""
+
+
+def _holds_albedo(v: View) -> bool:
+    """Whether ``v`` holds G_A's renders (:data:`ALBEDO_KEYS`, and ``depth_A`` where it has no depth prior)."""
+    return ALBEDO_KEYS <= v.extras.keys() and (v.depth is not None or "depth_A" in v.extras)
 
 
 def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: Backend, what: str) -> float:
     """Render the frozen layers once per view into ``view.extras`` (no re-render per iteration).
 
     ``frozen`` is [G_A] (caches ``A``) or [G_A, G_S] (caches ``AS`` = A * S, one fused pass), each
-    (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) (spawning falls back on it
-    without a depth prior), its alpha as ``alpha_A`` (H, W) (where no albedo is rendered, the shading
-    stage holds S at 0). A view that already holds G_A's renders (:data:`ALBEDO_KEYS`, carried from
-    the shading stage by :func:`albedo_renders`) renders only G_S, and gives up ``A`` for ``AS``.
-    Returns the seconds spent.
+    (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) for a view without a depth
+    prior (spawning falls back on it); the shading stage keeps G_A's alpha as ``alpha_A`` (H, W)
+    (where no albedo is rendered, it holds S at 0). A view that already holds G_A's renders (carried
+    from the shading stage by :func:`albedo_renders`) renders only G_S, and gives up ``A`` (and
+    ``alpha_A``, which the residual stage does not read) for ``AS``. Compact views keep them in half
+    precision (:class:`backend.train.views.View`). Returns the seconds spent.
     """
     key = "A" if len(frozen) == 1 else "AS"
     todo = [v for v in views if key not in v.extras]
@@ -85,17 +92,20 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
     splats = [layer_splats(g) for g in frozen]
     with torch.no_grad(), events.stage(f"cache {what}", len(todo), unit="view") as bar:
         for v in todo:
-            if key == "AS" and ALBEDO_KEYS <= v.extras.keys():
+            if key == "AS" and _holds_albedo(v):
                 # the albedo this process already rendered for the shading stage: only S is rendered
                 (s,) = render_layers(splats[1:], v.camera, backend=backend, with_depth=False)
                 v.extras["AS"] = compose(v.extras.pop("A").to(s.color.device), s.color).contiguous()
+                del v.extras["alpha_A"]
                 bar.update(1)
                 continue
             outs = render_layers(splats, v.camera, backend=backend)
             albedo = outs[0].color
             v.extras[key] = (albedo if len(outs) == 1 else compose(albedo, outs[1].color)).contiguous()
-            v.extras["depth_A"] = outs[0].depth
-            v.extras["alpha_A"] = outs[0].alpha
+            if v.depth is None:
+                v.extras["depth_A"] = outs[0].depth
+            if key == "A":
+                v.extras["alpha_A"] = outs[0].alpha
             bar.update(1)
     return time.perf_counter() - t0
 
@@ -103,7 +113,8 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
 def albedo_renders(views: Sequence[View]) -> dict[str, dict[str, torch.Tensor]]:
     """G_A's cached renders of ``views`` by view name, to put into the same views of a later stage
     (:func:`reuse_albedo_renders`) when it freezes the same albedo layer in the same process."""
-    return {v.name: {k: v.extras.raw(k) for k in ALBEDO_KEYS} for v in views if ALBEDO_KEYS <= v.extras.keys()}
+    return {v.name: {k: v.extras.raw(k) for k in (*ALBEDO_KEYS, "depth_A") if k in v.extras}
+            for v in views if _holds_albedo(v)}
 
 
 def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, torch.Tensor]]) -> int:
