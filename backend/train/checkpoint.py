@@ -3,64 +3,29 @@ atomically, and read back only as tensors and plain values (``weights_only``).""
 
 from __future__ import annotations
 
-import io
 import json
-import random
 import warnings
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
 
-from backend.core.atomic_io import write_bytes
 from backend.core.errors import IGSError
-
-if TYPE_CHECKING:
-    from backend.train.loop import Stage, TrainConfig, ViewSampler
 
 CHECKPOINT_VERSION = 1
 CHECKPOINT_NAME = "checkpoint.pt"
 CONFIG_NAME = "config.json"
 
 
-def config_dict(config: TrainConfig) -> dict[str, Any]:
+def config_dict(config: Any) -> dict[str, Any]:
+    """A config dataclass as plain JSON values (as config.json and the checkpoint hold it)."""
     return json.loads(json.dumps(asdict(config)))
 
 
 def _checkpoint_path(ckpt_dir: Path) -> Path:
     return Path(ckpt_dir) / CHECKPOINT_NAME
-
-
-def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler,
-                    step: int, train_seconds: float, extra: dict[str, Any]) -> Path:
-    """Atomically write everything needed to continue bit-identically from ``step``."""
-    g = stage.gaussians
-    state = {
-        "version": CHECKPOINT_VERSION,
-        "stage": stage.name,
-        "step": step,
-        "config": config_dict(stage.config),
-        "kind": g.kind,
-        "sh_degree": g.sh_degree,
-        "active_sh_degree": g.active_sh_degree,
-        "params": g.tensors(),
-        "optimizer": optimizer.state_dict(),
-        "strategy": stage.strategy.state_dict() if stage.strategy else None,
-        "sampler": sampler.state(),
-        "rng": {"torch": torch.get_rng_state(), "python": random.getstate(),
-                "numpy": np.random.get_state()},
-        "train_views": [v.name for v in stage.train_views],
-        "train_seconds": train_seconds,
-        "extra": extra,
-        "stage_state": stage.extra_state(),
-    }
-    path = _checkpoint_path(ckpt_dir)
-    buf = io.BytesIO()  # serialised in memory: a full disk is then a clear error, not torch's "unexpected pos"
-    torch.save(_plain(state), buf)
-    write_bytes(path, buf.getvalue())
-    return path
 
 
 def _plain(obj: Any) -> Any:
@@ -119,18 +84,3 @@ def _unpickler_reason(e: Exception) -> str:
 
 _CHECKPOINT_KEYS = ("version", "stage", "step", "config", "kind", "sh_degree", "active_sh_degree", "params",
                     "optimizer", "strategy", "sampler", "rng", "train_views", "train_seconds", "extra")
-
-
-def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
-    if ckpt.get("version") != CHECKPOINT_VERSION:
-        raise IGSError(f"{path}: checkpoint format {ckpt.get('version')} is not supported; use --restart")
-    if ckpt["stage"] != stage.name or ckpt["kind"] != stage.gaussians.kind:
-        raise IGSError(f"{path}: checkpoint is for stage {ckpt['stage']} ({ckpt['kind']}), not {stage.name}")
-    now = config_dict(stage.config)
-    diffs = [k for k in now if now[k] != ckpt["config"].get(k)]
-    if diffs:
-        shown = ", ".join(f"{k}: {ckpt['config'].get(k)} -> {now[k]}" for k in diffs[:4])
-        raise IGSError(f"{path}: the checkpoint was made with other settings ({shown}); "
-                       "run with the same settings to resume, or --restart to start over")
-    if ckpt["train_views"] != [v.name for v in stage.train_views]:
-        raise IGSError(f"{path}: the checkpoint was made with other training views; use --restart")

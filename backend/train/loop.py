@@ -13,6 +13,7 @@ cancel (a checkpoint is written, then :class:`Cancelled` propagates), and tqdm/J
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import random
 import shutil
@@ -26,7 +27,7 @@ import numpy as np
 import torch
 
 from backend.core import events
-from backend.core.atomic_io import clean_stale_tmp, os_error, write_json
+from backend.core.atomic_io import clean_stale_tmp, os_error, write_bytes, write_json
 from backend.core.errors import Cancelled, IGSError
 from backend.render import Backend, RenderOutput, render
 from backend.render.threads import torch_threads
@@ -35,12 +36,12 @@ from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
 from backend.train.checkpoint import (  # noqa: F401  (CHECKPOINT_NAME, load_checkpoint: the loop's interface)
     CHECKPOINT_NAME,
+    CHECKPOINT_VERSION,
     CONFIG_NAME,
-    _check_resumable,
     _checkpoint_path,
+    _plain,
     config_dict,
     load_checkpoint,
-    save_checkpoint,
 )
 from backend.train.image_metrics import image_metrics, mean_metrics
 from backend.train.losses import depth_l1, photometric, scale_reg
@@ -328,6 +329,51 @@ def evaluate(stage: Stage, views: Sequence[View]) -> dict[str, Any]:
             pred, target = stage.display(view, stage.predict(view, out))
             per_view[view.name] = image_metrics(pred.cpu(), target.cpu())
     return {**mean_metrics(list(per_view.values())), "views": len(per_view), "per_view": per_view}
+
+
+def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSampler,
+                    step: int, train_seconds: float, extra: dict[str, Any]) -> Path:
+    """Atomically write everything needed to continue bit-identically from ``step``."""
+    g = stage.gaussians
+    state = {
+        "version": CHECKPOINT_VERSION,
+        "stage": stage.name,
+        "step": step,
+        "config": config_dict(stage.config),
+        "kind": g.kind,
+        "sh_degree": g.sh_degree,
+        "active_sh_degree": g.active_sh_degree,
+        "params": g.tensors(),
+        "optimizer": optimizer.state_dict(),
+        "strategy": stage.strategy.state_dict() if stage.strategy else None,
+        "sampler": sampler.state(),
+        "rng": {"torch": torch.get_rng_state(), "python": random.getstate(),
+                "numpy": np.random.get_state()},
+        "train_views": [v.name for v in stage.train_views],
+        "train_seconds": train_seconds,
+        "extra": extra,
+        "stage_state": stage.extra_state(),
+    }
+    path = _checkpoint_path(ckpt_dir)
+    buf = io.BytesIO()  # serialised in memory: a full disk is then a clear error, not torch's "unexpected pos"
+    torch.save(_plain(state), buf)
+    write_bytes(path, buf.getvalue())
+    return path
+
+
+def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
+    if ckpt.get("version") != CHECKPOINT_VERSION:
+        raise IGSError(f"{path}: checkpoint format {ckpt.get('version')} is not supported; use --restart")
+    if ckpt["stage"] != stage.name or ckpt["kind"] != stage.gaussians.kind:
+        raise IGSError(f"{path}: checkpoint is for stage {ckpt['stage']} ({ckpt['kind']}), not {stage.name}")
+    now = config_dict(stage.config)
+    diffs = [k for k in now if now[k] != ckpt["config"].get(k)]
+    if diffs:
+        shown = ", ".join(f"{k}: {ckpt['config'].get(k)} -> {now[k]}" for k in diffs[:4])
+        raise IGSError(f"{path}: the checkpoint was made with other settings ({shown}); "
+                       "run with the same settings to resume, or --restart to start over")
+    if ckpt["train_views"] != [v.name for v in stage.train_views]:
+        raise IGSError(f"{path}: the checkpoint was made with other training views; use --restart")
 
 
 def train(stage: Stage, ckpt_dir: str | Path, *, resume: bool = True, stop_after: int | None = None,
