@@ -51,7 +51,7 @@ def test_estimate_is_within_a_quarter_of_a_measured_run(source, tmp_path):
 
 def test_over_the_limit_stops_at_once_with_one_line(source, tmp_path, monkeypatch):
     ws = make_scaled_workspace(source, tmp_path / "big", 16, 1024, 768)
-    gaussians = 3000 + 200_000  # --max-gaussians 3000 for albedo and shading; the residual's own cap
+    gaussians = 3000  # --max-gaussians: the albedo's budget, the largest set a stage trains
     fixed = DECOMPOSE.base + DECOMPOSE.per_gaussian * gaussians
     whole = DECOMPOSE.estimate(16, 1024 * 768, gaussians)
     limit = int(fixed + 0.4 * (whole - fixed))

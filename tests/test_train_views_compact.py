@@ -1,4 +1,4 @@
-"""Views are held compactly on the host (8/16-bit codes, float16 cached layers) and decode to
+"""Views are held compactly on the host (8/16-bit codes, 16-bit cached layers) and decode to
 exactly what the float32 path gave; a training step works on a float32 copy of its view only."""
 
 import tempfile
@@ -13,7 +13,7 @@ from backend.core.imageio import read_depth, read_image, srgb_to_linear
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.stages import cache_frozen
 from backend.train.loop import Stage, TrainConfig, train
-from backend.train.views import View, load_views
+from backend.train.views import View, decode_image, load_views
 
 
 @pytest.fixture(scope="module")
@@ -57,10 +57,18 @@ def test_cached_layers_are_half_precision_on_the_host(capture):
         torch.randn(n, 4), dim=-1), "log_scales": torch.full((n, 3), -3.0), "opacity_logits": torch.zeros(n),
         "colors": torch.zeros(n, 3)}, 0, 0)
     cache_frozen(views, [g], "cpu", "albedo")
-    for v in views:
-        assert {k: v.extras.raw(k).dtype for k in v.extras} == {"A": torch.float16, "depth_A": torch.float16,
-                                                               "alpha_A": torch.float16}
-        assert v.extras["A"].dtype == torch.float32 and torch.equal(v.extras["A"], v.extras.raw("A").float())
+    exact = [View(v.index, v.camera, v.image) for v in views]  # float32 views: the cache as rendered
+    cache_frozen(exact, [g], "cpu", "albedo")
+    for v, e in zip(views, exact):
+        # A and alpha (in [0, 1]) as sRGB-encoded 16-bit codes, the albedo's depth (no depth prior) in float16
+        assert {k: v.extras.raw(k).dtype for k in v.extras} == {"A": torch.uint16, "depth_A": torch.float16,
+                                                               "alpha_A": torch.uint16}
+        assert v.extras["A"].dtype == torch.float32 and torch.equal(v.extras["A"], decode_image(v.extras.raw("A"),
+                                                                                               "linear"))
+        for k, tol in (("A", 4e-5), ("alpha_A", 4e-5)):
+            assert float((v.extras[k] - e.extras[k]).abs().max()) <= tol
+        d = e.extras["depth_A"]
+        assert torch.allclose(v.extras["depth_A"], d, rtol=1e-3, atol=1e-6)
         px = v.camera.width * v.camera.height
         assert v.nbytes() == px * (3 + 6 + 2 + 2)  # image + A + depth_A + alpha_A
 

@@ -1,9 +1,12 @@
 """A training run's peak host memory, estimated before any view is loaded, and the limit it must fit.
 
-The estimate is a linear model fitted by ``python -m backend.bench.bench_memory`` (docs/benchmarks.md):
-a base (torch, the renderer, the process), bytes per view-pixel (each view's compact image, depth
-and cached layers, :class:`backend.train.views.View`), bytes per pixel of one view (a step's
-float32 working copies, renders and gradients) and bytes per Gaussian (parameters, gradients, Adam).
+The estimate is a linear model: a base (torch, the renderer, the process), bytes per view-pixel
+(each view's compact image, depth and cached layers, :class:`backend.train.views.View`) and bytes
+per pixel of one view (a step's float32 working copies, renders, gradients, the evaluation), fitted
+by ``python -m backend.bench.bench_memory`` (docs/benchmarks.md), plus bytes per Gaussian of the
+largest trained set's budget. That last term is not fitted (short benchmark runs stay far below a
+budget): it counts the parameters, their gradients and Adam's two moments (4 x 60 B for an RGB set,
+4 x 236 B with SH degree 3) and about as much again for the renderer's per-Gaussian buffers.
 The limit is the memory this process may still use: ``MemAvailable`` of /proc/meminfo and the
 cgroup's limit less its usage (the smaller), plus what the process already holds. ``IGS_MEMORY_LIMIT``
 (bytes, or with a K/M/G suffix) sets it instead.

@@ -3,7 +3,7 @@
 Images are loaded once, optionally downscaled, and kept as the files' 8/16-bit codes; a view
 decodes them to the stage's working colour space when read (``srgb``: the values as they are, as
 vanilla 3DGS trains; ``linear``: inverse sRGB curve, the pipeline's space for compositing A * S + R).
-Cached layers are kept in half precision: host memory per view-pixel stays at a few bytes.
+Cached layers are kept in 16 bits: host memory per view-pixel stays at a few bytes.
 """
 
 from __future__ import annotations
@@ -31,15 +31,36 @@ COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
 MAX_LOAD_THREADS = 8
 
 
-def _halved(t: torch.Tensor) -> torch.Tensor:
-    """A float32/float64 tensor as float16 (others as they are): a cached layer's compact form."""
-    return t.to(torch.float16) if t.is_floating_point() and t.dtype != torch.float16 else t
+def encode_srgb16(x: torch.Tensor) -> torch.Tensor:
+    """Linear values in [0, 1] -> uint16 codes of their sRGB encoding (same shape and device): finer
+    than float16 everywhere above 0.03 and near 0 as fine, decoded exactly by :func:`decode_image`."""
+    x = x.detach().float().clamp(0.0, 1.0)
+    srgb = torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+    return (srgb * 65535.0 + 0.5).floor().clamp(0, 65535).to(torch.int32).to(torch.uint16)
+
+
+def _compact(t: torch.Tensor) -> torch.Tensor:
+    """A cached layer's compact form: values in [0, 1] (a rendered albedo, an alpha) as sRGB-encoded
+    uint16 codes, other floats (a depth, A * S with a shading above 1) as float16; non-floats as they are."""
+    if not t.is_floating_point():
+        return t
+    if t.numel() and float(t.min()) >= 0.0 and float(t.max()) <= 1.0:
+        return encode_srgb16(t)
+    return t.to(torch.float16)
+
+
+def _wide(t: torch.Tensor) -> torch.Tensor:
+    """A compact cached layer back as float32 (uint16: sRGB codes, float16: values)."""
+    if t.dtype == torch.uint16:
+        return decode_image(t, "linear")
+    return t.float() if t.dtype == torch.float16 else t
 
 
 class Extras(MutableMapping):
-    """A view's stage-specific tensors by name. A compact view's floating-point entries are stored as
-    float16 on the host and read back as float32 (:meth:`raw` gives the stored tensor); a working
-    view's (:meth:`View.working`) are stored and read as they are."""
+    """A view's stage-specific tensors by name. A compact view stores its floating-point entries on the
+    host in 2 bytes a value (:func:`_compact`: uint16 sRGB codes in [0, 1], float16 beyond) and reads
+    them back as float32 (:meth:`raw` gives the stored tensor); a working view (:meth:`View.working`)
+    stores and reads them as they are."""
 
     def __init__(self, items: Mapping[str, torch.Tensor] | None = None, compact: bool = False):
         self.compact = compact
@@ -51,10 +72,10 @@ class Extras(MutableMapping):
 
     def __getitem__(self, key: str) -> torch.Tensor:
         t = self._d[key]
-        return t.float() if self.compact and t.dtype == torch.float16 else t
+        return _wide(t) if self.compact else t
 
     def __setitem__(self, key: str, value: torch.Tensor) -> None:
-        self.put_raw(key, _halved(value.detach()) if self.compact else value)
+        self.put_raw(key, _compact(value.detach()) if self.compact else value)
 
     def __delitem__(self, key: str) -> None:
         del self._d[key]
@@ -66,7 +87,7 @@ class Extras(MutableMapping):
         return len(self._d)
 
     def raw(self, key: str) -> torch.Tensor:
-        """The tensor as stored (float16 on a compact view)."""
+        """The tensor as stored (uint16 codes or float16 on a compact view)."""
         return self._d[key]
 
     def put_raw(self, key: str, value: torch.Tensor) -> None:
@@ -79,12 +100,13 @@ class Extras(MutableMapping):
 
 
 @functools.cache
-def _decode_table(dtype: torch.dtype, space: ColorSpace) -> torch.Tensor:
-    """(2^bits,) float32: the working-space value of each sRGB-encoded integer code, computed as
-    :func:`to_space` computes it from the file's float32 value (so a decoded view is bit-identical)."""
+def _decode_table(dtype: torch.dtype, space: ColorSpace, device: torch.device) -> torch.Tensor:
+    """(2^bits,) float32 on ``device``: the working-space value of each sRGB-encoded integer code,
+    computed as :func:`to_space` computes it from the file's float32 value (so a decoded view is
+    bit-identical). Kept per device: a step decodes there without copying the table again."""
     top = 255 if dtype == torch.uint8 else 65535
     codes = np.arange(top + 1, dtype=np.float32) / np.float32(top)
-    return torch.from_numpy(np.ascontiguousarray(to_space(codes, space)))
+    return torch.from_numpy(np.ascontiguousarray(to_space(codes, space))).to(device)
 
 
 def decode_image(pixels: torch.Tensor, space: ColorSpace) -> torch.Tensor:
@@ -92,7 +114,7 @@ def decode_image(pixels: torch.Tensor, space: ColorSpace) -> torch.Tensor:
     look-up, the same values :func:`to_space` gives the decoded file); float input is returned as is."""
     if pixels.is_floating_point():
         return pixels
-    table = _decode_table(pixels.dtype, space).to(pixels.device, non_blocking=True)
+    table = _decode_table(pixels.dtype, space, pixels.device)
     return table.index_select(0, pixels.reshape(-1).long()).view(pixels.shape)  # faster than table[pixels]
 
 
@@ -103,8 +125,8 @@ class View:
     or None; ``extras``: stage-specific per-view tensors (albedo, cached frozen layers).
 
     A *compact* view (the image given as uint8/uint16 sRGB codes, as :func:`load_views` makes them)
-    holds its tensors on the host at 8/16 bits per channel (image), float16 (cached layers) and
-    float32 (the depth prior), and gives float32 on reading (``image``, ``depth``, ``extras[k]``). The loop trains on
+    holds its tensors on the host at 8/16 bits per channel (image), 16 bits (cached layers: see
+    :class:`Extras`) and float32 (the depth prior), and gives float32 on reading (``image``, ``depth``, ``extras[k]``). The loop trains on
     :meth:`working` copies: float32 on the training device, made per iteration for the views in use,
     so that neither the host nor the GPU holds float32 tensors for the whole capture."""
 
@@ -138,8 +160,7 @@ class View:
 
     @property
     def depth(self) -> torch.Tensor | None:
-        d = self._depth
-        return d.float() if d is not None and d.dtype == torch.float16 else d
+        return self._depth
 
     def nbytes(self) -> int:
         """Bytes the view holds (image, depth and extras as stored)."""
@@ -181,13 +202,10 @@ class View:
         def move(t: torch.Tensor) -> torch.Tensor:
             return t.to(device, non_blocking=t.is_pinned())
 
-        def wide(t: torch.Tensor) -> torch.Tensor:
-            return t.float() if t.dtype == torch.float16 else t
-
         image = decode_image(move(self._image), self.space)
-        depth = None if self._depth is None else wide(move(self._depth))
+        depth = None if self._depth is None else move(self._depth)
         return View(self.index, self.camera, image, depth,
-                    {k: wide(move(self.extras.raw(k))) for k in self.extras})
+                    {k: _wide(move(self.extras.raw(k))) for k in self.extras})
 
 
 def check_space(space: str) -> None:

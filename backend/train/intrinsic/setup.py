@@ -66,7 +66,7 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
         raise IGSError(f"{ws.root}: no training views")
     cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
     check_memory("decompose", DECOMPOSE, len(capture.frames), cam.width, cam.height,
-                 cfg.albedo.densify.max_gaussians + cfg.residual.densify.max_gaussians, cfg.downscale)
+                 cfg.albedo.densify.max_gaussians, cfg.downscale)  # the largest set a stage trains
     summary = capture_summary(capture)["priors"]
     priors = {"albedo": summary["albedo"], "depth": summary["depth"] if summary["depth_views"] == len(capture.frames)
               else f"{summary['depth']} ({summary['depth_views']}/{len(capture.frames)} views: depth terms off)",
