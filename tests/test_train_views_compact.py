@@ -88,3 +88,25 @@ def test_training_keeps_the_views_compact(capture):
     for v, old in zip(views, before):  # the stored views are untouched: no float32 copy of them stays
         assert v.compact and v._image.dtype == torch.uint8
         assert all(torch.equal(a, b) for a, b in zip(_raw(v), old))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_on_a_gpu_views_stream_and_the_device_holds_no_capture(capture):
+    """The device's peak memory does not grow with the number of views: each step copies its view."""
+    peaks = []
+    for count in (4, 16):
+        views = load_views(capture.frames[:count], range(count), "srgb")
+        torch.manual_seed(0)
+        n = 2000
+        g = GaussianSet("radiance", {"means": torch.randn(n, 3) * 0.3, "quats": torch.nn.functional.normalize(
+            torch.randn(n, 4), dim=-1), "log_scales": torch.full((n, 3), -3.0), "opacity_logits": torch.zeros(n),
+            "sh0": torch.zeros(n, 1, 3), "shN": torch.zeros(n, 0, 3)}, 0, 0)
+        stage = Stage("t", g, views[:-1], views[-1:], TrainConfig(iterations=8, checkpoint_every=100), 1.0)
+        torch.cuda.reset_peak_memory_stats()
+        with tempfile.TemporaryDirectory() as d:
+            train(stage, d, device="cuda")
+        peaks.append(torch.cuda.max_memory_allocated())
+        assert all(v._image.device.type == "cpu" and v._image.is_pinned() for v in views)
+    per_view = max(v.camera.width * v.camera.height * 3 * 4 for v in views)
+    assert peaks[1] - peaks[0] < 4 * per_view  # 12 more views would hold 12 float32 images on the device
+

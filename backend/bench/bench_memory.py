@@ -59,11 +59,13 @@ def command_args(command: str, ws: Path, iterations: int, device: str) -> list[s
     return ["train-3dgs", str(ws), "--iterations", str(iterations), *common]
 
 
-def measure(argv: list[str], cap_bytes: int, first_stage: str, env: dict[str, str] | None = None) -> dict[str, Any]:
+def measure(argv: list[str], cap_bytes: int, first_stage: str, env: dict[str, str] | None = None,
+            code: Path = ROOT) -> dict[str, Any]:
     """Run ``python -m backend --events ARGV``; its peak RSS, time to the first iteration, time per
-    iteration, whether it was killed above ``cap_bytes``, and its log and error messages."""
+    iteration, whether it was killed above ``cap_bytes``, and its log and error messages. ``code``: the
+    checkout whose backend runs (another one measures an older version on the same workspaces)."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "backend", "--events", *argv], cwd=ROOT, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "--events", *argv], cwd=code, stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, env={**os.environ, **(env or {})})
     fd = proc.stdout.fileno()
     os.set_blocking(fd, False)
@@ -140,7 +142,7 @@ def peak_gpu(ws: Path, command: str) -> float | None:
 
 
 def run(source: Path | None, work: Path, runs: list[tuple[int, int, int]], commands: list[str], iterations: int,
-        cap_gib: float, device: str) -> dict[str, Any]:
+        cap_gib: float, device: str, code: Path = ROOT) -> dict[str, Any]:
     work.mkdir(parents=True, exist_ok=True)
     if source is None:
         source = work / "source_test"
@@ -155,17 +157,19 @@ def run(source: Path | None, work: Path, runs: list[tuple[int, int, int]], comma
             make_scaled_workspace(source, ws, views, w, h)
         for command in commands:
             print(f"bench_memory: {command} on {views} views at {w}x{h} ...", file=sys.stderr, flush=True)
-            r = measure(command_args(command, ws, iterations, device), int(cap_gib * 2**30), FIRST_STAGE[command])
+            r = measure(command_args(command, ws, iterations, device), int(cap_gib * 2**30), FIRST_STAGE[command],
+                        {"PYTHONPATH": str(code)}, code)
             r.update({"command": command, "views": views, "width": w, "height": h, "peak_gpu_mib": peak_gpu(ws, command)})
             rows.append(r)
     fits = {c: fit([r for r in rows if r["command"] == c]) for c in commands}
-    return {"source": str(source), "iterations": iterations, "cap_gib": cap_gib, "device": device, "runs": rows,
+    return {"source": str(source), "code": str(code), "iterations": iterations, "cap_gib": cap_gib, "device": device,
+            "runs": rows,
             "fit": fits}
 
 
 def table(result: dict[str, Any]) -> str:
     lines = [f"memory scaling, {result['iterations']} iterations, cap {result['cap_gib']} GiB, device {result['device']}",
-             "| views | size | command | peak RSS | B/view-pixel (peak/views/pixels) | first iteration | per iteration "
+             "| views | size | command | peak RSS | peak / view-pixels | first iteration | per iteration "
              "| peak GPU |", "|---|---|---|---|---|---|---|---|"]
     for r in result["runs"]:
         peak = "killed at the cap" if r["killed_at_cap"] else f"{r['peak_rss_mib'] / 1024:.2f} GiB"
@@ -175,7 +179,7 @@ def table(result: dict[str, Any]) -> str:
         gpu = f"{r['peak_gpu_mib']:.0f} MiB" if r.get("peak_gpu_mib") is not None else "-"
         first = f"{r['first_iteration_s']} s" if r["first_iteration_s"] is not None else "-"
         per = f"{r['seconds_per_iteration']} s" if r["seconds_per_iteration"] is not None else "-"
-        lines.append(f"| {r['views']} | {r['width']}x{r['height']} | {r['command']} | {peak} | {per_vp:.0f} | "
+        lines.append(f"| {r['views']} | {r['width']}x{r['height']} | {r['command']} | {peak} | {per_vp:.0f} B | "
                      f"{first} | {per} | {gpu} |")
     for c, f in result["fit"].items():
         if f is None:
@@ -198,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=20, help="iterations (decompose: split over its stages)")
     p.add_argument("--cap-gib", type=float, default=10.0, help="kill a run whose resident set passes this")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--code", default=str(ROOT), help="the checkout whose backend runs (default: this one)")
     p.add_argument("--out", default="bench_memory.json", help="JSON output")
     args = p.parse_args(argv)
     try:
@@ -208,8 +213,11 @@ def main(argv: list[str] | None = None) -> int:
             raise IGSError(f"--commands: {', '.join(bad) or 'none given'}; choose from {', '.join(COMMANDS)}")
         if args.iterations < 4 or not args.cap_gib > 0:
             raise IGSError("--iterations must be >= 4 and --cap-gib > 0")
+        code = Path(args.code).resolve()
+        if not (code / "backend" / "__main__.py").is_file():
+            raise IGSError(f"--code {args.code}: not a checkout of this project (no backend/__main__.py)")
         result = run(Path(args.source) if args.source else None, Path(args.work), runs, commands, args.iterations,
-                     args.cap_gib, args.device)
+                     args.cap_gib, args.device, code)
     except IGSError as e:
         return error(p.prog, e)
     return write_result(table(result), args.out, result)

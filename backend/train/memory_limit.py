@@ -40,10 +40,10 @@ class MemoryModel:
         return self.base + self.per_view_pixel * views * pixels + self.per_pixel * pixels + self.per_gaussian * gaussians
 
 
-# Fitted on the CPU by bench_memory (decompose and train-3dgs, 16-96 views, 256x192 to 1024x768); the
-# largest residual of each fit is in docs/benchmarks.md.
-DECOMPOSE = MemoryModel(base=1.55 * GIB, per_view_pixel=16.0, per_pixel=360.0, per_gaussian=1200.0)
-TRAIN_3DGS = MemoryModel(base=1.45 * GIB, per_view_pixel=8.0, per_pixel=300.0, per_gaussian=1200.0)
+# Fitted on the CPU by bench_memory (16-96 views, 256x192 to 1024x768, 20 iterations, about 21k
+# Gaussians: their part is in the base); the runs and the largest residuals are in docs/benchmarks.md.
+DECOMPOSE = MemoryModel(base=1.39 * GIB, per_view_pixel=18.3, per_pixel=1061.0, per_gaussian=600.0)
+TRAIN_3DGS = MemoryModel(base=1.37 * GIB, per_view_pixel=3.05, per_pixel=290.0, per_gaussian=1200.0)
 
 
 def _meminfo_available() -> int | None:

@@ -126,9 +126,10 @@ class View:
 
     A *compact* view (the image given as uint8/uint16 sRGB codes, as :func:`load_views` makes them)
     holds its tensors on the host at 8/16 bits per channel (image), 16 bits (cached layers: see
-    :class:`Extras`) and float32 (the depth prior), and gives float32 on reading (``image``, ``depth``, ``extras[k]``). The loop trains on
-    :meth:`working` copies: float32 on the training device, made per iteration for the views in use,
-    so that neither the host nor the GPU holds float32 tensors for the whole capture."""
+    :class:`Extras`) and float32 (the depth prior), and gives float32 on reading (``image``,
+    ``depth``, ``extras[k]``). The loop trains on :meth:`working` copies: float32 on the training
+    device, made per iteration for the views in use, so that neither the host nor the GPU holds
+    float32 tensors for the whole capture."""
 
     def __init__(self, index: int, camera: Camera, image: torch.Tensor, depth: torch.Tensor | None = None,
                  extras: Mapping[str, torch.Tensor] | None = None, space: ColorSpace = "srgb"):
