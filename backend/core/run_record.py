@@ -1,7 +1,7 @@
 """``<ws>/checkpoints/last_run.json``: what the last long command on a workspace did and how far it got.
 
-Written when the command starts (state ``running``, its process id), updated with its progress
-every few seconds, and closed with its outcome (``finished``, ``failed``, ``cancelled``). A process
+Written when the command's work starts (its first progress: loading the views; state ``running``,
+its process id), updated with its progress every few seconds, and closed with its outcome (``finished``, ``failed``, ``cancelled``). A process
 killed from outside (SIGKILL: the kernel's out-of-memory killer) cannot close it: the next command
 finds it still ``running`` with its process gone and says so, with the stage and step it reached.
 """
@@ -73,8 +73,10 @@ def run_record(workspace: str | Path, command: str) -> Iterator[dict[str, Any]]:
     rec: dict[str, Any] = {"command": command, "pid": os.getpid(), "state": "running",
                            "started_at": time.strftime("%Y-%m-%d %H:%M:%S"), "progress": None}
     last = [0.0]
+    started = [False]  # written from the first progress on: a command stopped by its checks writes nothing
 
     def write() -> None:
+        started[0] = True
         rec["peak_rss_mib"] = proc_status_kib().get("VmHWM", 0) / 1024
         try:
             write_json(path, rec)
@@ -88,7 +90,6 @@ def run_record(workspace: str | Path, command: str) -> Iterator[dict[str, Any]]:
             last[0] = now
             write()
 
-    write()
     remove = events.on_progress(on_progress)
     try:
         yield rec
@@ -102,4 +103,5 @@ def run_record(workspace: str | Path, command: str) -> Iterator[dict[str, Any]]:
         rec["state"] = "finished"
     finally:
         remove()
-        write()
+        if started[0]:
+            write()
