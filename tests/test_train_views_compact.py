@@ -50,7 +50,7 @@ def test_compact_views_decode_to_the_float32_values(capture):
     assert torch.equal(srgb.image, torch.from_numpy(read_image(frames[0].image)))
 
 
-def test_cached_layers_are_half_precision_on_the_host(capture):
+def test_cached_layers_are_16_bit_on_the_host(capture):
     views = load_views(capture.frames[:2], range(2), "linear")
     n = 200
     g = GaussianSet("albedo", {"means": torch.randn(n, 3) * 0.3, "quats": torch.nn.functional.normalize(
