@@ -64,7 +64,7 @@ def test_missing_images_are_skipped_reported_and_one_shared_camera_is_written(sc
 
     meta = json.loads((ws / "capture.json").read_text())
     settings = meta["source"]["settings"]
-    assert "sfm" not in settings and settings["selection"] == {"max_side": 0}
+    assert "sfm" not in settings and settings["selection"] == {"max_side": 1600}
     assert settings["triangulation"]["matching"] == "exhaustive" and settings["triangulation"]["num_threads"] == 2
     kept = [c for i, c in enumerate(cams) if i != 5]
     assert [f["source"] for f in meta["import_frames"]] == [c.name for c in kept]
@@ -112,7 +112,7 @@ def test_colmap_project_with_a_missing_image_and_no_sfm_settings(scene, tmp_path
     assert rep["frames_listed"] == 8 and rep["registered"] == 7
     assert rep["skipped"] == [{"source": cams[2].name, "reason": "image not found"}]
     settings = json.loads((ws / "capture.json").read_text())["source"]["settings"]
-    assert settings == {"selection": {"max_side": 0}}
+    assert settings == {"selection": {"max_side": 1600}}
 
 
 def test_a_model_with_one_camera_per_image_still_reads(scene, tmp_path):

@@ -13,7 +13,7 @@ from _synth_capture import needs_synth_renderer
 
 from backend.commands.cli import main
 from backend.core import layer_set
-from backend.train.checkpoint_file import settings_diff
+from backend.train.checkpoint import settings_diff
 from backend.train.intrinsic import run as run_mod
 
 ARGS = ["--albedo-iterations", "30", "--shading-iterations", "16", "--residual-iterations", "16",

@@ -70,7 +70,7 @@ def test_a_cancel_stops_loading(capture, monkeypatch):
     from backend.train import views as views_module
 
     decoded = []
-    real = views_module.read_image
+    real = views_module.read_image_codes
 
     def slow(path):
         if decoded:
@@ -78,7 +78,7 @@ def test_a_cancel_stops_loading(capture, monkeypatch):
         decoded.append(path)
         return real(path)
 
-    monkeypatch.setattr(views_module, "read_image", slow)
+    monkeypatch.setattr(views_module, "read_image_codes", slow)
     monkeypatch.setattr(views_module, "get_threads", lambda: 1)
     events.request_cancel()
     try:

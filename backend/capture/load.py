@@ -132,8 +132,19 @@ def load_capture(root: str | Path, need_albedo: bool = False, need_depth: bool =
                                           (need_depth, missing_depth, "depth", depth_dir or ws.depth)):
         if needed and missing:
             shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
-            raise IGSError(f"{folder}: {kind} maps missing for {len(missing)} of {len(frames)} views ({shown})")
+            raise IGSError(f"{folder}: {kind} maps missing for {len(missing)} of {len(frames)} views ({shown}); "
+                           + prior_step(ws.root, kind))
     return Capture(ws, frames, model.points, model.colors, meta)
+
+
+def prior_step(workspace: Path, kind: str) -> str:
+    """The step that makes a workspace's ``kind`` ('albedo' or 'depth') maps, and what it costs."""
+    if kind == "albedo":
+        return (f"make them with `igs priors {workspace} --albedo marigold` (Marigold IID: a model of about 1 B "
+                "parameters, several GB downloaded once; about 70 s per frame on a CPU, where --albedo-steps 1 "
+                "takes about 50 s; --device cuda on a GPU) or `--albedo folder:<path>` for maps you have")
+    return (f"make them with `igs priors {workspace} --depth depth-anything` (Depth Anything V2 Small: about 2 s "
+            "per frame on a CPU) or `--depth folder:<path>`")
 
 
 def _find(folder: Path | None, stem: str, suffixes: tuple[str, ...]) -> Path | None:

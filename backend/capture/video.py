@@ -21,6 +21,11 @@ from backend.core.errors import IGSError
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".mts", ".m2ts", ".3gp")
 
 
+DEFAULT_MAX_SIDE = 1600
+"""Pixels of an imported frame's longer side by default: a phone's 4K frames would need several times the
+memory and time to train for little more detail (3DGS rescales inputs wider than 1.6K too)."""
+
+
 @dataclass(frozen=True)
 class FrameSelection:
     """How frames are taken from a video."""
@@ -29,7 +34,7 @@ class FrameSelection:
     """Keep one frame per window of this many consecutive frames."""
     max_frames: int = 0
     """Keep at most this many frames, evenly spread over the kept ones (0: no limit)."""
-    max_side: int = 0
+    max_side: int = DEFAULT_MAX_SIDE
     """Downscale frames so that their longer side is at most this many pixels (0: keep the size)."""
     sharpest: bool = True
     """Choose the sharpest frame of each window (variance of the Laplacian); else its first frame."""

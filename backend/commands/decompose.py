@@ -13,6 +13,7 @@ from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args, with_fields
 from backend.core import events
 from backend.core.errors import IGSError
+from backend.core.run_record import run_record
 from backend.core.workspace import Workspace
 from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.metrics_file import read_metrics
@@ -135,6 +136,11 @@ def run(args: argparse.Namespace) -> dict:
     # --iterations first: the per-stage options override its split
     cfg = config_from_args(config_with_iterations(args.iterations), STAGE_ITERATIONS + OPTIONS, args)
     read_metrics(Workspace(Path(args.workspace)).metrics_json)  # a broken file stops it now, not after training
+    with run_record(args.workspace, "decompose"):  # a run killed for memory is found by the next command
+        return _run(args, cfg)
+
+
+def _run(args: argparse.Namespace, cfg: DecomposeConfig) -> dict:
     if args.single_set:
         if args.stage:
             raise IGSError("--stage does not apply to --single-set (one set is trained in one run)")

@@ -10,11 +10,14 @@ import argparse
 from pathlib import Path
 
 from backend.capture.importer import ImportConfig, gt_dir_for, import_capture
+from backend.capture.load import load_capture, prior_step
 from backend.capture.sfm import SfMConfig
+from backend.capture.video import DEFAULT_MAX_SIDE
 from backend.commands import locking
 from backend.commands import options as opt
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.commands.priors import add_prior_arguments, priors_config_from_args
+from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.priors.apply import PriorsConfig, compute_priors, make_predictors
 
@@ -22,7 +25,8 @@ KIND = (Option("--kind", "kind", "source kind (default: detected)"),)
 FRAME_OPTIONS = (
     Option("--every", "selection.every", "video: keep one frame in every N (default 5)", type=opt.COUNT),
     Option("--max-frames", "selection.max_frames", "keep at most N frames, evenly spread (0: all)", type=opt.COUNT0),
-    Option("--max-side", "selection.max_side", "downscale frames to this longer side in pixels (0: keep the size)",
+    Option("--max-side", "selection.max_side", f"downscale frames to this longer side in pixels (default "
+           f"{DEFAULT_MAX_SIDE}; 0: keep the full size)",
            type=opt.integer(0, 16384)),
     Option("--no-sharpest", "selection.sharpest", "video: take the first frame of each window instead of the sharpest"),
 )
@@ -69,7 +73,22 @@ def import_with_priors(source: str | Path, workspace: str | Path, config: Import
     report = import_capture(source, workspace, config)
     report["priors"] = compute_priors(workspace, priors)
     write_json(Path(workspace).expanduser() / "import_report.json", report)
+    _next_steps(Path(workspace).expanduser(), config, report)
     return report
+
+
+def _next_steps(ws: Path, config: ImportConfig, report: dict) -> None:
+    """The lines that end an import: the frame size it chose, and the step that makes missing albedo maps."""
+    side = config.selection.max_side
+    w, h = report.get("size") or (0, 0)
+    if side > 0:
+        events.log(f"import: frames are {w}x{h}, at most {side} px on the longer side (--max-side; "
+                   "--max-side 0 keeps the full size)")
+    else:
+        events.log(f"import: frames are {w}x{h}, kept at full size (--max-side 0)")
+    capture = load_capture(ws)
+    if any(f.albedo is None for f in capture.frames):
+        events.log("import: no albedo maps yet: `igs decompose` needs them; " + prior_step(ws, "albedo"))
 
 
 def run(args: argparse.Namespace) -> dict:

@@ -10,6 +10,7 @@ from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args, with_fields
 from backend.core import events
+from backend.core.run_record import run_record
 from backend.core.workspace import Workspace
 from backend.eval.baseline import record_train_3dgs
 from backend.eval.metrics_file import read_metrics
@@ -68,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> dict:
     cfg = config_from_args(cli_defaults(), ITERATIONS + OPTIONS, args)
     read_metrics(Workspace(Path(args.workspace)).metrics_json)  # a broken file stops it now, not after training
-    entry = record_train_3dgs(args.workspace, train_3dgs(args.workspace, cfg, resume=args.resume))
+    with run_record(args.workspace, "train-3dgs"):  # a run killed for memory is found by the next command
+        entry = record_train_3dgs(args.workspace, train_3dgs(args.workspace, cfg, resume=args.resume))
     summary = {k: entry.get(k) for k in ("psnr", "ssim", "lpips", "iterations", "gaussians", "train_seconds")}
     events.result("train-3dgs", summary, indent=None)
     return entry

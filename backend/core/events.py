@@ -12,7 +12,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -23,6 +23,7 @@ from backend.core.errors import Cancelled
 from igs_contract.events import CANCELLED, EVENT, LOG, OUTPUT, PROGRESS, RESULT, STAGE
 
 _state = {"json": False}
+_progress_listeners: list[Callable[[str, int, int], None]] = []
 _cancel = signals.cancel_event
 _lock = threading.Lock()
 
@@ -51,6 +52,13 @@ def _jsonable(obj: Any) -> Any:
     if hasattr(obj, "tolist"):
         return obj.tolist()
     return str(obj)
+
+
+def on_progress(listener: Callable[[str, int, int], None]) -> Callable[[], None]:
+    """Call ``listener(stage, step, total)`` whenever a progress bar reports (as often as its events);
+    returns the function that removes it."""
+    _progress_listeners.append(listener)
+    return lambda: _progress_listeners.remove(listener) if listener in _progress_listeners else None
 
 
 def log(message: str) -> None:
@@ -138,6 +146,8 @@ class Progress:
             rate = done / max(now - self._t0, 1e-9)
             eta = (self.total - self.step) / rate if rate > 0 else None
             emit(PROGRESS, stage=self.stage, step=self.step, total=self.total, eta_s=eta, **metrics)
+            for listener in list(_progress_listeners):
+                listener(self.stage, self.step, self.total)
         check_cancel()
 
     def close(self) -> None:

@@ -151,19 +151,24 @@ def check_jpeg(path: Path, data: bytes) -> None:
                 break
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an 8/16-bit image as float32 RGB in [0,1] (still sRGB-encoded), shape (H, W, 3)."""
+def read_image_codes(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit image as its integer codes: uint8 or uint16 RGB (still sRGB-encoded), shape (H, W, 3)."""
     path = Path(path)
     check_image_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise IGSError(f"{path}: unreadable image (not a PNG/JPEG OpenCV can decode)")
-    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    if img is None or img.dtype not in (np.uint8, np.uint16):
+        raise IGSError(f"{path}: unreadable image (not an 8/16-bit PNG/JPEG OpenCV can decode)")
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     elif img.shape[2] == 4:
         img = img[:, :, :3]
-    return (img[:, :, ::-1].astype(np.float32) / scale).copy()
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit image as float32 RGB in [0,1] (still sRGB-encoded), shape (H, W, 3)."""
+    img = read_image_codes(path)
+    return img.astype(np.float32) / (65535.0 if img.dtype == np.uint16 else 255.0)
 
 
 def read_linear(path: str | Path) -> np.ndarray:

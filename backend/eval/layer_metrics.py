@@ -106,18 +106,17 @@ def evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], 
 
 def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
                      albedo_source: str, backend: Backend) -> dict[str, Any]:
-    renders, gts = [], []
-    for f in frames:
-        r = render_frame(layers, f, downscale, backend)
-        h, w = next(iter(r.values())).shape[:2]
-        renders.append(r)
-        gts.append(ground_truth(f, w, h))
-    alignment = _align(renders, gts, albedo_source)
-
+    # View by view: only one view's renders and ground truth are held at a time. A predicted albedo's
+    # alignment needs sums over all views first: a first pass gathers them (rendering twice).
+    k = _alignment_scale(layers, frames, downscale, albedo_source, backend)
+    alignment = _alignment_entry(k, albedo_source)
     per_view: dict[str, dict[str, Any]] = {}
     fg_views: dict[str, dict[str, Any]] = {}
     leak_views: dict[str, dict[str, Any]] = {}
-    for f, r, g in zip(frames, renders, gts):
+    for f in frames:
+        r, g = _view_pair(layers, f, downscale, backend)
+        if k is not None:
+            _apply_scale(r, k)
         per_view[f.name] = _view_metrics(r, g)
         if "albedo" not in g:
             continue  # no ground-truth albedo: no foreground, no leakage
@@ -132,19 +131,42 @@ def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame],
             "leakage": _leakage_summary(leak_views)}
 
 
-def _align(renders: list[dict[str, torch.Tensor]], gts: Sequence[Mapping[str, torch.Tensor]],
-           albedo_source: str) -> dict[str, Any]:
-    """Scale a predicted albedo per channel to the ground truth (and the shading by the inverse), in
-    place in ``renders``; returns the alignment's description."""
-    with_gt_albedo = [i for i, g in enumerate(gts) if "albedo" in g and "albedo" in renders[i]]
-    if albedo_source == "gt" or not with_gt_albedo:
+def _view_pair(layers: Mapping[str, GaussianSet], frame: Frame, downscale: float,
+               backend: Backend) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """One held-out view's renders (:func:`render_frame`) and ground truth at their size."""
+    r = render_frame(layers, frame, downscale, backend)
+    h, w = next(iter(r.values())).shape[:2]
+    return r, ground_truth(frame, w, h)
+
+
+def _alignment_scale(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
+                     albedo_source: str, backend: Backend) -> torch.Tensor | None:
+    """(3,) per-channel scale of a predicted albedo to the ground truth (:func:`channel_scale` over all
+    views with both), summed view by view; None with a ground-truth albedo or none to compare with."""
+    if albedo_source == "gt" or "albedo" not in layers or not any("albedo" in f.gt for f in frames):
+        return None
+    num = den = None
+    for f in frames:
+        if "albedo" not in f.gt:
+            continue
+        r, g = _view_pair(layers, f, downscale, backend)
+        p, t = r["albedo"], g["albedo"]
+        num = (p * t).sum(dim=(0, 1)) + (0 if num is None else num)
+        den = (p * p).sum(dim=(0, 1)) + (0 if den is None else den)
+    return num / den.clamp_min(1e-12)
+
+
+def _apply_scale(r: dict[str, torch.Tensor], k: torch.Tensor) -> None:
+    """Scale a view's albedo render by ``k`` and its shading by the inverse (A * S unchanged), in place."""
+    if "albedo" in r:
+        r["albedo"] = r["albedo"] * k
+    if "shading" in r:
+        r["shading"] = r["shading"] / k.clamp_min(1e-6)
+
+
+def _alignment_entry(k: torch.Tensor | None, albedo_source: str) -> dict[str, Any]:
+    if k is None:
         return {"albedo": "none (ground-truth albedo: layers compared directly)"}
-    k = channel_scale([renders[i]["albedo"] for i in with_gt_albedo], [gts[i]["albedo"] for i in with_gt_albedo])
-    for r in renders:
-        if "albedo" in r:
-            r["albedo"] = r["albedo"] * k
-        if "shading" in r:
-            r["shading"] = r["shading"] / k.clamp_min(1e-6)
     return {"albedo": "per-channel least-squares scale of A to the ground truth (S divided by it, "
                       "A * S unchanged)", "scale": [round(float(x), 5) for x in k]}
 

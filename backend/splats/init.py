@@ -6,7 +6,7 @@ neighbours (exact, by a k-d tree: :mod:`backend.core.neighbours`), so the splats
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,11 +78,12 @@ def backproject(camera: Camera, depth: np.ndarray, pixels: np.ndarray) -> np.nda
     return (cam - camera.t) @ camera.R  # R^T (x_cam - t), row-wise
 
 
-def points_from_depth(cameras: Sequence[Camera], depths: Sequence[np.ndarray], images: Sequence[np.ndarray],
+def points_from_depth(cameras: Sequence[Camera], depths: Iterable[np.ndarray], images: Iterable[np.ndarray],
                       n_points: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Back-project random pixels with valid depth (> 0, finite) from all views.
 
-    depths: (H, W) z-depth per view; images: (H, W, 3) colours per view. Returns points (M, 3) and
+    depths: (H, W) z-depth per view; images: (H, W, 3) colours per view (iterables: read one view at a
+    time). Returns points (M, 3) and
     colours (M, 3), M <= n_points, spread evenly over the views.
     """
     rng = np.random.default_rng(seed)

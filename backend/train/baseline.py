@@ -32,6 +32,7 @@ from backend.splats.ply import write_ply
 from backend.splats.strategy import DensifyStrategy, scene_extent
 from backend.train.device import describe, resolve_device
 from backend.train.loop import Stage, TrainConfig, train
+from backend.train.memory_limit import TRAIN_3DGS, check_memory
 from backend.train.views import (
     ColorSpace,
     check_space,
@@ -102,6 +103,9 @@ def baseline_stage(workspace: str | Path, cfg: BaselineConfig,
     train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
     if not train_frames:
         raise IGSError(f"{capture.workspace.root}: no training views")
+    cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
+    check_memory("train-3dgs", TRAIN_3DGS, len(capture.frames), cam.width, cam.height,
+                 cfg.train.densify.max_gaussians, cfg.downscale)
     idx = {f.name: i for i, f in enumerate(capture.frames)}
     with_depth = cfg.train.lambda_depth > 0
     train_views = load_views(train_frames, [idx[f.name] for f in train_frames], cfg.color_space, cfg.downscale,

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
 import math
 import random
 import shutil
@@ -35,10 +34,13 @@ from backend.render.threads import torch_threads
 from backend.render.types import RasterMode
 from backend.splats.gaussians import SH_KINDS, GaussianSet
 from backend.splats.strategy import DensifyConfig, DensifyStrategy
-from backend.train.checkpoint_file import (  # noqa: F401 (load_checkpoint: the loop's reader, re-exported)
+from backend.train.checkpoint import (  # noqa: F401  (CHECKPOINT_NAME, load_checkpoint: the loop's interface)
     CHECKPOINT_NAME,
     CHECKPOINT_VERSION,
+    CONFIG_NAME,
+    _plain,
     checkpoint_path,
+    config_dict,
     load_checkpoint,
     settings_diff,
 )
@@ -47,8 +49,6 @@ from backend.train.losses import depth_l1, photometric, scale_reg
 from backend.train.memory import PeakMemory, keep_freed_memory
 from backend.train.phases import phase
 from backend.train.views import ColorSpace, View, to_display
-
-CONFIG_NAME = "config.json"
 
 
 @dataclass
@@ -167,8 +167,9 @@ class Stage:
         self._gaussians = g
 
     def to(self, device: torch.device | str) -> Stage:
-        """Move the optimised set, the views (with their cached layers) and :meth:`frozen` sets to
-        ``device``; the loop calls it before training, stages may call it earlier."""
+        """Move the optimised set and :meth:`frozen` sets to ``device``; the loop calls it before
+        training, stages may call it earlier. Compact views (:func:`backend.train.views.load_views`)
+        stay on the host, pinned for a GPU: each step copies its view there (:meth:`View.working`)."""
         self.device = torch.device(device)
         self.gaussians = self.gaussians.to(self.device)
         for v in self.train_views + self.test_views:
@@ -313,10 +314,6 @@ class ViewSampler:
         self.rng.bit_generator.state = state["rng"]
 
 
-def config_dict(config: TrainConfig) -> dict[str, Any]:
-    return json.loads(json.dumps(asdict(config)))
-
-
 def depth_loss_applies(cfg: TrainConfig, view: View) -> bool:
     """Whether the depth term is on and ``view`` has a depth prior: the one test that both the loss and
     the render's ``with_depth`` follow."""
@@ -327,7 +324,8 @@ def evaluate(stage: Stage, views: Sequence[View]) -> dict[str, Any]:
     """Held-out metrics of the stage's prediction (sRGB display space): means and per view."""
     per_view = {}
     with torch.no_grad():
-        for view in views:
+        for view in views:  # one float32 working view at a time, on the stage's device
+            view = view.working(stage.device)
             out = stage.render(view)
             pred, target = stage.display(view, stage.predict(view, out))
             per_view[view.name] = image_metrics(pred.cpu(), target.cpu())
@@ -362,18 +360,6 @@ def save_checkpoint(ckpt_dir: Path, stage: Stage, optimizer: torch.optim.Optimiz
     torch.save(_plain(state), buf)
     write_bytes(path, buf.getvalue())
     return path
-
-
-def _plain(obj: Any) -> Any:
-    """``obj`` with numpy arrays and scalars turned into Python values, so that the checkpoint holds
-    only tensors, containers and plain values and loads with ``weights_only=True``."""
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(_plain(v) for v in obj)
-    if isinstance(obj, (np.ndarray, np.generic)):
-        return obj.tolist()
-    return obj
 
 
 def _check_resumable(ckpt: dict[str, Any], stage: Stage, path: Path) -> None:
@@ -543,7 +529,7 @@ def _iteration(stage: Stage, optimizer: torch.optim.Optimizer, sampler: ViewSamp
         if group["name"] == "means":
             group["lr"] = means_lr(step, cfg, stage.scene_extent)
     stage.iteration = step
-    view = stage.train_views[sampler.next()]
+    view = stage.train_views[sampler.next()].working(stage.device)  # this step's view, float32 on the device
     with phase("render"):
         out = stage.render(view)
         pred = stage.predict(view, out)

@@ -9,6 +9,7 @@ container), the peak is the whole process's so far, and :class:`PeakMemory` says
 from __future__ import annotations
 
 import functools
+import gc
 import resource
 import sys
 from dataclasses import dataclass
@@ -16,18 +17,7 @@ from pathlib import Path
 
 import torch
 
-
-def proc_status_kib(pid: int | str = "self") -> dict[str, int]:
-    """The sizes in KiB of /proc/PID/status (VmHWM, VmRSS, ...) by key; empty where it cannot be read."""
-    sizes = {}
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            key, _, rest = line.partition(":")
-            if rest.strip().endswith(" kB"):
-                sizes[key] = int(rest.split()[0])
-    except (OSError, ValueError):
-        return {}
-    return sizes
+from backend.core.proc_status import proc_status_kib  # noqa: F401  (also read from here)
 
 
 @dataclass
@@ -94,3 +84,20 @@ def keep_freed_memory() -> bool:
                                                                                           MMAP_THRESHOLD))
     except (OSError, AttributeError):  # musl and others: no mallopt
         return False
+
+
+def release_freed_memory() -> bool:
+    """Collect reference cycles, then hand the heaps' free memory back to the system (glibc's
+    ``malloc_trim``, every arena). Between stages: the views loaded by worker threads live in those
+    threads' arenas, and what one stage freed there would otherwise stay resident beside the next
+    stage's caches (which the main thread allocates). Returns False where that is not glibc."""
+    gc.collect()
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        return False
+    return True

@@ -1,16 +1,17 @@
 """Training/evaluation views: a camera plus the per-view tensors a stage trains against.
 
-Images are loaded once, optionally downscaled, and converted to the stage's working colour space
-(``srgb``: the 8-bit values as they are, as vanilla 3DGS trains; ``linear``: inverse sRGB curve,
-the pipeline's space for compositing A * S + R).
+Images are loaded once, optionally downscaled, and kept as the files' 8/16-bit codes; a view
+decodes them to the stage's working colour space when read (``srgb``: the values as they are, as
+vanilla 3DGS trains; ``linear``: inverse sRGB curve, the pipeline's space for compositing A * S + R).
+Cached layers are kept in 16 bits: host memory per view-pixel stays at a few bytes.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, MutableMapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
 
@@ -21,7 +22,7 @@ import torch
 from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.core.imageio import linear_to_srgb, read_depth, read_image, srgb_to_linear
+from backend.core.imageio import linear_to_srgb, read_depth, read_image_codes, srgb_to_linear
 from backend.core.workspace import Frame
 from backend.render.threads import get_threads
 
@@ -30,28 +31,182 @@ COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
 MAX_LOAD_THREADS = 8
 
 
-@dataclass
-class View:
-    """One view. ``image``: (H, W, 3) float32 in the stage's colour space; ``depth``: (H, W) z-depth
-    (0 = no data) or None; ``extras``: stage-specific per-view tensors (albedo, cached frozen layers)."""
+def encode_srgb16(x: torch.Tensor) -> torch.Tensor:
+    """Linear values in [0, 1] -> uint16 codes of their sRGB encoding (same shape and device): finer
+    than float16 everywhere above 0.03 and near 0 as fine, decoded exactly by :func:`decode_image`."""
+    x = x.detach().float().clamp(0.0, 1.0)
+    srgb = torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+    return (srgb * 65535.0 + 0.5).floor().clamp(0, 65535).to(torch.int32).to(torch.uint16)
 
-    index: int
-    camera: Camera
-    image: torch.Tensor
-    depth: torch.Tensor | None = None
-    extras: dict[str, torch.Tensor] = field(default_factory=dict)
+
+def _compact(t: torch.Tensor) -> torch.Tensor:
+    """A cached layer's compact form: values in [0, 1] (a rendered albedo, an alpha) as sRGB-encoded
+    uint16 codes, other floats (a depth, A * S with a shading above 1) as float16; non-floats as they are."""
+    if not t.is_floating_point():
+        return t
+    if t.numel() and float(t.min()) >= 0.0 and float(t.max()) <= 1.0:
+        return encode_srgb16(t)
+    return t.to(torch.float16)
+
+
+def _wide(t: torch.Tensor) -> torch.Tensor:
+    """A compact cached layer back as float32 (uint16: sRGB codes, float16: values)."""
+    if t.dtype == torch.uint16:
+        return decode_image(t, "linear")
+    return t.float() if t.dtype == torch.float16 else t
+
+
+class Extras(MutableMapping):
+    """A view's stage-specific tensors by name. A compact view stores its floating-point entries on the
+    host in 2 bytes a value (:func:`_compact`: uint16 sRGB codes in [0, 1], float16 beyond) and reads
+    them back as float32 (:meth:`raw` gives the stored tensor); a working view (:meth:`View.working`)
+    stores and reads them as they are."""
+
+    def __init__(self, items: Mapping[str, torch.Tensor] | None = None, compact: bool = False):
+        self.compact = compact
+        self.pinned = False
+        """Whether new entries go to pinned host memory (a compact view that streams to a GPU)."""
+        self._d: dict[str, torch.Tensor] = {}
+        for k, v in (items or {}).items():
+            self[k] = v
+
+    def __getitem__(self, key: str) -> torch.Tensor:
+        t = self._d[key]
+        return _wide(t) if self.compact else t
+
+    def __setitem__(self, key: str, value: torch.Tensor) -> None:
+        self.put_raw(key, _compact(value.detach()) if self.compact else value)
+
+    def __delitem__(self, key: str) -> None:
+        del self._d[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._d)
+
+    def __len__(self) -> int:
+        return len(self._d)
+
+    def raw(self, key: str) -> torch.Tensor:
+        """The tensor as stored (uint16 codes or float16 on a compact view)."""
+        return self._d[key]
+
+    def put_raw(self, key: str, value: torch.Tensor) -> None:
+        """Store ``value`` as it is (a compact view keeps it on the host, pinned when streaming)."""
+        if self.compact:
+            value = value.to("cpu")
+            if self.pinned and not value.is_pinned():
+                value = value.pin_memory()
+        self._d[key] = value
+
+
+@functools.cache
+def _decode_table(dtype: torch.dtype, space: ColorSpace, device: torch.device) -> torch.Tensor:
+    """(2^bits,) float32 on ``device``: the working-space value of each sRGB-encoded integer code,
+    computed as :func:`to_space` computes it from the file's float32 value (so a decoded view is
+    bit-identical). Kept per device: a step decodes there without copying the table again."""
+    top = 255 if dtype == torch.uint8 else 65535
+    codes = np.arange(top + 1, dtype=np.float32) / np.float32(top)
+    return torch.from_numpy(np.ascontiguousarray(to_space(codes, space))).to(device)
+
+
+def decode_image(pixels: torch.Tensor, space: ColorSpace) -> torch.Tensor:
+    """(H, W, 3) uint8/uint16 sRGB-encoded codes -> float32 in ``space`` on the same device (a table
+    look-up, the same values :func:`to_space` gives the decoded file); float input is returned as is."""
+    if pixels.is_floating_point():
+        return pixels
+    table = _decode_table(pixels.dtype, space, pixels.device)
+    return table.index_select(0, pixels.reshape(-1).long()).view(pixels.shape)  # faster than table[pixels]
+
+
+class View:
+    """One view: a camera and the tensors a stage trains against.
+
+    ``image``: (H, W, 3) float32 in the stage's colour space; ``depth``: (H, W) z-depth (0 = no data)
+    or None; ``extras``: stage-specific per-view tensors (albedo, cached frozen layers).
+
+    A *compact* view (the image given as uint8/uint16 sRGB codes, as :func:`load_views` makes them)
+    holds its tensors on the host at 8/16 bits per channel (image), 16 bits (cached layers: see
+    :class:`Extras`) and float32 (the depth prior), and gives float32 on reading (``image``,
+    ``depth``, ``extras[k]``). The loop trains on :meth:`working` copies: float32 on the training
+    device, made per iteration for the views in use, so that neither the host nor the GPU holds
+    float32 tensors for the whole capture."""
+
+    def __init__(self, index: int, camera: Camera, image: torch.Tensor, depth: torch.Tensor | None = None,
+                 extras: Mapping[str, torch.Tensor] | None = None, space: ColorSpace = "srgb"):
+        check_space(space)
+        self.index = index
+        self.camera = camera
+        self.space: ColorSpace = space
+        """The working colour space a compact image decodes to."""
+        self._image = image
+        compact = not image.is_floating_point()
+        self._depth = depth  # float32: the depth prior's exact values (half precision moved the fit)
+        self.extras = Extras(extras, compact=compact)
+
+    @property
+    def compact(self) -> bool:
+        return self.extras.compact
 
     @property
     def name(self) -> str:
         return self.camera.name
 
+    @property
+    def image(self) -> torch.Tensor:
+        return decode_image(self._image, self.space)
+
+    @image.setter
+    def image(self, value: torch.Tensor) -> None:
+        self._image = value
+
+    @property
+    def depth(self) -> torch.Tensor | None:
+        return self._depth
+
+    def nbytes(self) -> int:
+        """Bytes the view holds (image, depth and extras as stored)."""
+        ts = [self._image, *([self._depth] if self._depth is not None else []),
+              *(self.extras.raw(k) for k in self.extras)]
+        return sum(t.numel() * t.element_size() for t in ts)
+
     def to_(self, device: torch.device) -> View:
-        """Move the view's tensors to ``device`` in place."""
-        self.image = self.image.to(device)
-        if self.depth is not None:
-            self.depth = self.depth.to(device)
-        self.extras = {k: v.to(device) for k, v in self.extras.items()}
+        """Put the view where a stage on ``device`` reads it, in place: a working view's tensors move
+        to ``device``; a compact view's stay on the host (pinned for a CUDA device, so that
+        :meth:`working` copies them asynchronously)."""
+        device = torch.device(device)
+        if self.compact:
+            if device.type == "cuda" and not self.extras.pinned:
+                self._image = self._image.pin_memory()
+                if self._depth is not None:
+                    self._depth = self._depth.pin_memory()
+                self.extras.pinned = True
+                for k in list(self.extras):
+                    self.extras.put_raw(k, self.extras.raw(k))
+            return self
+        self._image = self._image.to(device)
+        if self._depth is not None:
+            self._depth = self._depth.to(device)
+        self.extras = Extras({k: v.to(device) for k, v in self.extras.items()})
         return self
+
+    def working(self, device: torch.device) -> View:
+        """The float32 view on ``device`` that a step trains on: a compact view's tensors are copied
+        there (asynchronously from pinned memory) and decoded there; a working view is itself once
+        its tensors are on ``device``."""
+        device = torch.device(device)
+        if not self.compact:
+            return self if self._image.device == device else View(
+                self.index, self.camera, self._image.to(device),
+                None if self._depth is None else self._depth.to(device),
+                {k: v.to(device) for k, v in self.extras.items()})
+
+        def move(t: torch.Tensor) -> torch.Tensor:
+            return t.to(device, non_blocking=t.is_pinned())
+
+        image = decode_image(move(self._image), self.space)
+        depth = None if self._depth is None else move(self._depth)
+        return View(self.index, self.camera, image, depth,
+                    {k: _wide(move(self.extras.raw(k))) for k in self.extras})
 
 
 def check_space(space: str) -> None:
@@ -110,7 +265,8 @@ def view_camera(camera: Camera, downscale: float) -> Camera:
 
 def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpace = "srgb", downscale: float = 1.0,
                with_depth: bool = False, image_of=None) -> list[View]:
-    """Load the images (and depth maps) of ``frames``.
+    """Load the images (and depth maps) of ``frames`` as compact views (:class:`View`): 8/16-bit codes
+    as the files hold them.
 
     ``image_of(frame) -> Path`` picks which image of the frame is the target (default: the input
     photo; a stage may pass the albedo map instead).
@@ -120,7 +276,8 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
     def load(frame: Frame, index: int) -> View:
         cam = view_camera(frame.camera, downscale)
         path: Path = image_of(frame) if image_of else frame.image
-        img = resize_image(read_image(path), cam.width, cam.height)
+        # the file's integer codes, resized as they are: a compact view (decoded per use, see View)
+        img = resize_image(read_image_codes(path), cam.width, cam.height)
         depth = None
         if with_depth:
             if frame.depth is None:
@@ -130,7 +287,7 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
                 raise IGSError(f"{frame.depth}: depth map is {d.shape[1]}x{d.shape[0]} but the image is "
                                f"{frame.camera.width}x{frame.camera.height}")
             depth = torch.from_numpy(resize_depth(d, cam.width, cam.height))
-        return View(index, cam, torch.from_numpy(np.ascontiguousarray(to_space(img, space))), depth)
+        return View(index, cam, torch.from_numpy(np.ascontiguousarray(img)), depth, space=space)
 
     if not frames:
         return []

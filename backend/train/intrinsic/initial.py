@@ -68,8 +68,9 @@ def initial_albedo(capture: Capture, views: Sequence[View], cfg: DecomposeConfig
 
 def _depth_points(views: Sequence[View], colour: Callable[[View], torch.Tensor], n: int,
                   seed: int) -> tuple[np.ndarray, np.ndarray]:
-    return points_from_depth([v.camera for v in views], [v.depth.cpu().numpy() for v in views],
-                             [colour(v).cpu().numpy() for v in views], n, seed)
+    # generators: one view's depth and colours decoded at a time
+    return points_from_depth([v.camera for v in views], (v.depth.cpu().numpy() for v in views),
+                             (colour(v).cpu().numpy() for v in views), n, seed)
 
 
 def initial_shading(capture: Capture, views: Sequence[View], cfg: DecomposeConfig,
@@ -139,10 +140,12 @@ def _with_environment(depth: np.ndarray, factor: float) -> np.ndarray:
     return np.where(known, depth, factor * float(depth[known].max())).astype(depth.dtype)
 
 
-def spawn_residual(views: Sequence[View], cfg: DecomposeConfig) -> GaussianSet:
+def spawn_residual(views: Sequence[View], cfg: DecomposeConfig,
+                   diffuse_of: Callable[[View], torch.Tensor] = lambda v: v.extras["AS"]) -> GaussianSet:
     """Residual Gaussians at high-error pixels of the diffuse model (paper 3.2.3).
 
-    Per training view: the ``top_fraction`` of pixels with the largest |I - A * S| (cached);
+    Per training view: the ``top_fraction`` of pixels with the largest |I - A * S| (``diffuse_of(view)``,
+    (H, W, 3); default: the cached ``AS``, while the shading stage renders it view by view);
     ``points / views`` of them drawn with probability proportional to the error; placed at the
     depth prior (the rendered albedo depth where there is none), or where neither has a depth (the
     environment) at ``environment_depth`` times the view's farthest depth; colour = the positive part
@@ -155,7 +158,7 @@ def spawn_residual(views: Sequence[View], cfg: DecomposeConfig) -> GaussianSet:
     per_view = max(1, math.ceil(sc.points / max(1, len(views))))
     pts, cols = [], []
     for v in views:
-        diff = (v.image - v.extras["AS"]).cpu().numpy()
+        diff = (v.image - diffuse_of(v).cpu()).numpy()
         err = np.abs(diff).sum(-1).reshape(-1)
         depth = (v.depth if v.depth is not None else v.extras["depth_A"]).cpu().numpy()
         depth = _with_environment(depth, sc.environment_depth)

@@ -48,6 +48,7 @@ from backend.train.intrinsic.state import (
     stage_settings,
 )
 from backend.train.loop import Stage, TrainConfig, train
+from backend.train.memory import release_freed_memory
 from backend.train.views import View
 
 MODE = "three-set"
@@ -115,7 +116,7 @@ def joint_residual(cfg: DecomposeConfig, shading: TrainConfig) -> JointResidual 
     length = round(cfg.joint_residual * shading.iterations)
     if length == 0:
         return None
-    return JointResidual(start=shading.iterations - length, spawn=lambda views: spawn_residual(views, cfg),
+    return JointResidual(start=shading.iterations - length, spawn=lambda views, diffuse_of: spawn_residual(views, cfg, diffuse_of),
                          config=replace(cfg.residual, iterations=length), weight=cfg.joint_residual_weight)
 
 
@@ -138,6 +139,9 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     ``carried`` to :func:`_stage_with_init`."""
     tcfg = cfg.stage(name)
     t0 = time.perf_counter()
+    # the previous stage's views and caches sit in reference cycles (its stage and strategy): free them,
+    # and give their memory back, before this stage loads its own, or both stages' views stay resident
+    release_freed_memory()
     with_depth = tcfg.lambda_depth > 0
     target = "albedo" if name == "albedo" else "image"
     train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual")

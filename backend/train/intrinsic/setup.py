@@ -16,6 +16,7 @@ from backend.core.workspace import Capture, Frame, split_frames
 from backend.splats.strategy import scene_extent
 from backend.train.device import resolve_device
 from backend.train.intrinsic.config import STAGES, DecomposeConfig
+from backend.train.memory_limit import DECOMPOSE, check_memory
 from backend.train.views import View, load_views, view_camera
 
 ViewTarget = Literal["albedo", "image"]
@@ -63,6 +64,9 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
     train_frames, test_frames = split_frames(capture.frames, cfg.hold_every)
     if not train_frames:
         raise IGSError(f"{ws.root}: no training views")
+    cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
+    check_memory("decompose", DECOMPOSE, len(capture.frames), cam.width, cam.height,
+                 cfg.albedo.densify.max_gaussians, cfg.downscale)  # the largest set a stage trains
     summary = capture_summary(capture)["priors"]
     priors = {"albedo": summary["albedo"], "depth": summary["depth"] if summary["depth_views"] == len(capture.frames)
               else f"{summary['depth']} ({summary['depth_views']}/{len(capture.frames)} views: depth terms off)",

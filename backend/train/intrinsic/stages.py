@@ -63,19 +63,26 @@ def layer_splats(g: GaussianSet) -> Splats:
     return Splats(**g.render_args())
 
 
-ALBEDO_KEYS = frozenset(("A", "depth_A", "alpha_A"))
-"""The extras :func:`cache_frozen` leaves for G_A (:func:`albedo_renders` hands them to the next stage)."""
+ALBEDO_KEYS = frozenset(("A", "alpha_A"))
+"""The extras :func:`cache_frozen` leaves for G_A (:func:`albedo_renders` hands them to the next stage),
+with ``depth_A`` for a view without a depth prior."""
+
+
+def _holds_albedo(v: View) -> bool:
+    """Whether ``v`` holds G_A's renders (:data:`ALBEDO_KEYS`, and ``depth_A`` where it has no depth prior)."""
+    return ALBEDO_KEYS <= v.extras.keys() and (v.depth is not None or "depth_A" in v.extras)
 
 
 def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: Backend, what: str) -> float:
     """Render the frozen layers once per view into ``view.extras`` (no re-render per iteration).
 
     ``frozen`` is [G_A] (caches ``A``) or [G_A, G_S] (caches ``AS`` = A * S, one fused pass), each
-    (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) (spawning falls back on it
-    without a depth prior), its alpha as ``alpha_A`` (H, W) (where no albedo is rendered, the shading
-    stage holds S at 0). A view that already holds G_A's renders (:data:`ALBEDO_KEYS`, carried from
-    the shading stage by :func:`albedo_renders`) renders only G_S, and gives up ``A`` for ``AS``.
-    Returns the seconds spent.
+    (H, W, 3). The expected depth of G_A is kept as ``depth_A`` (H, W) for a view without a depth
+    prior (spawning falls back on it); the shading stage keeps G_A's alpha as ``alpha_A`` (H, W)
+    (where no albedo is rendered, it holds S at 0). A view that already holds G_A's renders (carried
+    from the shading stage by :func:`albedo_renders`) renders only G_S, and gives up ``A`` (and
+    ``alpha_A``, which the residual stage does not read) for ``AS``. Compact views keep them in half
+    precision (:class:`backend.train.views.View`). Returns the seconds spent.
     """
     key = "A" if len(frozen) == 1 else "AS"
     todo = [v for v in views if key not in v.extras]
@@ -85,17 +92,20 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
     splats = [layer_splats(g) for g in frozen]
     with torch.no_grad(), events.stage(f"cache {what}", len(todo), unit="view") as bar:
         for v in todo:
-            if key == "AS" and ALBEDO_KEYS <= v.extras.keys():
+            if key == "AS" and _holds_albedo(v):
                 # the albedo this process already rendered for the shading stage: only S is rendered
                 (s,) = render_layers(splats[1:], v.camera, backend=backend, with_depth=False)
-                v.extras["AS"] = compose(v.extras.pop("A"), s.color).contiguous()
+                v.extras["AS"] = compose(v.extras.pop("A").to(s.color.device), s.color).contiguous()
+                del v.extras["alpha_A"]
                 bar.update(1)
                 continue
             outs = render_layers(splats, v.camera, backend=backend)
             albedo = outs[0].color
             v.extras[key] = (albedo if len(outs) == 1 else compose(albedo, outs[1].color)).contiguous()
-            v.extras["depth_A"] = outs[0].depth
-            v.extras["alpha_A"] = outs[0].alpha
+            if v.depth is None:
+                v.extras["depth_A"] = outs[0].depth
+            if key == "A":
+                v.extras["alpha_A"] = outs[0].alpha
             bar.update(1)
     return time.perf_counter() - t0
 
@@ -103,16 +113,18 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
 def albedo_renders(views: Sequence[View]) -> dict[str, dict[str, torch.Tensor]]:
     """G_A's cached renders of ``views`` by view name, to put into the same views of a later stage
     (:func:`reuse_albedo_renders`) when it freezes the same albedo layer in the same process."""
-    return {v.name: {k: v.extras[k] for k in ALBEDO_KEYS} for v in views if ALBEDO_KEYS <= v.extras.keys()}
+    return {v.name: {k: v.extras.raw(k) for k in (*ALBEDO_KEYS, "depth_A") if k in v.extras}
+            for v in views if _holds_albedo(v)}
 
 
 def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, torch.Tensor]]) -> int:
-    """Put the renders of :func:`albedo_renders` into ``views`` (matched by name, on each view's
-    device); returns how many views took them."""
+    """Put the renders of :func:`albedo_renders` into ``views`` (matched by name, as they are stored);
+    returns how many views took them."""
     n = 0
     for v in views:
         if (r := renders.get(v.name)) is not None:
-            v.extras.update({k: t.to(v.image.device) for k, t in r.items()})
+            for k, t in r.items():
+                v.extras.put_raw(k, t)
             n += 1
     return n
 
@@ -127,8 +139,8 @@ class JointResidual:
 
     start: int
     """The shading stage's iteration at which the residual joins."""
-    spawn: Callable[[Sequence[View]], GaussianSet]
-    """The initial residual from the training views' cached ``AS`` (:func:`spawn_residual`)."""
+    spawn: Callable[[Sequence[View], Callable[[View], torch.Tensor]], GaussianSet]
+    """The initial residual from the training views and each view's ``A * S`` (:func:`spawn_residual`)."""
     config: TrainConfig
     """The residual's training settings: learning rates, depth and scale weights, and the SH and
     position-rate schedules over its ``iterations`` (the joint part's length)."""
@@ -165,13 +177,13 @@ class ShadingStage(Stage):
     def _join(self) -> None:
         """Spawn G_R where A * S (the shading as trained so far) leaves the largest error."""
         s = layer_splats(self.gaussians)
+
+        def diffuse(v: View) -> torch.Tensor:  # A * S of one view, rendered when asked (none is kept)
+            (out,) = render_layers([s], v.camera, backend=self.config.backend, with_depth=False)
+            return compose(v.extras["A"].to(out.color.device), out.color)
+
         with torch.no_grad():
-            for v in self.train_views:
-                (out,) = render_layers([s], v.camera, backend=self.config.backend, with_depth=False)
-                v.extras["AS"] = compose(v.extras["A"], out.color)
-            residual = self.joint.spawn(self.train_views)
-        for v in self.train_views:
-            del v.extras["AS"]
+            residual = self.joint.spawn(self.train_views, diffuse)
         self._set_residual(residual)
         events.log(f"shading: the residual joins at iteration {self.iteration} with {len(residual)} Gaussians")
 
@@ -271,6 +283,7 @@ def shading_gain(shading: GaussianSet, views: Sequence[View], backend: Backend, 
     with torch.no_grad():
         for v in picked:
             (out,) = render_layers([layer_splats(shading)], v.camera, backend=backend)
+            v = v.working(out.color.device)
             a = v.extras["A"]
             lum_as = luminance(compose(a, out.color))
             keep = (v.extras["alpha_A"] > 0.5) & (luminance(a) > dark_level) & (lum_as > 1e-3)

@@ -1,21 +1,43 @@
-"""Reading a training checkpoint (``checkpoint.pt``): tensors and plain values only, checked before use."""
+"""Checkpoints of the optimisation loop: everything a run needs to continue bit-identically, written
+atomically, and read back only as tensors and plain values (``weights_only``)."""
 
 from __future__ import annotations
 
+import json
 import warnings
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from backend.core.errors import IGSError
 
 CHECKPOINT_VERSION = 1
 CHECKPOINT_NAME = "checkpoint.pt"
+CONFIG_NAME = "config.json"
+
+
+def config_dict(config: Any) -> dict[str, Any]:
+    """A config dataclass as plain JSON values (as config.json and the checkpoint hold it)."""
+    return json.loads(json.dumps(asdict(config)))
 
 
 def checkpoint_path(ckpt_dir: Path) -> Path:
     return Path(ckpt_dir) / CHECKPOINT_NAME
+
+
+def _plain(obj: Any) -> Any:
+    """``obj`` with numpy arrays and scalars turned into Python values, so that the checkpoint holds
+    only tensors, containers and plain values and loads with ``weights_only=True``."""
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_plain(v) for v in obj)
+    if isinstance(obj, (np.ndarray, np.generic)):
+        return obj.tolist()
+    return obj
 
 
 def load_checkpoint(ckpt_dir: Path) -> dict[str, Any] | None:
