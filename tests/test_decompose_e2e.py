@@ -231,7 +231,7 @@ def test_decompose_input_errors_name_the_problem(capture, tmp_path, capsys):
     ws = tmp_path / "ws"
     shutil.copytree(capture, ws)
     assert main(["decompose", str(ws), "--iterations", "0"]) == 2
-    assert "--iterations must be >= 1" in capsys.readouterr().err
+    assert "--iterations must be a whole number >= 1" in capsys.readouterr().err
     assert main(["decompose", str(ws), "--stage", "shading", *ARGS]) == 2
     assert "albedo.ply" in capsys.readouterr().err
     shutil.rmtree(ws / "gt" / "albedo")

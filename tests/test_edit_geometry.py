@@ -693,7 +693,7 @@ BAD_PROXIES = {
     "uv_count": (_set("uvs", [[0, 0]] * 5), "3 corner UVs per face"),
     "face_index": (_set("faces", [[0, 1, 2], [0, 2, 7]]), "vertex index outside"),
     "degenerate": (_degenerate, "degenerate triangle"),
-    "nan_vertex": (_nan_vertex, "'vertices' contain NaN"),
+    "nan_vertex": (_nan_vertex, r"'vertices'\[1\]\[0\] must be a finite number .*got nan"),
     "nan_matrix": (_nan_matrix, "matrix_world"),
     "singular_matrix": (_singular, "not invertible"),
     "missing_texture": (lambda d: d.update(texture="nope.png", color=None), "nope.png not found"),
@@ -703,10 +703,10 @@ BAD_PROXIES = {
     "schema": (_set("schema", 2), "'schema' must be 1"),
     "missing_vertices": (lambda d: d.pop("vertices"), "missing key 'vertices'"),
     "bad_primitive": (_set("primitive", {"type": "plane", "center": [0, 0]}), "primitive 'plane' needs"),
-    "opacity": (_set("opacity", 2.0), "'opacity' must be in"),
-    "huge_vertex": (lambda d: d["vertices"].__setitem__(1, [1e200, 0, 0]), "'vertices' has values beyond"),
-    "huge_matrix": (lambda d: d["matrix_world"][0].__setitem__(0, 1e200), "'matrix_world' has values beyond"),
-    "huge_index": (_set("faces", [[0, 1, 2], [0, 2, 1e30]]), "'faces' must hold integer indices"),
+    "opacity": (_set("opacity", 2.0), "'opacity' must be a finite number >= 0 and <= 1, got 2.0"),
+    "huge_vertex": (lambda d: d["vertices"].__setitem__(1, [1e200, 0, 0]), r"'vertices'\[1\]\[0\] must be .*got 1e\+200"),
+    "huge_matrix": (lambda d: d["matrix_world"][0].__setitem__(0, 1e200), r"'matrix_world'\[0\]\[0\] must be .*got 1e\+200"),
+    "huge_index": (_set("faces", [[0, 1, 2], [0, 2, 1e30]]), r"'faces'\[1\]\[2\] must be .*got 1e\+30"),
 }
 
 
