@@ -32,7 +32,7 @@ def test_the_contract_imports_neither_side_nor_torch_nor_bpy():
 
 def test_cameras_json_written_by_the_addon_reads_back_in_the_backend(tmp_path):
     from backend.core.cameras import Camera
-    from backend.eval.render_views import read_cameras
+    from backend.scene_render.render_views import read_cameras
 
     cam = Camera.look_at("v.png", [1.0, -2.0, 0.5], [0, 0, 0], [0, 0, 1], 64, 48, 55)
     view = SfmView("v.png", 64, 48, 50.0, 52.0, 30.5, 20.25, cam.R, cam.t)

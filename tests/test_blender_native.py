@@ -404,7 +404,7 @@ def test_render_turntable_is_an_animated_camera_blender_renders_to_png_and_mp4(s
 
     # around the capture: the orbit igs render --turntable takes, camera for camera (its field of view too)
     from backend.capture.load import load_capture
-    from backend.eval.render_views import capture_orbit, capture_up, turntable
+    from backend.scene_render.render_views import capture_orbit, capture_up, turntable
 
     props.turntable_target, props.turntable_frames, props.write_mp4 = "CAPTURE", 2, False
     assert bpy.ops.igs.render_sequence(mode="TURNTABLE") == {"FINISHED"}, props.last_report
@@ -438,7 +438,7 @@ def test_the_capture_orbit_is_the_backends():
     from intrinsic_splats.igs_blender import capture_orbit as orbit
 
     from backend.capture.load import load_capture
-    from backend.eval.render_views import capture_orbit, capture_up, turntable
+    from backend.scene_render.render_views import capture_orbit, capture_up, turntable
 
     with tempfile.TemporaryDirectory() as tmp:
         ws = Path(tmp) / "ws"

@@ -185,7 +185,7 @@ def test_turntable_defaults_follow_the_capture_cameras_in_a_tilted_world():
     vertical, and so does a camera that never turned."""
     from backend.core.cameras import Camera
     from backend.core.rotations import qvec_to_rotmat
-    from backend.eval.render_views import capture_orbit, capture_up, turntable
+    from backend.scene_render.render_views import capture_orbit, capture_up, turntable
 
     Q = qvec_to_rotmat(np.array([0.8, 0.3, -0.4, 0.2]))
     centre = np.array([0.5, -1.0, 2.0])
@@ -224,7 +224,7 @@ def test_render_and_layer_evaluation_hold_torch_at_one_thread(ws, tmp_path, monk
     """As in training, the cpu kernels do the parallel work while `igs render` and the held-out
     evaluation run; torch's thread count is back to the caller's afterwards."""
     import backend.eval.layer_metrics as lm
-    import backend.eval.render_views as rv
+    import backend.scene_render.render_views as rv
     from backend.capture.load import load_capture
     seen = []
 

@@ -28,7 +28,7 @@ from backend.capture.load import image_file_size, load_capture
 from backend.capture.transforms_io import read_transforms, write_transforms
 from backend.core.imageio import read_depth, read_image, write_image
 from backend.edit.proxy import load_proxy, plane_proxy, save_proxy
-from backend.eval.render_views import read_cameras, read_path
+from backend.scene_render.render_views import read_cameras, read_path
 from backend.priors.folder import read_map
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.state import DecomposeState

@@ -19,11 +19,11 @@ from _train_scene import make_layered_workspace
 from backend.commands.cli import main
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.edit.relight import light_layer
-from backend.edit.relight.light_bake import LightBakeConfig, bake_lights, gaussian_normals
-from backend.edit.relight.light_layer import file_stamp, stale_sources
-from backend.edit.relight.lights import lights_from_json
-from backend.edit.relight.relight import LightRig, RelightConfig
+from backend.relight import light_layer
+from backend.relight.shading_bake import LightBakeConfig, bake_lights, gaussian_normals
+from backend.relight.light_layer import file_stamp, stale_sources
+from backend.relight.lights import lights_from_json
+from backend.relight.relight import LightRig, RelightConfig
 from backend.render import Splats
 from backend.splats.ply import read_ply
 from igs_contract import ply_data

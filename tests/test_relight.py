@@ -17,10 +17,10 @@ from backend.commands.cli import main
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import read_image
-from backend.edit.relight.irradiance import shading
-from backend.edit.relight.lights import Light, lights_from_json, load_lights
-from backend.edit.relight.relight import LightRig, RelightConfig, ViewGeometry
-from backend.edit.relight.shadow_maps import face_cameras, occluder_splats, render_map, visibility
+from backend.relight.irradiance import shading
+from backend.relight.lights import Light, lights_from_json, load_lights
+from backend.relight.relight import LightRig, RelightConfig, ViewGeometry
+from backend.relight.shadow_maps import face_cameras, occluder_splats, render_map, visibility
 from backend.render import Splats
 from igs_contract.errors import ContractError
 from igs_contract.light_json import lights_document, parse_lights

@@ -7,8 +7,8 @@ import numpy as np
 import torch
 
 from backend.core.cameras import Camera
-from backend.eval.render_views import render_views
-from backend.eval.video import Mp4Writer
+from backend.scene_render.render_views import render_views
+from backend.scene_render.mp4 import Mp4Writer
 from backend.splats.gaussians import GaussianSet
 
 

@@ -17,7 +17,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 # The backend's rooms, from the ground floor up; backend/__main__.py is the command layer's door. The
 # benchmark scripts stand on top: they may use everything, and nothing the commands run imports them.
-ROOMS = ("core", "capture", "synth", "priors", "render", "splats", "train", "edit", "eval", "commands", "bench")
+ROOMS = ("core", "capture", "synth", "priors", "render", "splats", "train", "relight", "edit", "eval", "scene_render",
+         "commands", "bench")
 ADDON_PACKAGES = ("igs_blender", "operators", "panels")
 
 

@@ -10,7 +10,7 @@ from _synth_capture import needs_synth_renderer
 
 from backend.core.errors import IGSError
 from backend.core.imageio import read_exr, read_image, srgb_to_linear
-from backend.edit.relight.lights import load_lights
+from backend.relight.lights import load_lights
 from backend.synth.added_lights import default_lights
 from backend.synth.family.layout import family_layout
 from backend.synth.run import synthesize

@@ -102,7 +102,7 @@ def test_transforms_json_values_are_checked(project, tmp_path, name, fn, words):
     {"R": [[1e300, 0, 0], [0, 1, 0], [0, 0, 1]], "t": [0, 0, 0]},
 ])
 def test_render_cameras_beyond_the_pose_limit_are_refused_before_arithmetic(camera):
-    from backend.eval.render_views import camera_from_dict
+    from backend.scene_render.render_views import camera_from_dict
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # no overflow on the way to the error
         with pytest.raises(IGSError, match=r"cam 3: .* has values beyond \+-1e\+12"):
@@ -110,7 +110,7 @@ def test_render_cameras_beyond_the_pose_limit_are_refused_before_arithmetic(came
 
 
 def test_a_camera_path_beyond_the_pose_limit_is_refused(tmp_path):
-    from backend.eval.render_views import read_path
+    from backend.scene_render.render_views import read_path
     m = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1e250], [0, 0, 0, 1]]
     path = tmp_path / "path.json"
     path.write_text(json.dumps({"w": 32, "h": 24, "fl_x": 30.0, "frames": [{"transform_matrix": m}]}))

@@ -179,7 +179,7 @@ def reference(layers: dict, camera) -> dict[str, np.ndarray]:
 
 def agreement(addon: Addon, ws: Path, engines: list[Engine], cfg: BenchConfig, tmp: Path, log) -> list[dict]:
     from backend.capture.load import load_capture
-    from backend.eval.render_views import load_layers
+    from backend.scene_render.render_views import load_layers
 
     capture = load_capture(ws)
     layers = load_layers(ws, None, {"albedo", "shading", "residual"})

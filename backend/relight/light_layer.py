@@ -2,7 +2,7 @@
 
 Files (written together, each next to the old one and swapped in when all are complete):
 
-- ``shading.ply``: the shading layer's Gaussians with colours S + S_new (:mod:`light_bake`), in the
+- ``shading.ply``: the shading layer's Gaussians with colours S + S_new (:mod:`shading_bake`), in the
   format of ``layers/shading.ply`` (kind ``shading``: plain linear RGB), so every reader of a shading
   layer reads it;
 - ``light_only.ply``: the same Gaussians with S_new alone;
@@ -32,9 +32,9 @@ from backend.core import events
 from backend.core.atomic_io import atomic_paths
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
-from backend.edit.relight.light_bake import LightBakeConfig, bake_lights, gaussian_normals, spread_views
-from backend.edit.relight.lights import Light, read_canonical
-from backend.edit.relight.relight import LightRig
+from backend.relight.shading_bake import LightBakeConfig, bake_lights, gaussian_normals, spread_views
+from backend.relight.lights import Light, read_canonical
+from backend.relight.relight import LightRig
 from backend.render import Splats
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet

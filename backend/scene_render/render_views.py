@@ -20,7 +20,7 @@ Cameras come from one of:
 
 Writes ``OUT/<layer>/<name>.png`` (8-bit sRGB; layers ``A``, ``S``, ``R``, ``full``; shading and the
 composite are linear values clipped to [0, 1] before the sRGB curve) and with ``--mp4``
-``OUT/<layer>.mp4`` (H.264, yuv420p: browsers play it; :mod:`backend.eval.video`). ``--edit N`` replaces the albedo by ``<ws>/edits/N/albedo.ply``.
+``OUT/<layer>.mp4`` (H.264, yuv420p: browsers play it; :mod:`backend.scene_render.mp4`). ``--edit N`` replaces the albedo by ``<ws>/edits/N/albedo.ply``.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from backend.core.cameras import Camera, check_pose_values, from_blender_matrix_
 from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
 from backend.core.paths import plain_name
-from backend.edit.relight.relight import LightRig
-from backend.eval.video import Mp4Writer
+from backend.relight.relight import LightRig
+from backend.scene_render.mp4 import Mp4Writer
 from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
@@ -244,7 +244,7 @@ def render_views(cameras: list[Camera], layers: dict[str, GaussianSet], wanted: 
                  rig: LightRig | None = None) -> dict[str, Any]:
     """Render ``wanted`` layers for every camera into ``out``; returns what was written.
 
-    With ``rig`` (added lights, :mod:`backend.edit.relight`) the shading S is S + S_new and the full image
+    With ``rig`` (added lights, :mod:`backend.relight`) the shading S is S + S_new and the full image
     A * (S + S_new) + R, S_new being the lights' shading on the albedo field's geometry (layer ``light``)."""
     kinds = [k for k in ("albedo", "shading", "residual") if k in layers]
     splats = [layers[k] for k in kinds]

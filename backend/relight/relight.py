@@ -2,9 +2,9 @@
 
 The geometry is one Gaussian field's (the albedo field, the layer that carries the surfaces' colour):
 each pixel's world point comes from its expected depth, its normal from that depth or from the
-Gaussians' axes (:mod:`~backend.edit.relight.geometry`), and the visibility from depth maps of the same
-field rendered at each light (:mod:`~backend.edit.relight.shadow_maps`), once per light for every view.
-The shading is direct and diffuse (:mod:`~backend.edit.relight.irradiance`); the light's bounces and its
+Gaussians' axes (:mod:`~backend.relight.geometry`), and the visibility from depth maps of the same
+field rendered at each light (:mod:`~backend.relight.shadow_maps`), once per light for every view.
+The shading is direct and diffuse (:mod:`~backend.relight.irradiance`); the light's bounces and its
 glossy reflections are not modelled.
 """
 
@@ -19,10 +19,10 @@ from torch import Tensor
 from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.edit.relight.geometry import MIN_ALPHA, NormalSource, axis_normals, depth_normals, unproject
-from backend.edit.relight.irradiance import shading
-from backend.edit.relight.lights import Light
-from backend.edit.relight.shadow_maps import (
+from backend.relight.geometry import MIN_ALPHA, NormalSource, axis_normals, depth_normals, unproject
+from backend.relight.irradiance import shading
+from backend.relight.lights import Light
+from backend.relight.shadow_maps import (
     ShadowMap,
     depth_splats,
     face_cameras,
@@ -90,7 +90,7 @@ def scene_bounds(splats: Splats) -> tuple[np.ndarray, float]:
 
 
 def geometry_from_depth(depth: Tensor, alpha: Tensor, cam: Camera, smooth: float = 3.0) -> ViewGeometry:
-    """Points and depth normals (:func:`~backend.edit.relight.geometry.depth_normals`) of a field's
+    """Points and depth normals (:func:`~backend.relight.geometry.depth_normals`) of a field's
     expected depth (H, W) and opacity (H, W) rendered for ``cam``."""
     valid = (alpha >= MIN_ALPHA).cpu()
     points = unproject(depth.detach().to(torch.float64).cpu(), cam)
@@ -158,7 +158,7 @@ class LightRig:
                       names: list[str] | None = None) -> dict[str, Tensor]:
         """{light name: (N, 3) float64 S_new of that light} at world ``points`` (N, 3) with unit ``normals``
         (N, 3), both float64: the per-pixel path's shading and the light bake's per Gaussian
-        (:mod:`~backend.edit.relight.light_bake`); ``shadows`` False: every point sees the whole light;
+        (:mod:`~backend.relight.shading_bake`); ``shadows`` False: every point sees the whole light;
         ``names``: only these lights (default all)."""
         out = {}
         for light in self.lights:

@@ -3,8 +3,8 @@
 ``igs render --light`` shades pixels; a splat renderer that draws Gaussians (Blender's native splats,
 the add-on's viewport engine) needs the added shading on each Gaussian instead. Each Gaussian of the
 decomposition's shading field takes the direct diffuse shading of the lights at its centre,
-``S_new = E * V / pi`` (:mod:`~backend.edit.relight.irradiance`), with the per-pixel path's visibility:
-the same shadow maps of the albedo field (:class:`~backend.edit.relight.relight.LightRig`), looked up
+``S_new = E * V / pi`` (:mod:`~backend.relight.irradiance`), with the per-pixel path's visibility:
+the same shadow maps of the albedo field (:class:`~backend.relight.relight.LightRig`), looked up
 with the same offsets and filter. Composed as usual, ``A * (S + S_new) + R`` is the lit image.
 
 A Gaussian's normal (:data:`BakeNormals`) comes from the capture's views that see its centre (the albedo
@@ -29,9 +29,9 @@ from torch import Tensor
 from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.edit.relight.geometry import MIN_ALPHA
-from backend.edit.relight.relight import LightRig, RelightConfig, geometry_from_depth
-from backend.edit.relight.shadow_maps import depth_splats
+from backend.relight.geometry import MIN_ALPHA
+from backend.relight.relight import LightRig, RelightConfig, geometry_from_depth
+from backend.relight.shadow_maps import depth_splats
 from backend.render import Splats, render_layers
 from backend.render.projection import quat_to_rotmat
 

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from backend.edit.relight.lights import Light
+from backend.relight.lights import Light
 
 Visibility = Callable[[int, Tensor, Tensor], Tensor]
 """visibility(map index, points (N, 3), normals (N, 3)) -> (N,) in [0, 1]."""

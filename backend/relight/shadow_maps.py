@@ -2,7 +2,7 @@
 percentage-closer filtering.
 
 A map is one or more pinhole faces at one point (:class:`ShadowMap`); each face holds the field's
-expected depth where its opacity reaches :data:`~backend.edit.relight.geometry.MIN_ALPHA` (+inf
+expected depth where its opacity reaches :data:`~backend.relight.geometry.MIN_ALPHA` (+inf
 elsewhere). Because a map is only a render, it works on every renderer backend. The faces:
 
 - a point light: a cube (six 90-degree faces, widened by a few texels so the filter never reads past
@@ -28,8 +28,8 @@ import torch
 from torch import Tensor
 
 from backend.core.cameras import Camera
-from backend.edit.relight.geometry import MIN_ALPHA
-from backend.edit.relight.lights import Light
+from backend.relight.geometry import MIN_ALPHA
+from backend.relight.lights import Light
 from backend.render import Backend, Splats, render_layers
 
 SUN_DISTANCE = 50.0

@@ -1,7 +1,7 @@
 """Render a workspace's layers for the cameras asked for: the workflow of ``igs render``.
 
 The cameras come from exactly one of a cameras.json, a camera path or a turntable whose unset
-settings come from the capture (formats and defaults: :mod:`backend.eval.render_views`).
+settings come from the capture (formats and defaults: :mod:`backend.scene_render.render_views`).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from backend.core import events
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
-from backend.edit.relight.geometry import NormalSource
-from backend.edit.relight.lights import load_lights
-from backend.edit.relight.relight import LightRig, RelightConfig
-from backend.eval.render_views import (
+from backend.relight.geometry import NormalSource
+from backend.relight.lights import load_lights
+from backend.relight.relight import LightRig, RelightConfig
+from backend.scene_render.render_views import (
     LAYERS,
     NEEDS,
     capture_orbit,
@@ -44,7 +44,7 @@ class RenderConfig:
     edit: str | None = None
     """Use ``<ws>/edits/<edit>/albedo.ply`` as the albedo."""
     cameras: str | None = None
-    """cameras.json (format: :mod:`backend.eval.render_views`)."""
+    """cameras.json (format: :mod:`backend.scene_render.render_views`)."""
     path: str | None = None
     """Camera path as a nerfstudio-style transforms.json."""
     turntable: bool = False
