@@ -42,6 +42,8 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import luminance, read_depth, read_exr, read_image, srgb_to_linear
 from backend.core.workspace import Workspace
+from backend.relight.lights import load_lights
+from backend.relight.relight import LightRig, RelightConfig, geometry_from_depth
 from backend.relight.shading_bake import (
     BAKE_NORMALS,
     LightBakeConfig,
@@ -49,8 +51,6 @@ from backend.relight.shading_bake import (
     gaussian_normals,
     spread_views,
 )
-from backend.relight.lights import load_lights
-from backend.relight.relight import LightRig, RelightConfig, geometry_from_depth
 from backend.render import BACKENDS, Splats, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply

@@ -32,9 +32,9 @@ from backend.core import events
 from backend.core.atomic_io import atomic_paths
 from backend.core.errors import IGSError
 from backend.core.paths import plain_name
-from backend.relight.shading_bake import LightBakeConfig, bake_lights, gaussian_normals, spread_views
 from backend.relight.lights import Light, read_canonical
 from backend.relight.relight import LightRig
+from backend.relight.shading_bake import LightBakeConfig, bake_lights, gaussian_normals, spread_views
 from backend.render import Splats
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet

@@ -38,9 +38,9 @@ from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, write_image
 from backend.core.paths import plain_name
 from backend.relight.relight import LightRig
-from backend.scene_render.mp4 import Mp4Writer
 from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
+from backend.scene_render.mp4 import Mp4Writer
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.composite import compose

@@ -20,6 +20,7 @@ from backend.core.paths import plain_name
 from backend.relight.geometry import NormalSource
 from backend.relight.lights import load_lights
 from backend.relight.relight import LightRig, RelightConfig
+from backend.render import Backend
 from backend.scene_render.render_views import (
     LAYERS,
     NEEDS,
@@ -31,7 +32,6 @@ from backend.scene_render.render_views import (
     render_views,
     turntable,
 )
-from backend.render import Backend
 from backend.train.intrinsic.stages import layer_splats
 
 DEFAULT_LAYERS = "A,S,R,full"
