@@ -1,6 +1,6 @@
 """The orbit a capture suggests, computed in the add-on: what ``igs render --turntable`` circles.
 
-The same rules as the backend's (``backend/eval/render_views.py``; a test holds the two equal): up
+The same rules as the backend's (``backend/scene_render/render_views.py``; a test holds the two equal): up
 is the direction most nearly perpendicular to the cameras' x axes (people hold cameras level),
 the centre is the centroid of the SfM points (the cameras' centroid without points), the radius 85 %
 of the cameras' mean distance from the vertical through the centre and the height their mean height

@@ -1,7 +1,7 @@
 """The camera files the add-on and the backend exchange (standard library only).
 
 ``cameras.json``: the add-on writes it for ``igs render --cameras`` (the backend reads it in
-``backend/eval/render_views.py``)::
+``backend/scene_render/render_views.py``)::
 
     {"cameras": [{"name": str, "width": int, "height": int, "fx": px, "fy": px, "cx": px, "cy": px,
                   "R": 3x3, "t": 3}, ...]}

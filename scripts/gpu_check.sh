@@ -66,8 +66,7 @@ rm -rf "$WS"
 timeout 40 "$PY" - "$WS" "$VIEWS" "${SIZE%x*}" "${SIZE#*x}" "$POINTS" <<'EOF'
 import shutil, sys
 from pathlib import Path
-sys.path.insert(0, "tests")
-from _train_scene import make_workspace  # the tests' box scene: rendered here, nothing to carry
+from tests.support.train_scene import make_workspace  # the tests' box scene: rendered here, nothing to carry
 root, views, w, h, points = Path(sys.argv[1]), *map(int, sys.argv[2:])
 make_workspace(root, n_views=views, width=w, height=h, n_points=points, n_per_face=-(-points // 5))
 shutil.copytree(root / "images", root / "albedo")  # the images stand in for the albedo priors
@@ -79,7 +78,7 @@ timeout 330 "$PY" -m backend.bench.bench_step "$WS" --device "$DEVICE" --backend
   --warmup "$WARMUP" --steps "$STEPS" --iterations "$ITERATIONS" --out "$OUT/bench_step.json"
 if [ "$DEVICE" != cpu ]; then
   step "4. the CUDA tests"
-  timeout 160 "$PY" -m pytest -q -p no:cacheprovider tests/test_render_gsplat.py tests/test_train_cuda.py
+  timeout 160 "$PY" -m pytest -q -p no:cacheprovider tests/backend/render/test_render_gsplat.py tests/backend/train/test_train_cuda.py
 fi
 
 step "done"

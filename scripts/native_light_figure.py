@@ -6,7 +6,7 @@ Needs the bpy 5.3 module (the project's Python 3.13 environment). A small synthe
 of splats, albedo 0.5 and shading 0.4, over half of the picture; an opaque and a faint plate of splats above
 it and above a mesh floor beside it) goes through the add-on's own operators (Load Cameras, Load Layers,
 Add Light), a cube is put on the splat floor, and Cycles renders F12 without and with a sun of the lights
-collection: the two frames side by side in ``OUT.jpg``. The scene is the one ``tests/test_blender_native_light.py``
+collection: the two frames side by side in ``OUT.jpg``. The scene is the one ``tests/blender/test_blender_native_light.py``
 measures.
 """
 

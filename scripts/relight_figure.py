@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 from backend.capture.load import load_capture  # noqa: E402
 from backend.core.errors import IGSError  # noqa: E402
 from backend.core.imageio import linear_to_srgb, read_exr, read_image, srgb_psnr, srgb_to_linear  # noqa: E402
-from backend.eval.render_workspace import RenderConfig, render_workspace  # noqa: E402
+from backend.scene_render.render_workspace import RenderConfig, render_workspace  # noqa: E402
 from igs_contract.camera_json import camera_entry, cameras_document  # noqa: E402
 
 

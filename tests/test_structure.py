@@ -17,7 +17,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 # The backend's rooms, from the ground floor up; backend/__main__.py is the command layer's door. The
 # benchmark scripts stand on top: they may use everything, and nothing the commands run imports them.
-ROOMS = ("core", "capture", "synth", "priors", "render", "splats", "train", "edit", "eval", "commands", "bench")
+ROOMS = ("core", "capture", "synth", "priors", "render", "splats", "train", "relight", "edit", "eval", "scene_render",
+         "commands", "bench")
 ADDON_PACKAGES = ("igs_blender", "operators", "panels")
 
 
@@ -29,9 +30,10 @@ def _module_name(path: Path) -> str:
 
 
 def _sources() -> dict[str, Path]:
-    """Module name -> file, for the backend, the contract and the add-on (tests and scripts aside)."""
+    """Module name -> file, for the backend, the contract, the add-on and the tests' helpers (the test
+    modules and scripts aside)."""
     out = {"__init__": REPO / "__init__.py"}
-    for top in ("backend", "igs_contract", *ADDON_PACKAGES):
+    for top in ("backend", "igs_contract", *ADDON_PACKAGES, "tests/support"):
         for path in sorted((REPO / top).rglob("*.py")):
             out[_module_name(path)] = path
     return out
@@ -96,6 +98,19 @@ def test_contract_imports_nothing_of_ours(graph):
     bad = sorted(f"{m} -> {t}" for m, targets in graph.items() if m.startswith("igs_contract")
                  for t in targets if not t.startswith("igs_contract"))
     assert bad == [], "igs_contract must stand on its own:\n" + "\n".join(bad)
+
+
+def test_the_backend_reaches_the_addon_only_through_the_test_helper(graph):
+    """A bench that measures the add-on in bpy loads it through ``tests/support/addon_package.py`` (the
+    package Blender makes of the extension folder, as the add-on's tests load it), an arrow this graph
+    sees; no backend module imports the add-on or the tests otherwise, or loads a file as a module."""
+    bad = sorted(f"{m} -> {t}" for m, targets in graph.items() if m.startswith("backend.") for t in targets
+                 if t.split(".")[0] in (*ADDON_PACKAGES, "tests", "__init__")
+                 and not (_room(m) == "bench" and t == "tests.support.addon_package"))
+    assert bad == [], "the backend reaching the add-on:\n" + "\n".join(bad)
+    loaders = sorted(p.relative_to(REPO).as_posix() for p in (REPO / "backend").rglob("*.py")
+                     if "spec_from_file_location" in p.read_text(encoding="utf-8"))
+    assert loaders == [], f"loads a file as a module where the import graph cannot see it: {loaders}"
 
 
 # Shipped with the add-on but run BY the backend's interpreter (it reports whether torch and the

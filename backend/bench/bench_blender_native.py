@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import math
 import sys
 import tempfile
@@ -44,8 +43,6 @@ from backend.core.errors import IGSError
 from backend.core.imageio import srgb_psnr
 
 Engine = Literal["cycles", "eevee"]
-ROOT = Path(__file__).resolve().parents[2]
-PACKAGE = "intrinsic_splats"
 C0 = 0.28209479177387814
 FILTER_VARIANCE = {"default": 0.173, "box": 1.0 / 12.0}
 """Per-axis variance (px^2) of Cycles' pixel filter: Blackman-Harris 1.5 px (Blender's default) or a 1 px box."""
@@ -101,18 +98,15 @@ class Addon:
         if bpy.app.version < (5, 3, 0):
             raise IGSError(f"needs Blender 5.3+ (native splats); this bpy is {bpy.app.version_string}")
         self.bpy = bpy
-        if PACKAGE not in sys.modules:  # the package Blender makes of the extension folder
-            spec = importlib.util.spec_from_file_location(PACKAGE, ROOT / "__init__.py",
-                                                          submodule_search_locations=[str(ROOT)])
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[PACKAGE] = module
-            spec.loader.exec_module(module)
-        self.package = sys.modules[PACKAGE]
+        # the package Blender makes of the extension folder, through the helper the add-on's tests use
+        from tests.support import addon_package
+
+        self.package = sys.modules[addon_package.NAME]
         bpy.ops.wm.read_homefile(use_empty=True)
         self.package.register()
 
     def __getattr__(self, name: str):
-        return importlib.import_module(f"{PACKAGE}.igs_blender.{name}")
+        return importlib.import_module(f"{self.package.__name__}.igs_blender.{name}")
 
     def fresh(self):
         self.bpy.ops.wm.read_homefile(use_empty=True)
@@ -179,7 +173,7 @@ def reference(layers: dict, camera) -> dict[str, np.ndarray]:
 
 def agreement(addon: Addon, ws: Path, engines: list[Engine], cfg: BenchConfig, tmp: Path, log) -> list[dict]:
     from backend.capture.load import load_capture
-    from backend.eval.render_views import load_layers
+    from backend.scene_render.render_views import load_layers
 
     capture = load_capture(ws)
     layers = load_layers(ws, None, {"albedo", "shading", "residual"})

@@ -35,9 +35,9 @@ from backend.bench.edit_region import RegionPSNR, edit_views
 from backend.capture.load import load_capture
 from backend.core.cameras import Camera
 from backend.core.errors import IGSError
-from backend.eval.render_views import capture_orbit, capture_up, turntable
 from backend.render import Backend, render
 from backend.render.threads import torch_threads
+from backend.scene_render.render_views import capture_orbit, capture_up, turntable
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.train.device import add_device_argument, resolve_device

@@ -1,6 +1,6 @@
 """Light bake benchmark: ``python -m backend.bench.bench_light_bake --ws WS [--ws WS ...]``.
 
-Scores the lights baked per Gaussian (``igs light-bake``, :mod:`backend.edit.relight.light_bake`) against
+Scores the lights baked per Gaussian (``igs light-bake``, :mod:`backend.relight.shading_bake`) against
 the per-pixel relighting of ``igs render --light`` and against Cycles, on a decomposed synthetic capture
 with added lights (``igs synth --lights``: ``gt_light/``; ``layers/`` from ``igs decompose`` or
 ``bench_decompose``). For each held-out view of ``gt_light/lights.json`` and each light L, the target is
@@ -42,15 +42,15 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.imageio import luminance, read_depth, read_exr, read_image, srgb_to_linear
 from backend.core.workspace import Workspace
-from backend.edit.relight.light_bake import (
+from backend.relight.lights import load_lights
+from backend.relight.relight import LightRig, RelightConfig, geometry_from_depth
+from backend.relight.shading_bake import (
     BAKE_NORMALS,
     LightBakeConfig,
     bake_lights,
     gaussian_normals,
     spread_views,
 )
-from backend.edit.relight.lights import load_lights
-from backend.edit.relight.relight import LightRig, RelightConfig, geometry_from_depth
 from backend.render import BACKENDS, Splats, render_layers
 from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply

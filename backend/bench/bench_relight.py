@@ -34,8 +34,8 @@ from backend.bench.relight_eval import LEAD_OVER, METHODS, REGIONS, EvalSettings
 from backend.bench.seed_stats import aggregate_metrics, cell, markdown, spread_cells
 from backend.core.atomic_io import write_json
 from backend.core.errors import IGSError
-from backend.edit.relight.geometry import NORMAL_SOURCES
-from backend.edit.relight.relight import RelightConfig
+from backend.relight.geometry import NORMAL_SOURCES
+from backend.relight.relight import RelightConfig
 from backend.render import BACKENDS
 from backend.synth.run import SETTINGS_FILE, synthesize
 from backend.synth.settings import PRESETS

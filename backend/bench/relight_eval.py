@@ -4,7 +4,7 @@ held-out views, against Cycles, by region.
 The ground truth of light L on a view is ``I_orig + I_L`` in linear RGB: ``I_orig = gt/albedo *
 gt/shading + gt/residual`` (the capture unclipped) and ``I_L = gt_light/L/images`` (the light-only
 render, :mod:`backend.synth.gt_lights`). The methods, each with the same light, normals from its own
-geometry's rendered depth and shadows from its own geometry's depth maps (:mod:`backend.edit.relight`):
+geometry's rendered depth and shadows from its own geometry's depth maps (:mod:`backend.relight`):
 
 - ``ours``: the decomposition, ``A * (S + S_new) + R``, its geometry the albedo field;
 - ``unlit``: the decomposition without the light, ``A * S + R``: what ``ours`` owes to the decomposition's
@@ -50,8 +50,8 @@ from backend.core.imageio import (
     write_image,
 )
 from backend.core.workspace import Workspace
-from backend.edit.relight.lights import Light, load_lights
-from backend.edit.relight.relight import (
+from backend.relight.lights import Light, load_lights
+from backend.relight.relight import (
     LightRig,
     RelightConfig,
     ViewGeometry,

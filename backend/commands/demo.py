@@ -26,8 +26,8 @@ from backend.edit.bake_config import BakeConfig
 from backend.edit.bake_input import BakeInput, resolve_bake_input
 from backend.edit.fit_workflow import fit_proxy
 from backend.eval.decomposition import evaluate_decomposition
-from backend.eval.render_views import capture_orbit
-from backend.eval.render_workspace import RenderConfig, render_workspace
+from backend.scene_render.render_views import capture_orbit
+from backend.scene_render.render_workspace import RenderConfig, render_workspace
 from backend.synth.run import synthesize
 from backend.train.intrinsic.run import decompose
 

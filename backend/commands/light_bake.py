@@ -1,5 +1,5 @@
 """``igs light-bake <ws> --light FILE``: the added lights baked into the shading Gaussians,
-``<ws>/layers/lit/`` (:func:`backend.edit.relight.light_layer.light_bake`)."""
+``<ws>/layers/lit/`` (:func:`backend.relight.light_layer.light_bake`)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.core import events
-from backend.edit.relight.light_bake import LightBakeConfig
-from backend.edit.relight.light_layer import light_bake
+from backend.relight.light_layer import light_bake
+from backend.relight.shading_bake import LightBakeConfig
 
 _DEFAULTS = LightBakeConfig()
 OPTIONS = (

@@ -1,5 +1,5 @@
 """``igs render <ws>``: albedo A, shading S, residual R and the composite A*S + R for any cameras
-(:func:`backend.eval.render_workspace.render_workspace`)."""
+(:func:`backend.scene_render.render_workspace.render_workspace`)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.core import events
 from backend.core.output_paths import EXPORTS, RENDERS, check_output
-from backend.eval.render_views import MAX_SIDE
-from backend.eval.render_workspace import RenderConfig, render_workspace
+from backend.scene_render.render_views import MAX_SIDE
+from backend.scene_render.render_workspace import RenderConfig, render_workspace
 from igs_contract.camera_json import FOV_DEG
 
 OPTIONS = (

@@ -36,7 +36,7 @@ The four edits (``gt_edit/<edit>``, all on planes, so :class:`PlaneSurface`):
 :func:`~backend.synth.family.layout.family_layout` draws the layout (pure numpy; the camera path
 needs only it): what a layout is made of is :mod:`~backend.synth.family.parts`, the seeded draws of
 numbers, colours and finishes :mod:`~backend.synth.family.draws`, the floor pieces
-:mod:`~backend.synth.family.pieces`, the lights :mod:`~backend.synth.family.lights` and the poster
+:mod:`~backend.synth.family.pieces`, the lights :mod:`~backend.synth.family.lamps` and the poster
 :mod:`~backend.synth.family.poster` (drawn last, from streams of its own).
 :func:`~backend.synth.family.build.build_family_scene` builds it in bpy. Textures come from a second
 random stream, in a fixed order, through :mod:`backend.synth.textures` (which the Blender-binary

@@ -19,7 +19,7 @@ from backend.synth.family.draws import (
     u,
     vary,
 )
-from backend.synth.family.lights import draw_lights
+from backend.synth.family.lamps import draw_lights
 from backend.synth.family.parts import (
     EYE_HEIGHT,
     EYE_RADIUS,

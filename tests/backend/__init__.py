@@ -1,0 +1,1 @@
+"""Tests of the backend, one folder per room of backend/."""

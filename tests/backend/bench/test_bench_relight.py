@@ -1,0 +1,61 @@
+"""bench_relight end to end on the room of the `test` preset: synth with the added lights, a tiny 3DGS and
+decomposition, every method scored against Cycles; then the run again, which reuses the capture, the
+lights and the layers. Needs a synthetic renderer."""
+
+import json
+
+import numpy as np
+import pytest
+
+from backend.bench import bench_relight
+from backend.bench.relight_eval import METHODS, REGIONS, _edges
+from tests.support.synth_capture import needs_synth_renderer
+
+
+def test_edges_are_a_band_around_the_visibility_boundary():
+    vis = np.zeros((8, 10))
+    vis[:, 5:] = 1.0
+    band = _edges(vis, np.ones((8, 10), bool), 1)
+    assert band[:, 3:7].all() and not band[:, :3].any() and not band[:, 7:].any()
+    assert not _edges(vis, np.zeros((8, 10), bool), 1).any()  # only where the light reaches
+
+
+def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
+    needs_synth_renderer()
+    out = tmp_path / "relight.json"
+    argv = ["--root", str(tmp_path), "--scene-seeds", "room", "--preset", "test", "--views", "9",
+            "--iterations", "30", "--max-gaussians", "3000", "--backend", "cpu", "--shadow-size", "64",
+            "--out", str(out)]
+    assert bench_relight.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "| room | ours |" in printed and "ours minus" in printed
+    doc = json.loads(out.read_text())
+    scene = doc["scenes"]["room"]
+    assert scene["layers"] == "trained" and scene["views"] == ["frame_0000.png", "frame_0008.png"]
+    assert scene["lights"] == ["shadow_spot", "grazing_point", "soft_area"]
+    for m in METHODS:
+        for r in ("lit", "image"):
+            assert 5.0 < scene["psnr"][m][r] < 60.0, (m, r, scene["psnr"][m][r])
+    assert scene["pixels"]["lit"] > 0 and scene["pixels"]["image"] == 2 * 3 * 64 * 48
+    # the ceiling has the true albedo, depth and shadows: at least as close as doing nothing
+    assert scene["psnr"]["ceiling"]["lit"] > scene["psnr"]["none"]["lit"]
+    assert set(scene["per_light"]) == set(scene["lights"])
+    assert doc["aggregate"]["ours_lit"]["n"] == 1 and doc["aggregate"]["ours_lit"]["std"] is None
+    assert set(REGIONS) <= set(scene["psnr"]["ours"])
+    # again: the capture, its lights and the layers are reused, the numbers are the same
+    assert bench_relight.main(argv) == 0
+    again = json.loads(out.read_text())["scenes"]["room"]
+    assert again["layers"] == "reused" and again["psnr"] == scene["psnr"]
+
+
+def test_bad_options_are_one_error(tmp_path, capsys):
+    assert bench_relight.main(["--root", str(tmp_path), "--scene-seeds", "x"]) == 2
+    assert "--scene-seeds" in capsys.readouterr().err
+    assert bench_relight.main(["--root", str(tmp_path), "--lit-threshold", "0"]) == 2
+    assert "--lit-threshold" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--shadow-size=4"])
+def test_a_too_small_shadow_map_is_refused(tmp_path, capsys, flag):
+    assert bench_relight.main(["--root", str(tmp_path), flag]) == 2
+    assert "shadow-size" in capsys.readouterr().err
