@@ -106,7 +106,7 @@ def test_a_killed_run_is_reported_by_the_next_command(source, tmp_path):
                      r"without finishing, most likely for memory", p.stderr)
     # a command stopped by its checks (here: the memory limit) leaves the record as it was
     assert json.loads(record_path(ws).read_text())["state"] == "running"
-    p = _igs("decompose", str(ws), *ARGS)  # a run that finishes closes it
+    p = _igs("decompose", str(ws), *ARGS, "--restart")  # a run that finishes closes it (other settings: --restart)
     assert p.returncode == 0 and "was killed" in p.stderr
     assert json.loads(record_path(ws).read_text())["state"] == "finished"
     assert killed_run(ws) is None
