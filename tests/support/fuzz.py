@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import io
 import json
+import signal
 import traceback
 import warnings
 from collections.abc import Callable, Iterator
@@ -210,3 +211,34 @@ def dump_json(path: Path, obj) -> None:
         path.write_text(obj[1])
     else:
         path.write_text(json.dumps(obj))  # NaN/Infinity tokens included, as Python writes them
+
+
+def round_failures(title: str, tallies: dict[str, Tally]) -> int:
+    """Print one line summing a round's targets (``fuzz <title> over N targets: ...``); returns its failures
+    (tracebacks, warnings, silent garbage). A round whose targets did not run is skipped."""
+    import pytest
+
+    if not tallies:
+        pytest.skip("run with the fuzz targets")
+    cases = sum(t.cases for t in tallies.values())
+    valid = sum(t.valid for t in tallies.values())
+    clean = sum(t.clean for t in tallies.values())
+    bad = sum(len(t.tracebacks) for t in tallies.values())
+    print(f"\nfuzz {title} over {len(tallies)} targets: {cases} cases, {valid} valid, {clean} clean errors, "
+          f"{bad} failures (tracebacks, warnings, silent garbage)")
+    return bad
+
+
+@contextmanager
+def deadline(seconds: float) -> Iterator[None]:
+    """Fail (instead of hanging the suite) when the body blocks, as a read of a FIFO would."""
+    def expired(*_):
+        raise TimeoutError(f"blocked for more than {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)

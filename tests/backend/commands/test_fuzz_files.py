@@ -15,9 +15,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +26,7 @@ from backend.core import atomic_io
 from backend.core.errors import IGSError
 from igs_contract import manifest
 from tests.support import addon_package  # noqa: E402, F401 (the add-on imports relatively: as the extension's package)
-from tests.support.fuzz import Tally
+from tests.support.fuzz import Tally, deadline, round_failures
 from tests.support.small_disk import fill, small_tmpfs
 from tests.support.train_scene import make_layered_workspace
 
@@ -41,21 +39,6 @@ CONTROL = {chr(c) for c in range(32)} | {chr(127)} | {chr(c) for c in range(0x80
 @pytest.fixture(scope="module")
 def layered(tmp_path_factory):
     return make_layered_workspace(tmp_path_factory.mktemp("fuzzfiles") / "ws", n_per_face=30)
-
-
-@contextmanager
-def deadline(seconds: float):
-    """A case that blocks (a read of a FIFO) fails instead of hanging the suite."""
-    def expired(*_):
-        raise TimeoutError(f"blocked for more than {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def _assert(ok: bool, why: str) -> None:
@@ -286,13 +269,4 @@ def test_fuzz_groups_on_a_full_disk(small_disk, layered):
 
 def test_zz_fuzz_round_three_totals():
     """The sum over the targets above (run in file order)."""
-    if not ROUND:
-        pytest.skip("run with the fuzz targets")
-    cases = sum(t.cases for t in ROUND.values())
-    valid = sum(t.valid for t in ROUND.values())
-    clean = sum(t.clean for t in ROUND.values())
-    bad = sum(len(t.tracebacks) for t in ROUND.values())
-    print(f"\nfuzz round three (files) over {len(ROUND)} targets: {cases} cases, {valid} valid, {clean} clean "
-          f"errors, {bad} failures (tracebacks, warnings, silent garbage)")
-    assert bad == 0
-
+    assert round_failures("round three (files)", ROUND) == 0

@@ -30,7 +30,7 @@ from backend.splats.formats import SPLAT_RECORD, SplatArrays, read_splat_file
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import write_ply
 from igs_contract import layer_ply, layer_values, manifest, workspace_lock
-from tests.support.fuzz import Tally, dump_json, mutate_bytes, mutate_json
+from tests.support.fuzz import Tally, dump_json, mutate_bytes, mutate_json, round_failures
 from tests.support.import_scene import write_capture
 from tests.support.small_disk import fill, small_tmpfs  # noqa: E402
 from tests.support.train_scene import make_layered_workspace, make_workspace
@@ -428,12 +428,4 @@ def test_fuzz_full_disk(small_disk, sources, tmp_path, capfd):
 
 def test_zz_fuzz_round_two_totals():
     """The sum over the targets above (run in file order)."""
-    if not ROUND:
-        pytest.skip("run with the fuzz targets")
-    cases = sum(t.cases for t in ROUND.values())
-    valid = sum(t.valid for t in ROUND.values())
-    clean = sum(t.clean for t in ROUND.values())
-    bad = sum(len(t.tracebacks) for t in ROUND.values())
-    print(f"\nfuzz round two over {len(ROUND)} targets: {cases} cases, {valid} valid, {clean} clean errors, "
-          f"{bad} failures (tracebacks, warnings, silent garbage)")
-    assert bad == 0
+    assert round_failures("round two", ROUND) == 0

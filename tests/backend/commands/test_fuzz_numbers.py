@@ -36,7 +36,7 @@ from backend.scene_render.render_views import read_cameras
 from backend.scene_render.render_workspace import _vector
 from igs_contract import manifest, numbers
 from igs_contract.camera_json import FOV_DEG
-from tests.support.fuzz import Tally, dump_json, mutate_json
+from tests.support.fuzz import Tally, dump_json, mutate_json, round_failures
 from tests.support.train_scene import make_layered_workspace
 
 SEED = 59  # the issue's number: every run draws the same values
@@ -338,12 +338,4 @@ def test_fuzz_manifests_and_capture_json(ws, tmp_path, capfd):
 
 def test_zz_fuzz_numbers_totals():
     """The sum over the targets above (run in file order)."""
-    if not ROUND:
-        pytest.skip("run with the fuzz targets")
-    cases = sum(t.cases for t in ROUND.values())
-    valid = sum(t.valid for t in ROUND.values())
-    clean = sum(t.clean for t in ROUND.values())
-    bad = sum(len(t.tracebacks) for t in ROUND.values())
-    print(f"\nfuzz numbers over {len(ROUND)} targets: {cases} cases, {valid} valid, {clean} clean errors, "
-          f"{bad} failures (tracebacks, warnings, silent garbage)")
-    assert bad == 0
+    assert round_failures("numbers", ROUND) == 0

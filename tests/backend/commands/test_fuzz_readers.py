@@ -12,7 +12,6 @@ listed when there are any. A few seconds per target on one core.
 from __future__ import annotations
 
 import json
-import math
 import shutil
 from pathlib import Path
 
@@ -29,7 +28,15 @@ from backend.priors.folder import read_map
 from backend.scene_render.render_views import read_cameras, read_path
 from backend.splats.ply import read_ply
 from backend.train.intrinsic.state import DecomposeState
-from tests.support.fuzz import TOTALS, Tally, dump_json, mutate_bytes, mutate_json, mutate_text
+from tests.support.fuzz import (
+    TOTALS,
+    Tally,
+    dump_json,
+    mutate_bytes,
+    mutate_json,
+    mutate_text,
+    round_failures,
+)
 from tests.support.import_scene import write_capture
 from tests.support.train_scene import make_layered_workspace
 
@@ -222,12 +229,4 @@ def test_fuzz_import_records_through_priors(base, tmp_path):
 
 def test_zz_fuzz_totals():
     """The sum over the targets above (run in file order)."""
-    if not TOTALS:
-        pytest.skip("run with the fuzz targets")
-    cases = sum(t.cases for t in TOTALS.values())
-    clean = sum(t.clean for t in TOTALS.values())
-    valid = sum(t.valid for t in TOTALS.values())
-    bad = sum(len(t.tracebacks) for t in TOTALS.values())
-    print(f"\nfuzz totals over {len(TOTALS)} targets: {cases} cases, {valid} valid, {clean} clean errors, "
-          f"{bad} tracebacks")
-    assert bad == 0 and math.isfinite(cases)
+    assert round_failures("totals", TOTALS) == 0

@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -21,6 +19,7 @@ from backend.commands.cli import main
 from backend.core.workspace_lock import hold
 from igs_contract import workspace_lock
 from tests.support import addon_package  # noqa: E402, F401 (the add-on imports relatively: as the extension's package)
+from tests.support.fuzz import deadline
 from tests.support.train_scene import make_layered_workspace
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="FIFOs, /dev/zero and O_NOFOLLOW are POSIX")
@@ -29,21 +28,6 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="FIFOs, /dev/zer
 @pytest.fixture(scope="module")
 def layered(tmp_path_factory):
     return make_layered_workspace(tmp_path_factory.mktemp("lockfiles") / "ws", n_per_face=30)
-
-
-@contextmanager
-def deadline(seconds: float):
-    """Fail (instead of hanging the suite) when the body blocks, as a read of a FIFO would."""
-    def expired(*_):
-        raise TimeoutError(f"blocked for more than {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def errors(text: str) -> list[str]:
