@@ -122,19 +122,28 @@ def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray) -> None:
     obj["igs_normals_points"] = len(pc.points)
 
 
+def _material(name: str) -> tuple[bpy.types.Material, bool]:
+    """The material ``name`` and whether this add-on already built its nodes (the :data:`ROWS` node is
+    there); otherwise it comes back with nodes on and emptied, to be built."""
+    mat = bpy.data.materials.get(name)
+    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get(ROWS[2]) is not None:
+        return mat, True
+    mat = mat or bpy.data.materials.new(name)
+    compat.use_nodes(mat)
+    mat.node_tree.nodes.clear()
+    return mat, False
+
+
 # -- the lit material -------------------------------------------------------------------------------------------
 
 
 def lit_material() -> bpy.types.Material:
     """Diffuse BSDF of the decoded albedo colour, its normal the :data:`NORMAL` attribute turned into world
     coordinates by the rows :data:`ROWS` (the capture's normal matrix, set by :func:`update`)."""
-    mat = bpy.data.materials.get(MATERIAL)
-    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get(ROWS[2]) is not None:
+    mat, built = _material(MATERIAL)
+    if built:
         return mat
-    mat = mat or bpy.data.materials.new(MATERIAL)
-    compat.use_nodes(mat)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
     color = native_layers.decoded_color(nodes, links)
     diffuse = nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.location = (250, -200)
@@ -191,13 +200,10 @@ def normal_matrix() -> np.ndarray:
 def occlusion_material() -> bpy.types.Material:
     """An emission of Cycles' Ambient Occlusion factor (:data:`OCCLUSION_DISTANCE`): 1 where nothing is
     around a splat, less where something blocks its surroundings."""
-    mat = bpy.data.materials.get(OCCLUSION)
-    if mat is not None and mat.node_tree is not None and mat.node_tree.nodes.get(ROWS[2]) is not None:
+    mat, built = _material(OCCLUSION)
+    if built:
         return mat
-    mat = mat or bpy.data.materials.new(OCCLUSION)
-    compat.use_nodes(mat)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
     ao = nodes.new("ShaderNodeAmbientOcclusion")
     ao.name = "IGS occlusion"
     ao.samples = 16
