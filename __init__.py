@@ -21,10 +21,11 @@ def classes() -> tuple:
 def _on_load_pre(*_args) -> None:
     # A new file drops the modal operator that follows the job: stop the job cleanly (it keeps
     # its checkpoint) rather than leave an unwatched process behind.
-    from .igs_blender import jobs, light_bake, splat_viewport
+    from .igs_blender import jobs, light_bake
+    from .igs_blender.viewport import overlay
 
     jobs.request_cancel()
-    splat_viewport.VIEW.free()  # the GPU layers belong to the scene being closed
+    overlay.VIEW.free()  # the GPU layers belong to the scene being closed
     light_bake.LIVE.reset()
 
 
@@ -33,7 +34,9 @@ def register() -> None:
 
     import bpy
 
-    from .igs_blender import jobs, light_bake, props, splat_viewport
+    from .igs_blender import jobs, light_bake, props
+    from .igs_blender.native import compositing
+    from .igs_blender.viewport import overlay
 
     atexit.unregister(jobs.stop_all)  # Blender quitting: do not leave a backend process behind
     atexit.register(jobs.stop_all)
@@ -42,7 +45,8 @@ def register() -> None:
         if not getattr(cls, "is_registered", False):
             bpy.utils.register_class(cls)
     props.register_pointer()
-    splat_viewport.register()
+    overlay.register()
+    compositing.register()
     light_bake.register()
     if _on_load_pre not in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.append(_on_load_pre)
@@ -53,11 +57,14 @@ def unregister() -> None:
 
     import bpy
 
-    from .igs_blender import jobs, light_bake, props, splat_viewport
+    from .igs_blender import jobs, light_bake, props
+    from .igs_blender.native import compositing
+    from .igs_blender.viewport import overlay
 
     jobs.stop_all()
     light_bake.unregister()
-    splat_viewport.unregister()
+    compositing.unregister()
+    overlay.unregister()
     atexit.unregister(jobs.stop_all)
     if _on_load_pre in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.remove(_on_load_pre)

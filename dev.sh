@@ -57,14 +57,14 @@ setup() {
   fi
   if [ ! -x "$VENV/bin/python" ]; then
     # One line saying which Pythons requires-python allows, instead of a pip resolver error later.
-    "$PY" igs_blender/check_env.py --pyproject pyproject.toml --python-only || exit 2
+    "$PY" igs_blender/env/check_env.py --pyproject pyproject.toml --python-only || exit 2
     "$PY" -m venv "$VENV"
   fi
   echo "== setting up $VENV with Python $("$VENV/bin/python" -c 'import sys; print(sys.version.split()[0])') (first run downloads 1-5 GB: torch, bpy, pycolmap, opencv, numba) =="
   "$VENV/bin/python" -m pip install -q --upgrade pip
   # torch first and on its own (its pin as it applies to this Python), so that the rest cannot
   # pull another build; then the project with the pins pip picks by their python_version markers.
-  torch=$("$VENV/bin/python" igs_blender/check_env.py --pyproject pyproject.toml --list | grep -E '^torch([=<>!~]|$)') \
+  torch=$("$VENV/bin/python" igs_blender/env/check_env.py --pyproject pyproject.toml --list | grep -E '^torch([=<>!~]|$)') \
     || { echo "dev.sh: pyproject.toml pins no torch for Python $("$VENV/bin/python" -V)" >&2; exit 2; }
   "$VENV/bin/python" -m pip install -q ${TORCH_INDEX:+--index-url "$TORCH_INDEX"} "$torch"
   "$VENV/bin/python" -m pip install -q -e ".[dev]"

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import bpy
 
-from . import layers, native_render, proxies, scene_objects
+from . import layers, proxies, scene_objects
 from .errors import UserError
+from .native import compositing
 from .workspace_files import EDIT_NAME
 
 
@@ -66,7 +67,7 @@ def apply_visibility(_item=None) -> None:
     props = scene.igs
     if layers.use_native():
         _native_visibility(props)
-        native_render.sync(scene)
+        compositing.sync(scene)
         return
     for obj in [*layers.loaded_layers().values(), *(i.albedo for i in props.edits if i.albedo is not None)]:
         _point_display(obj, props.splat_view)
@@ -82,7 +83,7 @@ def apply_visibility(_item=None) -> None:
 
 def _native_visibility(props) -> None:
     """Native splats: the viewport shows one layer, as above, but only through ``hide_viewport``: what
-    renders is each view layer's business (:mod:`.native_render`), which needs every field."""
+    renders is each view layer's business (:mod:`.native.compositing`), which needs every field."""
     shown = layers.shown_kind(props.layer_display) or "albedo"
     edited_shown = False
     for item in props.edits:
@@ -117,7 +118,7 @@ def remove(props, name: str, workspace: Path | None, delete_files: bool) -> None
             for key in ("igs_edit", "igs_primitive", "igs_vertex_count", "igs_texture_mode"):
                 if key in obj:
                     del obj[key]
-            native_render.send_home(obj, bpy.context.scene)
+            compositing.send_home(obj, bpy.context.scene)
             continue
         mat = obj.active_material if obj.type == "MESH" else None
         scene_objects.remove_object(obj)

@@ -18,7 +18,7 @@ preview only: the albedo points coloured with albedo x shading + residual averag
 grid; the exact composite of the three fields is what the Render panel produces.
 
 On Blender 5.3+ (unless the preferences turn Native Splats off) a layer is Blender's own Gaussian
-splat object instead (:mod:`.native_layers`), one collection per field, and Blender renders it.
+splat object instead (:mod:`.native.splats`), one collection per field, and Blender renders it.
 """
 
 from __future__ import annotations
@@ -29,15 +29,16 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from . import compat, native_layers, preferences, scene_objects
+from . import compat, preferences, scene_objects
 from .errors import UserError
+from .native import splats as native_splats
 from .ply_io import FILTER, SplatLayer, read_splat_ply
 from .point_attributes import get_point_attribute, set_point_attribute
 
 WHAT = "a splat layer proxy"  # what a point cloud lacking an attribute is not, in the error
 
 LAYER_KINDS = ("albedo", "shading", "residual", "radiance")
-COLLECTION = native_layers.LAYERS_COLLECTION
+COLLECTION = native_splats.LAYERS_COLLECTION
 MATERIAL = "IGS Splat Points"
 COLOR_ATTRIBUTE = "Col"
 
@@ -148,7 +149,7 @@ def build_layer_object(name: str, layer: SplatLayer, *, max_points: int = 0, rad
     hidden = old.hide_viewport if old is not None else False
     scene_objects.remove_object(old)
     if use_native():
-        obj = native_layers.build(name, sub, idx, collection or native_layers.field_collection(layer.kind))
+        obj = native_splats.build(name, sub, idx, collection or native_splats.field_collection(layer.kind))
         _describe(obj, layer, total, source)
         obj.hide_viewport = hidden
         return obj
@@ -201,8 +202,8 @@ def layer_from_object(obj: bpy.types.Object) -> SplatLayer:
     """The Gaussians a layer proxy holds, as a :class:`SplatLayer` (PLY-ready raw parameters)."""
     if obj is None or obj.type != "POINTCLOUD" or "igs_layer" not in obj:
         raise UserError(f"'{getattr(obj, 'name', obj)}' is not a splat layer proxy (a point cloud made by Load Layers)")
-    if native_layers.is_native(obj):
-        return native_layers.layer_from_native(obj)
+    if native_splats.is_native(obj):
+        return native_splats.layer_from_native(obj)
     pc = obj.data
     n = len(pc.points)
     means = get_point_attribute(pc, "position", 3, "vector", WHAT)
@@ -264,13 +265,13 @@ def build_composite_object(albedo: SplatLayer, shading: SplatLayer, residual: Sp
     """The composite preview: albedo geometry, colour A * S + R (see the module docstring)."""
     native = use_native()
     if native:
-        kwargs["collection"] = native_layers.field_collection("composite")
+        kwargs["collection"] = native_splats.field_collection("composite")
     obj = build_layer_object(object_name("composite"), albedo, **kwargs)
     pc = obj.data
     idx = get_point_attribute(pc, "igs_index", 1, "value", WHAT, dtype=np.int32)
     rgb = composite_colors(albedo.subset(idx), shading, residual)
     if native:
-        native_layers.recolor(obj, rgb)
+        native_splats.recolor(obj, rgb)
     else:
         rgba = get_point_attribute(pc, COLOR_ATTRIBUTE, 4, "color", WHAT)
         rgba[:, :3] = rgb

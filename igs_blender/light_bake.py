@@ -3,7 +3,7 @@
 ``python -m backend light-bake <ws> --light <file>`` writes ``<ws>/layers/lit/shading.ply``: the shading
 layer with the lights' shading added (S + S_new, per Gaussian, shadows from the backend's shadow maps).
 :func:`show_lit` loads it as the shading layer object "IGS shading", so every place that reads the
-shading layer shows it lit: the viewport engine's composite (:mod:`.splat_viewport` reads the object's
+shading layer shows it lit: the viewport engine's composite (:mod:`.viewport.overlay` reads the object's
 PLY), the composite preview point cloud (rebuilt), and on Blender 5.3+ the shading field's splat object,
 which Blender's render of A x S + R multiplies in. :func:`show_unlit` puts ``layers/shading.ply`` back.
 The object records the lights it shows (``igs_lights``, the lights file's list as JSON).
@@ -24,10 +24,12 @@ from pathlib import Path
 
 import bpy
 
-from . import backend_env, edits, jobs, layers, lights, native_layers, preferences, scene_objects
+from . import edits, jobs, layers, lights, preferences, scene_objects
 from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
-from .client import BackendError, BackendJob
+from .env import backend_env
 from .errors import UserError
+from .jobs.client import BackendError, BackendJob
+from .native import splats as native_splats
 from .ply_io import read_splat_ply
 from .workspace_files import existing_workspace
 
@@ -141,12 +143,12 @@ LIVE = _Live()
 
 def active(scene: bpy.types.Scene) -> bool:
     """Live bakes are on and there is a shading layer to light, drawn by the add-on: Blender's native splats
-    (5.3+) are lit by Blender itself (:mod:`.native_lighting`), so a light moved among them starts no job."""
+    (5.3+) are lit by Blender itself (:mod:`.native.lighting`), so a light moved among them starts no job."""
     props = getattr(scene, "igs", None)
     if props is None or not props.live_lights or not props.workspace:
         return False
     obj = shading_object()
-    return obj is not None and not native_layers.is_native(obj)
+    return obj is not None and not native_splats.is_native(obj)
 
 
 def note_change(scene: bpy.types.Scene, now: float | None = None) -> bool:

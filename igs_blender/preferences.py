@@ -6,8 +6,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from .addon_id import ADDON_ID
-from .backend_env import CPU_TORCH_INDEX
-from .cuda_build import DEFAULT_ARCHS
+from .env.backend_env import CPU_TORCH_INDEX
+from .env.cuda_build import DEFAULT_ARCHS
 from .errors import UserError
 
 # Download sizes measured with pip (wheels, Linux x86-64): torch 2.13.0+cpu (cp311) 192 MB and the

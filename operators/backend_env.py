@@ -6,9 +6,10 @@ from pathlib import Path
 
 import bpy
 
-from ..igs_blender import backend_env, compat, preferences
+from ..igs_blender import compat, preferences
 from ..igs_blender.addon_id import ADDON_ID
-from ..igs_blender.client import BackendJob
+from ..igs_blender.env import backend_env
+from ..igs_blender.jobs.client import BackendJob
 from .job import BackendOperator
 
 

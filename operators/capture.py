@@ -6,8 +6,8 @@ import bpy
 from bpy.props import StringProperty
 
 from ..igs_blender import camera_objects, preferences, scene_objects
-from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.props import MODEL_PRIORS, cpu_model_warning
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, resolve
 from .job import BackendOperator, backend_job

@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..igs_blender import edits, layers
-from ..igs_blender.client import BackendJob
+from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
 from .job import BackendOperator, backend_job
 

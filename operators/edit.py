@@ -23,8 +23,8 @@ from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from ..igs_blender import edits, layers, proxies, scene_objects
 from ..igs_blender.camera_objects import render_region_rect
-from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.props import MIN_SELECTED
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
 from .job import BackendOperator, backend_job, show_job

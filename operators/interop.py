@@ -24,8 +24,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from ..igs_blender import jobs, layers, preferences, scene_objects
-from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.ply_io import PLY_SUFFIXES, file_identity, read_splat_ply, with_identity
 from ..igs_blender.workspace_files import check_edit_name, existing_workspace
 from ..igs_contract import events

@@ -12,10 +12,11 @@ import time
 
 import bpy
 
-from ..igs_blender import backend_env, jobs, preferences, scene_objects
-from ..igs_blender.client import BackendError, BackendJob
+from ..igs_blender import jobs, preferences, scene_objects
+from ..igs_blender.env import backend_env
 from ..igs_blender.errors import UserError
 from ..igs_blender.jobs import show_job
+from ..igs_blender.jobs.client import BackendError, BackendJob
 from ..igs_blender.workspace_files import busy_line
 from .modes import in_object_mode
 

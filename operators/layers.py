@@ -7,8 +7,9 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import edits, layers, native_render, scene_objects
+from ..igs_blender import edits, layers, scene_objects
 from ..igs_blender.errors import UserError
+from ..igs_blender.native import compositing
 from ..igs_blender.ply_io import write_splat_ply
 from ..igs_blender.workspace_files import metrics_summary
 from .reports import load_from_workspace, tell
@@ -36,7 +37,7 @@ class IGS_OT_load_layers(bpy.types.Operator):
         missing = layers.composite_missing(objs)
         native = layers.use_native()
         # F12's A x S + R needs both fields: without one the render would be a wrong image, so say so instead
-        notes = native_render.setup(context.scene) if native and not missing else []
+        notes = compositing.setup(context.scene) if native and not missing else []
         edits.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"
         if native and missing:

@@ -6,8 +6,8 @@ import bpy
 from bpy.props import EnumProperty
 
 from ..igs_blender import light_bake, lights
-from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs.client import BackendJob
 from .job import BackendOperator
 from .modes import in_object_mode
 from .reports import tell

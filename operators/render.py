@@ -9,7 +9,7 @@ written as the contract's cameras.json (``igs_contract.camera_json``: pinhole in
 world-to-camera pose in SfM coordinates); ``render --cameras`` writes ``OUT/<layer>/<name>.png`` per
 camera and ``OUT/<layer>.mp4``.
 
-With native splats (Blender 5.3+) Blender renders instead (:mod:`..igs_blender.native_render`):
+With native splats (Blender 5.3+) Blender renders instead (:mod:`..igs_blender.native.compositing`):
 Render View is F12 (in background mode it writes ``renders/view-<time>/<layer>.png``), and the
 turntable is the animated camera "IGS Turntable" that Blender renders into
 ``renders/turntable-<time>/frame_####.png``, then encodes into ``<layer>.mp4`` with its FFmpeg.
@@ -26,20 +26,13 @@ import numpy as np
 from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
-from ..igs_blender import (
-    compat,
-    edits,
-    images,
-    layers,
-    lights,
-    native_render,
-    native_turntable,
-    scene_objects,
-)
+from ..igs_blender import compat, edits, images, layers, lights, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
-from ..igs_blender.client import BackendJob
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.native import compositing
+from ..igs_blender.native import turntable as native_turntable
 from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
 from ..igs_contract import camera_json
 from .job import BackendOperator, backend_job
@@ -120,9 +113,9 @@ def native_ready(context) -> None:
     """The scene renders the composite (set up once, brought up to date every time)."""
     if not layers.loaded_layers():
         raise UserError("no layers in the scene: Load Layers first (Blender renders their splats)")
-    if not native_render.is_set_up(context.scene):
-        native_render.setup(context.scene)
-    native_render.gather_loose(context.scene)
+    if not compositing.is_set_up(context.scene):
+        compositing.setup(context.scene)
+    compositing.gather_loose(context.scene)
     edits.apply_visibility()  # the edit the render uses, the previewed proxy, then the view layers
 
 
@@ -332,10 +325,10 @@ class IGS_OT_remove_render_setup(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene is not None and native_render.is_set_up(context.scene)
+        return context.scene is not None and compositing.is_set_up(context.scene)
 
     def execute(self, context):
-        native_render.teardown(context.scene)
+        compositing.teardown(context.scene)
         tell(self, context, "INFO", "F12 renders the scene's own view layers again (Load Layers or Render View "
                                     "sets the composite up again)")
         return {"FINISHED"}

@@ -7,20 +7,13 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import (
-    edits,
-    layers,
-    light_bake,
-    lights,
-    native_layers,
-    native_render,
-    preferences,
-    scene_objects,
-    splat_viewport,
-)
+from ..igs_blender import edits, layers, light_bake, lights, preferences, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
+from ..igs_blender.native import compositing
+from ..igs_blender.native import splats as native_splats
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
+from ..igs_blender.viewport import overlay
 from ..igs_blender.workspace_files import busy_line
 
 CATEGORY = "Intrinsic Splats"
@@ -223,7 +216,7 @@ def _splat_view(box, props) -> None:
     col = box.column(align=True)
     col.prop(props, "splat_resolution", slider=True)
     col.prop(props, "splat_preview_edit")
-    view = splat_viewport.VIEW
+    view = overlay.VIEW
     if view.error:
         _lines(box, view.error, icon="ERROR")
     elif view.status:
@@ -259,7 +252,7 @@ class IGS_PT_lights(_SubPanel, bpy.types.Panel):
         col.prop(props, "live_lights")
         layout.operator("igs.bake_lights", icon="RENDER_STILL")
         shading = light_bake.shading_object()
-        if shading is not None and native_layers.is_native(shading) and not shading.get(light_bake.KEY):
+        if shading is not None and native_splats.is_native(shading) and not shading.get(light_bake.KEY):
             _lines(layout.box(), "F12: Blender lights the capture itself (view layer IGS Lit, shadows both ways); "
                    "no bake runs", icon="SHADING_RENDERED", context=context)
         elif shading is not None:
@@ -372,17 +365,17 @@ class IGS_PT_render(_SubPanel, bpy.types.Panel):
 def _native_render_info(layout, scene, context) -> None:
     """Blender 5.3+: who renders, through what, and the objects no view layer can tell apart."""
     box = layout.box()
-    if not native_render.is_set_up(scene):
+    if not compositing.is_set_up(scene):
         _lines(box, "Load Layers sets up Blender's render of A×S+R", icon="INFO", context=context)
         return
     engine = scene.render.engine.replace("BLENDER_", "").title()
     _lines(box, f"F12 / Ctrl+F12: {engine} renders the IGS view layers, composited by the node group "
-           f"'{native_render.GROUP}'", icon="NODE_COMPOSITING", context=context)
+           f"'{compositing.GROUP}'", icon="NODE_COMPOSITING", context=context)
     box.operator("igs.remove_render_setup", icon="X")
-    loose = native_render.loose_objects(scene)
+    loose = compositing.loose_objects(scene)
     if loose:
         _lines(box, f"{len(loose)} object(s) lie directly in the Scene Collection and render in every field: "
-               f"Render View moves them into '{native_render.SCENE_OBJECTS}'", icon="ERROR", context=context)
+               f"Render View moves them into '{compositing.SCENE_OBJECTS}'", icon="ERROR", context=context)
 
 
 def _fitted_orbit(context) -> str:

@@ -51,7 +51,7 @@ for name in ("gsplat", "pycolmap", "plyfile", "numba", "cv2", "scipy"):
     except Exception as e:  # noqa: BLE001  (a report, not a program)
         print(name, "MISSING:", e)
 # Whether this Python already has NVIDIA's compiler wheels: the set-up's toolkit-free gsplat build
-# (igs_blender/cuda_build.py) needs them, and at ~100 MB they cannot travel in .whl/.
+# (igs_blender/env/cuda_build.py) needs them, and at ~100 MB they cannot travel in .whl/.
 import importlib.metadata as md, shutil
 for dist in ("nvidia-cuda-nvcc", "nvidia-nvvm", "nvidia-cuda-cccl", "cuda-toolkit"):
     try:

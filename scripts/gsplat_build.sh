@@ -3,7 +3,7 @@
 #   ./dev.sh gsplat-build [--archs "8.0;8.9;9.0"] [--dir build/gsplat-build] [--if-changed] [--keep-wheels]
 # 1. A fresh environment in DIR/env (DIR is replaced) with $PYTHON (dev.sh's choice), and torch's
 #    CUDA build from PyPI at the pin of pyproject.toml.
-# 2. igs_blender/cuda_build.py, the code the add-on's set-up runs: NVIDIA's compiler wheels for torch's
+# 2. igs_blender/env/cuda_build.py, the code the add-on's set-up runs: NVIDIA's compiler wheels for torch's
 #    CUDA release, gsplat's kernels built from its sdist for ARCHS where no GPU is visible (the GPU
 #    here otherwise), the module imported through gsplat's own import and its architectures read back.
 # Every package is downloaded into DIR/wheels first (from PyPI alone: pip --isolated), so that the
@@ -33,7 +33,7 @@ done
 
 STAMP_DIR=${XDG_CACHE_HOME:-$HOME/.cache}/intrinsic-splats
 STAMP=$STAMP_DIR/gsplat-build.stamp
-inputs=$( { cat igs_blender/cuda_build.py igs_blender/check_env.py scripts/gsplat_build.sh pyproject.toml;
+inputs=$( { cat igs_blender/env/cuda_build.py igs_blender/env/check_env.py scripts/gsplat_build.sh pyproject.toml;
             echo "$ARCHS"; "$PY" -V; } | sha256sum | cut -d' ' -f1)
 if [ "$IF_CHANGED" = 1 ] && [ "$(head -1 "$STAMP" 2>/dev/null)" = "$inputs" ]; then
   echo "gsplat-build: inputs unchanged since the last successful build; its result: $(tail -1 "$STAMP")"
@@ -71,13 +71,13 @@ W=$(cd "$DIR/wheels" && pwd)
 "$PY" -m venv "$DIR/env"
 E=$(cd "$DIR/env" && pwd)/bin/python
 PIP=("$E" -m pip --isolated --disable-pip-version-check)
-torch=$("$E" igs_blender/check_env.py --pyproject pyproject.toml --list | grep -E '^torch==') \
+torch=$("$E" igs_blender/env/check_env.py --pyproject pyproject.toml --list | grep -E '^torch==') \
   || { echo "gsplat-build: pyproject.toml pins no torch for $("$E" -V)" >&2; exit 2; }
 echo "== downloading $torch (torch's CUDA build and NVIDIA's CUDA libraries) into $W"
 "${PIP[@]}" download -q --no-cache-dir -d "$W" "$torch"
 "${PIP[@]}" install -q --no-index --find-links "$W" "$torch"
 t_torch=$(secs)
-mapfile -t compiler < <("$E" igs_blender/cuda_build.py --python "$E" --print-requirements)
+mapfile -t compiler < <("$E" igs_blender/env/cuda_build.py --python "$E" --print-requirements)
 echo "== downloading NVIDIA's compiler and gsplat's undeclared dependency (${compiler[*]}), gsplat's sdist and its dependencies"
 "${PIP[@]}" download -q --no-cache-dir -d "$W" "${compiler[@]}"
 compiler_bytes=$(du -cb "$W"/nvidia_cuda_nvcc-* "$W"/nvidia_cuda_crt-* "$W"/nvidia_nvvm-* "$W"/nvidia_cuda_cccl-* \
@@ -86,12 +86,12 @@ compiler_bytes=$(du -cb "$W"/nvidia_cuda_nvcc-* "$W"/nvidia_cuda_crt-* "$W"/nvid
 # gsplat asks for any torch, and pip download ignores the installed one: the pin keeps it at ours.
 home=$("$E" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/nvidia/cu13
 CUDA_HOME=$home "${PIP[@]}" download -q --no-cache-dir --no-build-isolation --no-binary gsplat -d "$W" "$torch" \
-  "$("$E" -c 'import sys; sys.path.insert(0, "igs_blender"); import cuda_build; print(cuda_build.GSPLAT)')"
+  "$("$E" -c 'import sys; sys.path.insert(0, "igs_blender/env"); import cuda_build; print(cuda_build.GSPLAT)')"
 if [ "$(ls "$W"/torch-* | wc -l)" != 1 ]; then echo "gsplat-build: more than one torch downloaded: $(ls "$W"/torch-*)" >&2; exit 2; fi
 download_bytes=$(du -sb "$W" | cut -f1)
 env_before=$(du -sb "$DIR/env" | cut -f1)
 echo "== cuda_build.py: the compiler, then gsplat's kernels for $ARCHS"
-"$E" igs_blender/cuda_build.py --python "$E" --cuda-archs "$ARCHS" --pip-arg=--isolated \
+"$E" igs_blender/env/cuda_build.py --python "$E" --cuda-archs "$ARCHS" --pip-arg=--isolated \
   --pip-arg=--no-index --pip-arg="--find-links=$W" | tee "$DIR/cuda_build.out"
 summary=$(tail -1 "$DIR/cuda_build.out")
 t_end=$(secs)

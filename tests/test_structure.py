@@ -2,8 +2,9 @@
 
 The backend's rooms stand in one order (``ROOMS``): a module may import its own room and the rooms
 below it, never one above. ``igs_contract`` stands under everything and imports nothing of ours; the
-add-on (``igs_blender``, ``operators``, ``panels``) never imports the backend or torch. Every import
-counts, also one inside a function: it runs as soon as that function does.
+add-on (``igs_blender``, ``operators``, ``panels``) never imports the backend or torch, and its own
+wings stand in a stack too (``ADDON_FLOORS``). Every import counts, also one inside a function: it runs
+as soon as that function does.
 """
 
 from __future__ import annotations
@@ -20,6 +21,24 @@ REPO = Path(__file__).resolve().parents[1]
 ROOMS = ("core", "capture", "synth", "priors", "render", "splats", "train", "relight", "edit", "eval", "scene_render",
          "commands", "bench")
 ADDON_PACKAGES = ("igs_blender", "operators", "panels")
+
+# The add-on's floors, from the ground up: a module imports its own floor and those below it. A floor
+# names packages or modules; a module belongs to the longest name that is it or holds it, so the scene
+# modules ("igs_blender": what is left at the top of the package) are one floor and the few that use the
+# display seam are named above it. native/ and viewport/ share a floor and never import each other.
+ADDON_FLOORS = (
+    ("igs_blender.errors", "igs_blender.addon_id"),  # what every floor raises or names
+    ("igs_blender.jobs",),  # the backend process and the current job (no bpy)
+    ("igs_blender.env",),  # the backend's environment, its checks and the CUDA build (no bpy)
+    ("igs_blender",),  # the scene modules
+    ("igs_blender.native", "igs_blender.viewport"),  # Blender 5.3's splats | our own engine
+    ("igs_blender.display",),  # the one face that decides native or viewport
+    ("igs_blender.edit_objects", "igs_blender.light_bake", "igs_blender.props"),  # scene modules over the seam
+    ("operators", "panels"),
+    ("__init__",),  # the extension's root: registers everything
+)
+NO_BPY_WINGS = ("igs_blender.jobs", "igs_blender.env")
+BPY_MODULES = ("bpy", "bpy_extras", "gpu", "gpu_extras", "mathutils", "bmesh", "blf", "addon_utils")
 
 
 def _module_name(path: Path) -> str:
@@ -115,7 +134,7 @@ def test_the_backend_reaches_the_addon_only_through_the_test_helper(graph):
 
 # Shipped with the add-on but run BY the backend's interpreter (it reports whether torch and the
 # backend import there): Blender imports only its helpers, so its imports of them stay in functions.
-RUN_BY_BACKEND_PYTHON = {"igs_blender/check_env.py"}
+RUN_BY_BACKEND_PYTHON = {"igs_blender/env/check_env.py"}
 
 
 def _module_level(tree: ast.Module):
@@ -139,6 +158,87 @@ def test_addon_never_imports_the_backend_or_torch():
                          else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
                 bad += [f"{rel}:{node.lineno} imports {n}" for n in names if n.split(".")[0] in ("backend", "torch")]
     assert bad == [], "\n".join(bad)
+
+
+def _floor(module: str) -> int | None:
+    """The add-on floor (index in ``ADDON_FLOORS``) of ``module``: the longest name that is it or holds it."""
+    best, found = -1, None
+    for i, names in enumerate(ADDON_FLOORS):
+        for name in names:
+            if (module == name or module.startswith(name + ".")) and len(name) > best:
+                best, found = len(name), i
+    return found
+
+
+def _wing(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if parts[0] == "igs_blender" and len(parts) > 2 or module in ("igs_blender.native",
+                                                                                   "igs_blender.viewport") else None
+
+
+def _addon_back_edges(graph: dict[str, set[str]]) -> list[str]:
+    """Imports from a lower add-on floor to a higher one, and between native/ and viewport/."""
+    bad = []
+    for m, targets in graph.items():
+        for t in targets:
+            fm, ft = _floor(m), _floor(t)
+            if fm is None or ft is None:
+                continue
+            if ft > fm or {_wing(m), _wing(t)} == {"native", "viewport"}:
+                bad.append(f"{m} -> {t}")
+    return sorted(bad)
+
+
+def test_every_addon_module_is_on_a_floor(graph):
+    homeless = [m for m in graph if m == "__init__" or m.split(".")[0] in ADDON_PACKAGES if _floor(m) is None]
+    assert homeless == [], f"add-on modules outside the floors {ADDON_FLOORS}: {homeless}"
+
+
+def test_jobs_and_env_import_no_bpy():
+    """The job client and the environment run outside Blender too (tests, scripts run by path)."""
+    bad = []
+    for wing in NO_BPY_WINGS:
+        for path in sorted((REPO / wing.replace(".", "/")).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                         else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+                bad += [f"{path.relative_to(REPO)}:{node.lineno} imports {n}" for n in names
+                        if n.split(".")[0] in BPY_MODULES]
+    assert bad == [], "\n".join(bad)
+
+
+def _register_calls(path: Path) -> set[str]:
+    """The names ``x`` of the calls ``x.register()`` and ``x.unregister()`` in a file."""
+    return {node.func.value.id for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+            and node.func.attr in ("register", "unregister") and isinstance(node.func.value, ast.Name)}
+
+
+def test_every_register_is_called_from_the_root(graph):
+    """A module's register()/unregister() is called by the root ``__init__.py`` alone: no module registers
+    another's handlers behind the root's back."""
+    modules = _sources()
+    owners = sorted(m for m, path in modules.items() if m.split(".")[0] in ADDON_PACKAGES
+                    and any(isinstance(n, ast.FunctionDef) and n.name == "register"
+                            for n in ast.parse(path.read_text(encoding="utf-8")).body))
+    assert owners, "no add-on module has a register(): the walk is wrong"
+    missing = [m for m in owners if m not in graph["__init__"]
+               or m.rpartition(".")[2] not in _register_calls(REPO / "__init__.py")]
+    assert missing == [], f"register() not called from the root __init__.py: {missing}"
+    hidden = sorted(f"{m} calls {', '.join(sorted(names))}.register()" for m, path in modules.items()
+                    if m.split(".")[0] in ADDON_PACKAGES and (names := _register_calls(path)))
+    assert hidden == [], "\n".join(hidden)
+
+
+def test_the_addon_checks_see_a_back_edge_and_a_cross_wing_import():
+    planted = {"igs_blender.native.splats": {"igs_blender.display", "igs_blender.viewport.overlay",
+                                             "igs_blender.layers", "igs_blender.errors"},
+               "igs_blender.jobs.client": {"igs_blender.env.backend_env"},
+               "igs_blender.edit_objects": {"igs_blender.display"}}
+    assert _addon_back_edges(planted) == ["igs_blender.jobs.client -> igs_blender.env.backend_env",
+                                          "igs_blender.native.splats -> igs_blender.display",
+                                          "igs_blender.native.splats -> igs_blender.viewport.overlay"]
+    assert _floor("igs_blender") == _floor("igs_blender.layers") < _floor("igs_blender.native.splats")
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:

@@ -220,7 +220,7 @@ def splat_view():
         pr.splat_view = True
         force_redraw()
         yield from drawn()
-        sv = addon("igs_blender.splat_viewport")
+        sv = addon("igs_blender.viewport.overlay")
         s.data["status"], s.data["error"] = sv.VIEW.status, sv.VIEW.error
         s.data["layers"] = {k: v.count for k, v in sv.VIEW.layers.items()}
         s.data["point_display"] = {o.name: o.display_type for o in bpy.data.objects if o.type == "POINTCLOUD"}
@@ -329,7 +329,7 @@ def edit_preview():
             bpy.ops.igs.set_proxy_color()
         force_redraw()
         yield from drawn()
-        sv = addon("igs_blender.splat_viewport")
+        sv = addon("igs_blender.viewport.overlay")
         assert not sv.VIEW.error, sv.VIEW.error
         s.data["proxy"] = getattr(sv.preview_proxy(pr), "name", None)
         assert s.data["proxy"], "no proxy previewed"
@@ -400,9 +400,9 @@ def splat_agreement() -> dict:
     import numpy as np
 
     mods = {m: addon(f"igs_blender.{m}")
-            for m in ("cameras", "splat_camera", "splat_agreement", "ply_io", "client", "backend_env")}
-    cameras, camera, agree = mods["cameras"], mods["splat_camera"], mods["splat_agreement"]
-    ply_io, client, env = mods["ply_io"], mods["client"], mods["backend_env"]
+            for m in ("cameras", "viewport.pinhole", "viewport.agreement", "ply_io", "jobs.client", "env.backend_env")}
+    cameras, camera, agree = mods["cameras"], mods["viewport.pinhole"], mods["viewport.agreement"]
+    ply_io, client, env = mods["ply_io"], mods["jobs.client"], mods["env.backend_env"]
     ws = Path(CONFIG["workspace"])
     v = cameras.read_workspace_cameras(ws)[0]
     view = camera.from_capture_view(v.R, v.t, v.fx, v.fy, v.cx, v.cy, v.width, v.height)

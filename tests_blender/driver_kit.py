@@ -70,7 +70,7 @@ def shot_at_rest(name: str):
 def wait_job(limit_s: float, mid_shot: str | None = None):
     """Yield until the add-on's running job has ended and its modal operator has taken it in; with
     ``mid_shot``, a screenshot once the job has reported progress (the panel's bar is then drawn)."""
-    jobs = addon("igs_blender.jobs")
+    jobs = addon("igs_blender.jobs.active")
     t0 = time.monotonic()
     finished_at = None
     while True:

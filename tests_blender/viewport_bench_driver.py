@@ -83,16 +83,8 @@ def flow():
     import gpu
     import intrinsic_splats
     intrinsic_splats.register()
-    from intrinsic_splats.igs_blender import (
-        edits,
-        layers,
-        ply_io,
-        splat_agreement,
-        splat_camera,
-        splat_engine,
-        splat_packing,
-        splat_viewport,
-    )
+    from intrinsic_splats.igs_blender import edits, layers, ply_io
+    from intrinsic_splats.igs_blender.viewport import agreement, engine, overlay, packing, pinhole
 
     RESULT["gpu"] = f"{gpu.platform.renderer_get()} ({gpu.platform.version_get()})"
     ws = Path(CONFIG["workspace"])
@@ -100,19 +92,19 @@ def flow():
     props.workspace = str(ws)
     kinds = ("albedo", "shading", "residual")
     ws_layers = {k: ply_io.read_splat_ply(ws / "layers" / f"{k}.ply") for k in kinds}
-    views = {v["name"]: splat_camera.from_capture_view(np.array(v["R"]), np.array(v["t"]), v["fx"], v["fy"],
-                                                       v["cx"], v["cy"], v["width"], v["height"])
+    views = {v["name"]: pinhole.from_capture_view(np.array(v["R"]), np.array(v["t"]), v["fx"], v["fy"],
+                                                   v["cx"], v["cy"], v["width"], v["height"])
              for v in CONFIG["views"]}
 
     # -- agreement with igs render -----------------------------------------------------------------
     for name, view in views.items():
-        mine = splat_agreement.engine_images(view, ws_layers)
+        mine = agreement.engine_images(view, ws_layers)
         row = {"view": name, "size": [view.width, view.height]}
         for pic, img in mine.items():
             ref = bpy.data.images.load(str(Path(CONFIG["refs"]) / pic / f"{Path(name).stem}.png"))
             px = np.array(ref.pixels[:], dtype=np.float32).reshape(ref.size[1], ref.size[0], ref.channels)
             bpy.data.images.remove(ref)
-            row[pic] = round(splat_agreement.psnr(img, px[::-1, :, :3]), 2)
+            row[pic] = round(agreement.psnr(img, px[::-1, :, :3]), 2)
         RESULT["agreement"].append(row)
         save()
     yield 0.1
@@ -131,7 +123,7 @@ def flow():
         for obj in list(bpy.data.objects):
             if obj.type == "POINTCLOUD":
                 bpy.data.objects.remove(obj)
-        splat_viewport.VIEW.free()
+        overlay.VIEW.free()
         layers.load_layer(path, name=layers.object_name("albedo"), max_points=0)
         props.layer_display = "albedo"
         row = {"splats": n, "viewport": [region.width, region.height]}
@@ -147,15 +139,15 @@ def flow():
         row["splats_orbit_s"] = frames(CONFIG["frames"], orbit_deg=2.0)
         look_from(first)
         RESULT["fps"].append(row)
-        gl = splat_viewport.VIEW.layers["albedo"]
+        gl = overlay.VIEW.layers["albedo"]
         sort_s, upload_s = [], []
         for k in range(5):
-            v = splat_camera.from_capture_view(first.world_to_camera[:3, :3], first.world_to_camera[:3, 3] + k * 0.01,
+            v = pinhole.from_capture_view(first.world_to_camera[:3, :3], first.world_to_camera[:3, 3] + k * 0.01,
                                                first.fx, first.fy, first.cx, first.cy, first.width, first.height)
             t0 = time.perf_counter()
-            order = splat_packing.back_to_front(v.depths(gl.means))
+            order = packing.back_to_front(v.depths(gl.means))
             t1 = time.perf_counter()
-            splat_engine.order_texture(order)
+            engine.order_texture(order)
             sort_s.append(t1 - t0)
             upload_s.append(time.perf_counter() - t1)
         RESULT["sort"].append({"splats": n, "sort_s": float(np.median(sort_s)), "upload_s": float(np.median(upload_s))})
@@ -166,7 +158,7 @@ def flow():
     for obj in list(bpy.data.objects):
         if obj.type == "POINTCLOUD":
             bpy.data.objects.remove(obj)
-    splat_viewport.VIEW.free()
+    overlay.VIEW.free()
     layers.load_workspace_layers(ws, max_points=100_000)
     props.layer_display = "composite"
     props.splat_view = True

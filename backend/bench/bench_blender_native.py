@@ -2,7 +2,7 @@
 
 Needs the bpy 5.3 module in this Python. The add-on is loaded from this checkout (as the package
 Blender makes of it) and does what Load Layers does: the workspace's layers become native Gaussian
-splats and the scene's render the A x S + R composite (``igs_blender/native_render.py``). Then:
+splats and the scene's render the A x S + R composite (``igs_blender/native/compositing.py``). Then:
 
 1. **Agreement.** From capture cameras (``--views`` of them, evenly spaced), per engine (Cycles on the
    CPU; EEVEE where EGL works) and per layer (A, S, R and A*S+R, the compositor group's outputs), the

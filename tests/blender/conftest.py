@@ -84,7 +84,7 @@ def bare_venv(tmp_path_factory) -> Path:
     import subprocess
     import sys
 
-    from intrinsic_splats.igs_blender import backend_env
+    from intrinsic_splats.igs_blender.env import backend_env
 
     PYTHON = sys.executable
     base = shutil.which("python3.11") or PYTHON

@@ -25,9 +25,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-from intrinsic_splats.igs_blender import backend_env, check_env, cuda_build  # noqa: E402
-from intrinsic_splats.igs_blender.client import BackendJob, parse_event  # noqa: E402
+from intrinsic_splats.igs_blender.env import backend_env, check_env, cuda_build  # noqa: E402
 from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
+from intrinsic_splats.igs_blender.jobs.client import BackendJob, parse_event  # noqa: E402
 
 from tests.support import addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
 from tests.support.env_pins import FIX, PINS, wanted_reqs  # noqa: E402
@@ -138,13 +138,13 @@ def test_project_venv_is_ready_with_its_python_set_and_torch_build():
 
 
 def test_check_env_reads_the_real_pyproject_itself():
-    res = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "check_env.py"), "--pyproject", str(ROOT / "pyproject.toml")],
+    res = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "env" / "check_env.py"), "--pyproject", str(ROOT / "pyproject.toml")],
                          capture_output=True, text=True, timeout=180, cwd=ROOT)
     assert res.returncode == 0, res.stderr
     env = next(json.loads(ln) for ln in res.stdout.splitlines() if '"event": "env"' in ln)
     assert env["python_ok"] and env["requires_python"] == REQUIRES
     assert all(p["ok"] for p in env["packages"]), [p for p in env["packages"] if not p["ok"]]
-    listed = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "check_env.py"), "--pyproject",
+    listed = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "env" / "check_env.py"), "--pyproject",
                              str(ROOT / "pyproject.toml"), "--list"], capture_output=True, text=True, timeout=60)
     minor = f"{sys.version_info.major}.{sys.version_info.minor}"
     assert listed.stdout.split() == check_env.requirements_for(PINS, minor)[0]

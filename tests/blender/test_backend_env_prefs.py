@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from intrinsic_splats.igs_blender import backend_env
+from intrinsic_splats.igs_blender.env import backend_env
 
 from tests.support.env_pins import FIX, wanted_reqs
 

@@ -42,11 +42,15 @@ from tests.support.fake_backend import make_tiny_workspace  # noqa: E402
 
 def test_zip_ships_the_addon_and_the_backend_but_no_tests(ext_zip):
     names = set(zipfile.ZipFile(ext_zip).namelist())
-    for needed in ("blender_manifest.toml", "__init__.py", "igs_blender/client.py", "igs_blender/compat.py",
+    for needed in ("blender_manifest.toml", "__init__.py", "igs_blender/jobs/client.py", "igs_blender/compat.py",
                    "operators/edit.py", "panels/main.py", "backend/__main__.py", "backend/commands/cli.py",
                    "igs_contract/__init__.py", "igs_contract/layer_ply.py", "igs_contract/camera_json.py",
                    "pyproject.toml"):
         assert needed in names, needed
+    # every module of the add-on's wings (jobs/, env/, native/, viewport/) ships, packages' __init__ included
+    sources = {p.relative_to(ROOT).as_posix() for top in ("igs_blender", "operators", "panels")
+               for p in (ROOT / top).rglob("*.py")}
+    assert sources - names == set(), sorted(sources - names)
     assert not any(n.startswith(("tests/", ".venv/", ".git", ".ci/")) or "__pycache__" in n for n in names)
 
 
@@ -306,7 +310,7 @@ def test_paint_explains_a_missing_edit_and_a_proxy_without_uvs(scene, tmp_path):
     grid.data.uv_layers.remove(grid.data.uv_layers[0])  # the artist deletes the UVs afterwards
     with pytest.raises(RuntimeError, match=f"'{grid.name}' has no UVs; unwrap it first"):
         bpy.ops.igs.paint_proxy()
-    assert not (ws / "edits" / "rug").exists() and not sub("jobs").running()
+    assert not (ws / "edits" / "rug").exists() and not sub("jobs.active").running()
 
     # The canvas is set whatever happens; Texture Paint mode needs a 3D viewport in the window.
     bpy.ops.mesh.primitive_grid_add(calc_uvs=True)
@@ -490,7 +494,7 @@ def test_cancel_from_the_panel_stops_a_running_job(scene, tmp_path, fake_python,
     scene.igs.workspace = str(ws)
     bpy.context.preferences.addons[MOD].preferences.backend_python = str(fake_python)
     monkeypatch.setenv("IGS_FAKE_MODE", "slow")
-    jobs = sub("jobs")
+    jobs = sub("jobs.active")
     timer = threading.Timer(1.5, jobs.request_cancel)  # the Cancel button's action, from "outside"
     timer.start()
     t0 = time.monotonic()

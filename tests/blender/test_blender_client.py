@@ -21,15 +21,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-from intrinsic_splats.igs_blender import backend_env  # noqa: E402
-from intrinsic_splats.igs_blender.client import (  # noqa: E402
+from intrinsic_splats.igs_blender.env import backend_env  # noqa: E402
+from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
+from intrinsic_splats.igs_blender.jobs.client import (  # noqa: E402
     BackendError,
     BackendJob,
     JobState,
     backend_command,
     parse_event,
 )
-from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
 
 from tests.support import addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)
 from tests.support.fake_backend import FAKE_BACKEND  # noqa: E402

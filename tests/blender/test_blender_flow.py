@@ -410,7 +410,7 @@ def test_flow_6_cancel_a_real_decompose_mid_run(addon, flow):
     scene = _flow_scene(flow)
     scene.igs.iterations = 100000
     scene.igs.restart = True
-    jobs = sub("jobs")
+    jobs = sub("jobs.active")
     finished = jobs.current()
 
     def cancel_after_progress():  # the Cancel button, pressed once training has started

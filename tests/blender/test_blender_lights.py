@@ -497,7 +497,7 @@ def test_native_f12_multiplies_the_baked_shading_field(native_scene, tmp_path, l
     bpy.ops.igs.add_light(kind="SUN")
     assert bpy.ops.igs.bake_lights() == {"FINISHED"}, scene.igs.last_report
     shading = bpy.data.objects["IGS shading"]
-    assert sub("native_layers").is_native(shading) and Path(shading["igs_ply"]).parent.name == "lit"
+    assert sub("native.splats").is_native(shading) and Path(shading["igs_ply"]).parent.name == "lit"
     assert shading.name in bpy.data.collections["IGS Field shading"].objects
     after = render_outputs(scene, tmp_path / "lit", ("Shading",))["Shading"]
     covered = before.max(axis=2) > 0.05

@@ -55,7 +55,7 @@ def reference(scene, sets: dict[str, GaussianSet]) -> dict[str, np.ndarray]:
 
 
 def test_colour_encoding_round_trips_and_matches_blenders_decoding():
-    from intrinsic_splats.igs_blender import native_colors as colors
+    from intrinsic_splats.igs_blender.native import colors
 
     rng = np.random.default_rng(0)
     lin = np.concatenate([rng.uniform(-0.5, 6.0, (200, 3)), [[0.0, 0.0031308, 0.04045]]])
@@ -86,7 +86,7 @@ def test_load_layers_makes_native_splats_with_blenders_attributes(scene, tmp_pat
     scene.igs.workspace = str(ws)
     assert bpy.ops.igs.load_layers() == {"FINISHED"}
     assert "F12 renders A×S+R" in scene.igs.last_report
-    ply_io, colors = sub("ply_io"), sub("native_colors")
+    ply_io, colors = sub("ply_io"), sub("native.colors")
     for kind, g in sets.items():
         obj = bpy.data.objects[f"IGS {kind}"]
         assert obj.type == "POINTCLOUD" and obj.data.type == "GAUSSIAN_SPLAT" and obj.parent.name == "IGS Capture"

@@ -137,7 +137,7 @@ def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
 
 
 def test_normals_are_the_shortest_axes_turned_towards_the_cameras():
-    from intrinsic_splats.igs_blender import native_lighting as nl
+    from intrinsic_splats.igs_blender.native import lighting as nl
 
     rng = np.random.default_rng(0)
     n = 50

@@ -505,7 +505,7 @@ def test_model_priors_are_sent_by_id_and_the_cpu_warning_names_the_frames(scene,
 
 
 def test_a_model_download_shows_in_the_progress_line_like_any_stage(addon):
-    client = sub("client")
+    client = sub("jobs.client")
     state = client.JobState(label="Import")
     name = "download depth-anything/Depth-Anything-V2-Small-hf"
     state.apply({"event": "stage", "stage": name, "total": 99_000_000, "unit": "B"})

@@ -1,4 +1,4 @@
-"""The pieces of the NVIDIA CUDA set-up's kernel build (igs_blender/cuda_build.py), and check_env.py's
+"""The pieces of the NVIDIA CUDA set-up's kernel build (igs_blender/env/cuda_build.py), and check_env.py's
 reader of the architectures a built module holds.
 
 Fast and offline: the compiler's pins are chosen from the real torch's metadata where this
@@ -21,7 +21,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-from intrinsic_splats.igs_blender import backend_env, check_env, cuda_build  # noqa: E402
+from intrinsic_splats.igs_blender.env import backend_env, check_env, cuda_build  # noqa: E402
 from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
 
 from tests.support import addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)

@@ -13,15 +13,15 @@ import pytest
 import torch
 from intrinsic_splats.igs_blender import cameras as addon_cameras
 from intrinsic_splats.igs_blender.ply_io import read_splat_ply
-from intrinsic_splats.igs_blender.splat_camera import from_capture_view, from_region
-from intrinsic_splats.igs_blender.splat_packing import (
+from intrinsic_splats.igs_blender.viewport.packing import (
     DEFAULT_EPS2D,
     TEXTURE_WIDTH,
     back_to_front,
     covariances,
     pack_layer,
 )
-from intrinsic_splats.igs_blender.splat_sort import DepthSorter
+from intrinsic_splats.igs_blender.viewport.pinhole import from_capture_view, from_region
+from intrinsic_splats.igs_blender.viewport.sort import DepthSorter
 
 from backend.core.cameras import Camera
 from backend.splats.gaussians import GaussianSet

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from intrinsic_splats.igs_blender.client import JobState, parse_event  # noqa: E402
+from intrinsic_splats.igs_blender.jobs.client import JobState, parse_event  # noqa: E402
 
 from backend.commands.cli import main
 from tests.support import addon_package  # noqa: E402, F401 (the extension as a package: the add-on imports relatively)

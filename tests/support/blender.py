@@ -59,7 +59,7 @@ def sub(name: str):
 def backend_commands() -> set[str]:
     """The commands the backend offers now, as the add-on's own check reports them."""
     if not hasattr(backend_commands, "cache"):
-        res = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "check_env.py"), "--requirements-json", "[]"],
+        res = subprocess.run([PYTHON, str(ROOT / "igs_blender" / "env" / "check_env.py"), "--requirements-json", "[]"],
                              capture_output=True, text=True, cwd=ROOT, timeout=120)
         env = next(json.loads(ln) for ln in res.stdout.splitlines() if '"event": "env"' in ln)
         backend_commands.cache = set(env["commands"])
@@ -307,7 +307,7 @@ def load(scene, ws: Path) -> None:
 def render_outputs(scene, folder: Path, outputs=("Image", "Albedo", "Shading", "Residual")) -> dict[str, np.ndarray]:
     """F12 of ``scene`` with the composite group's outputs read back (the add-on's own helper)."""
     assert bpy.context.scene == scene
-    return sub("native_outputs").render_outputs(folder, tuple(outputs))
+    return sub("native.outputs").render_outputs(folder, tuple(outputs))
 
 
 PANELS = ("IGS_PT_main", "IGS_PT_capture", "IGS_PT_decompose", "IGS_PT_layers", "IGS_PT_edit", "IGS_PT_render")

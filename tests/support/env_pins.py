@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from intrinsic_splats.igs_blender import backend_env, check_env
+from intrinsic_splats.igs_blender.env import backend_env, check_env
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -194,7 +194,7 @@ def test_a_failed_import_leaves_no_folder_and_a_cancel_keeps_it(tmp_path, capsys
 
 
 def test_the_addon_shows_the_backends_line(layered):
-    from intrinsic_splats.igs_blender.client import BackendJob, backend_command
+    from intrinsic_splats.igs_blender.jobs.client import BackendJob, backend_command
     from intrinsic_splats.igs_blender.workspace_files import busy_line
 
     from tests.support import addon_package  # noqa: F401 (the add-on imports relatively: as the extension's package)

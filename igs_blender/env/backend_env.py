@@ -16,12 +16,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..igs_contract import events
+from ...igs_contract import events
+from ..errors import UserError
+from ..jobs.client import BackendJob, backend_command
 from . import check_env, cuda_build
-from .client import BackendJob, backend_command
-from .errors import UserError
 
-ADDON_ROOT = Path(__file__).resolve().parent.parent
+ADDON_ROOT = Path(__file__).resolve().parents[2]  # igs_blender/env/ -> the extension folder
 SCRIPTS = Path(__file__).resolve().parent
 
 # PyTorch's own index of CPU-only wheels (torch 2.13.0+cpu for cp311 is 192 MB where PyPI's Linux

@@ -16,9 +16,9 @@ from pathlib import Path
 import gpu
 import numpy as np
 
-from .splat_camera import PinholeView
-from .splat_engine import GpuLayer, LayerBuffers, draw_composite, draw_layer
-from .splat_packing import pack_layer
+from .engine import GpuLayer, LayerBuffers, draw_composite, draw_layer
+from .packing import pack_layer
+from .pinhole import PinholeView
 
 PICTURES = {"A": "ALBEDO", "S": "SHADING", "R": "RESIDUAL", "full": "COMPOSITE"}
 """``igs render``'s layer names -> the composite pass's modes."""
@@ -26,7 +26,7 @@ PICTURES = {"A": "ALBEDO", "S": "SHADING", "R": "RESIDUAL", "full": "COMPOSITE"}
 
 def engine_images(view: PinholeView, layers: dict) -> dict[str, np.ndarray]:
     """(H, W, 3) float32 sRGB images in [0, 1] (8-bit steps) of ``layers`` (albedo, shading, residual
-    :class:`~.ply_io.SplatLayer`) seen from ``view``, keyed A, S, R, full."""
+    :class:`~..ply_io.SplatLayer`) seen from ``view``, keyed A, S, R, full."""
     gl = {kind: GpuLayer(pack_layer(layer)) for kind, layer in layers.items()}
     bufs = LayerBuffers(view.width, view.height)
     out_buf = gpu.types.GPUOffScreen(view.width, view.height, format="RGBA32F")

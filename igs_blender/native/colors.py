@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..igs_contract.layer_ply import C0
+from ...igs_contract.layer_ply import C0
 
 LINEAR_KNEE = 0.0031308
 """Linear value where the sRGB curve leaves its straight segment."""

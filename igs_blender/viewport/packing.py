@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..igs_contract.layer_ply import C0, LOW_PASS, raster_mode
+from ...igs_contract.layer_ply import C0, LOW_PASS, raster_mode
 
 TEXTURE_WIDTH = 4096
 GEOMETRY_TEXELS = 4
@@ -79,7 +79,7 @@ def base_colors(layer) -> np.ndarray:
 
 
 def pack_layer(layer, eps2d: np.ndarray | None = None) -> PackedLayer:
-    """Pack a :class:`~.ply_io.SplatLayer` (or anything with its arrays) for the shaders.
+    """Pack a :class:`~..ply_io.SplatLayer` (or anything with its arrays) for the shaders.
 
     eps2d: (N,) per-Gaussian low-pass overriding the layer's own (``layer.eps2d`` when it has one).
     """

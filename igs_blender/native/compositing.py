@@ -1,7 +1,7 @@
 """Blender renders A x S + R itself (Blender 5.3+): one view layer per field and a compositor group.
 
 :func:`setup` makes the scene's render (F12, Ctrl+F12, any camera, EEVEE or Cycles, the scene's own
-resolution and output settings) the composite of the native splat fields (:mod:`.native_layers`):
+resolution and output settings) the composite of the native splat fields (:mod:`.splats`):
 
 - view layer "IGS Albedo": the albedo field (or the selected edit's baked albedo); everything else in
   the scene is a holdout, so a mesh in front of the albedo cuts it out;
@@ -12,7 +12,7 @@ resolution and output settings) the composite of the native splat fields (:mod:`
 - "IGS Edit Preview" (only while the selected edit is not baked yet): its proxy, unlit, showing its
   texture or colour (an override material), the scene's objects as holdouts;
 - "IGS Lit" (only while the lights collection holds a visible light): the albedo splats lit by those
-  lights, ``A x S_new`` (:mod:`.native_lighting`), the scene's objects as holdouts that cast shadows;
+  lights, ``A x S_new`` (:mod:`.lighting`), the scene's objects as holdouts that cast shadows;
 - "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the albedo splats'
   ambient occlusion with and without the meshes; their ratio O scales the captured shading.
 
@@ -36,8 +36,10 @@ import json
 
 import bpy
 
-from . import camera_objects, compat, layers, native_layers, native_lighting, proxies, scene_objects
-from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
+from .. import camera_objects, compat, layers, proxies, scene_objects
+from ..app_handlers import add_depsgraph_handler, remove_depsgraph_handler
+from . import lighting as native_lighting
+from . import splats as native_splats
 
 VIEW_LAYERS = {"albedo": "IGS Albedo", "shading": "IGS Shading", "residual": "IGS Residual", "scene": "IGS Scene",
                "edit": "IGS Edit Preview", "lit": "IGS Lit", "occluded": "IGS Occlusion",
@@ -75,8 +77,8 @@ def is_set_up(scene: bpy.types.Scene) -> bool:
 def _own_collections() -> dict[str, str]:
     """Collection name -> what it is for the view layers: ``field:<f>``, ``edits``, or ``add-on`` (a folder of
     the add-on's whose children decide)."""
-    kinds = {native_layers.field_collection_name(f): f"field:{f}"
-             for f in (*native_layers.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.ENVIRONMENT_FIELD)}
+    kinds = {native_splats.field_collection_name(f): f"field:{f}"
+             for f in (*native_splats.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.ENVIRONMENT_FIELD)}
     kinds.update({proxies.COLLECTION: "edits", scene_objects.COLLECTION_NAME: "add-on", layers.COLLECTION: "add-on",
                   camera_objects.COLLECTION: "add-on"})
     return kinds

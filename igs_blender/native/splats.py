@@ -9,7 +9,7 @@ makes them:
 - ``radiance:base``   FLOAT4       DC colour coefficients in Blender's convention, and the opacity
 - ``radiance:sh_<k>`` FLOAT_VECTOR higher SH coefficient k = 0..14 (SH layers only)
 
-(colours converted from our linear values by :mod:`.native_colors`), and two of ours:
+(colours converted from our linear values by :mod:`.colors`), and two of ours:
 
 - ``eps2d``     FLOAT  per-Gaussian screen-space low-pass in pixels^2 (a baked edit's layer; Blender
                        draws every splat with its own low-pass, so it is only carried for Export)
@@ -29,9 +29,10 @@ import json
 import bpy
 import numpy as np
 
-from . import compat, native_colors, scene_objects
-from .ply_io import FILTER, SplatLayer
-from .point_attributes import get_point_attribute, set_point_attribute
+from .. import compat, scene_objects
+from ..ply_io import FILTER, SplatLayer
+from ..point_attributes import get_point_attribute, set_point_attribute
+from . import colors as native_colors
 
 WHAT = "a Gaussian splat layer"  # what a point cloud lacking an attribute is not, in the error
 
@@ -64,7 +65,7 @@ def imported_collection() -> bpy.types.Collection:
 
 def decoded_color(nodes, links) -> bpy.types.NodeSocket:
     """Shader nodes (added to ``nodes``) whose output is the linear colour ``radiance:base`` encodes: the
-    inverse of :func:`.native_colors.encode`, negative values included."""
+    inverse of :func:`.colors.encode`, negative values included."""
 
     def vmath(op: str, *inputs, x: int = 0, y: int = 0):
         node = nodes.new("ShaderNodeVectorMath")

@@ -1,9 +1,9 @@
 """Blender lights the albedo field itself (Blender 5.3+): a lit material, per-Gaussian normals, a shadow proxy.
 
-The lights of the IGS lights collection (:mod:`.lights`) add ``A x S_new`` to the render, with ``S_new``
-computed by Cycles or EEVEE: the view layer "IGS Lit" (:mod:`.native_render`) renders the albedo
+The lights of the IGS lights collection (:mod:`..lights`) add ``A x S_new`` to the render, with ``S_new``
+computed by Cycles or EEVEE: the view layer "IGS Lit" (:mod:`.compositing`) renders the albedo
 field with the override material :data:`MATERIAL`, a Diffuse BSDF of the albedo colour (the splats'
-``radiance:base`` decoded, as the emission of :data:`.native_layers.MATERIAL` does) and of the normal
+``radiance:base`` decoded, as the emission of :data:`.splats.MATERIAL` does) and of the normal
 attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``S_new = E / pi`` is what
 ``light-bake`` adds to the shading, so the composite ``A * S + Lit + R`` is ``A * (S + S_new) + R``.
 
@@ -41,10 +41,11 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from . import compat, layers, lights, native_layers, scene_objects
-from .cameras import read_workspace_cameras
-from .errors import UserError
-from .point_attributes import get_point_attribute, set_point_attribute
+from .. import compat, layers, lights, scene_objects
+from ..cameras import read_workspace_cameras
+from ..errors import UserError
+from ..point_attributes import get_point_attribute, set_point_attribute
+from . import splats as native_splats
 
 MATERIAL = "IGS Splat Lit"
 OCCLUSION = "IGS Splat Occlusion"
@@ -144,7 +145,7 @@ def lit_material() -> bpy.types.Material:
     if built:
         return mat
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    color = native_layers.decoded_color(nodes, links)
+    color = native_splats.decoded_color(nodes, links)
     diffuse = nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.location = (250, -200)
     links.new(color, diffuse.inputs["Color"])
@@ -247,8 +248,8 @@ def dark_world() -> bpy.types.World:
 
 def albedo_objects() -> list[bpy.types.Object]:
     """The native albedo splat objects (the workspace's and the edits' baked albedos)."""
-    coll = bpy.data.collections.get(native_layers.field_collection_name("albedo"))
-    return [o for o in coll.objects if native_layers.is_native(o)] if coll is not None else []
+    coll = bpy.data.collections.get(native_splats.field_collection_name("albedo"))
+    return [o for o in coll.objects if native_splats.is_native(o)] if coll is not None else []
 
 
 def proxy_name(obj: bpy.types.Object) -> str:
@@ -272,7 +273,7 @@ def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
     back = OFFSET_SHORT * scales[:, 0] + OFFSET_MID * scales[:, 1]
     set_point_attribute(data, "position", "FLOAT_VECTOR", pos - normals * back[:, None], "vector")
     proxy = bpy.data.objects.new(name, data)
-    native_layers.field_collection(SHADOW_FIELD).objects.link(proxy)
+    native_splats.field_collection(SHADOW_FIELD).objects.link(proxy)
     proxy.parent = obj.parent
     proxy.matrix_parent_inverse = obj.matrix_parent_inverse.copy()
     proxy.matrix_basis = obj.matrix_basis.copy()
@@ -292,7 +293,7 @@ def _sync_proxies(albedos: list[bpy.types.Object]) -> None:
         proxy.hide_render = obj.hide_render
         proxy.hide_viewport = True
         names.add(proxy.name)
-    coll = bpy.data.collections.get(native_layers.field_collection_name(SHADOW_FIELD))
+    coll = bpy.data.collections.get(native_splats.field_collection_name(SHADOW_FIELD))
     for other in list(coll.objects) if coll is not None else []:
         if other.name not in names:
             scene_objects.remove_object(other)
@@ -303,13 +304,13 @@ def environment(albedos: list[bpy.types.Object]) -> bpy.types.Object | None:
     date; None (and the albedo splats seen by indirect rays, as before) when there is no composite preview."""
     comp = layers.loaded_layers().get("composite")
     env = bpy.data.objects.get(ENVIRONMENT)
-    if comp is None or not native_layers.is_native(comp):
+    if comp is None or not native_splats.is_native(comp):
         scene_objects.remove_object(env)
         env = None
     elif env is None or env.get("igs_data") != comp.data.name or env.get("igs_points") != len(comp.data.points):
         scene_objects.remove_object(env)
         env = bpy.data.objects.new(ENVIRONMENT, comp.data)  # the same data: a rebuilt preview is a new datablock
-        native_layers.field_collection(ENVIRONMENT_FIELD).objects.link(env)
+        native_splats.field_collection(ENVIRONMENT_FIELD).objects.link(env)
         env.parent = comp.parent
         env.matrix_parent_inverse = comp.matrix_parent_inverse.copy()
         env.matrix_basis = comp.matrix_basis.copy()
@@ -415,6 +416,6 @@ def release(scene: bpy.types.Scene) -> None:
         for ray in INDIRECT:
             setattr(obj, f"visible_{ray}", True)
     for field in (SHADOW_FIELD, ENVIRONMENT_FIELD):
-        coll = bpy.data.collections.get(native_layers.field_collection_name(field))
+        coll = bpy.data.collections.get(native_splats.field_collection_name(field))
         for obj in list(coll.objects) if coll is not None else []:
             scene_objects.remove_object(obj)

@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from .splat_camera import PinholeView
-from .splat_packing import back_to_front
+from .packing import back_to_front
+from .pinhole import PinholeView
 
 
 class DepthSorter:

@@ -13,7 +13,8 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from . import images, native_render
+from .. import images
+from . import compositing
 
 GROUP_OUTPUTS = ("Image", "Albedo", "Shading", "Residual")
 
@@ -22,15 +23,15 @@ def render_outputs(folder: Path, outputs: tuple[str, ...] = GROUP_OUTPUTS) -> di
     """F12 of the current scene with the group's ``outputs`` written to EXR in ``folder``.
 
     Returns linear (H, W, 3) float64 images by output name. The scene must have been set up by
-    :func:`.native_render.setup` (the node group exists)."""
-    tree = bpy.data.node_groups[native_render.TREE]
+    :func:`.compositing.setup` (the node group exists)."""
+    tree = bpy.data.node_groups[compositing.TREE]
     node = tree.nodes.new("CompositorNodeOutputFile")
     node.directory = str(folder) + "/"
     node.file_name = ""
     node.format.media_type = "IMAGE"
     node.format.file_format = "OPEN_EXR"
     node.format.color_depth = "32"
-    group = tree.nodes[native_render.GROUP]
+    group = tree.nodes[compositing.GROUP]
     for name in outputs:
         node.file_output_items.new("RGBA", name)
         tree.links.new(group.outputs[name], node.inputs[name])

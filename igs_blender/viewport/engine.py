@@ -1,10 +1,10 @@
 """GPU side of the viewport splats: a layer's textures, its draw into an offscreen buffer, the composite.
 
-:class:`GpuLayer` holds one layer on the GPU (the packed textures of :mod:`.splat_packing` and
+:class:`GpuLayer` holds one layer on the GPU (the packed textures of :mod:`.packing` and
 the depth order); :func:`draw_layer` blends it into the bound float framebuffer for a
-:class:`~.splat_camera.PinholeView`; :class:`LayerBuffers` are the offscreen buffers of one frame
+:class:`~.pinhole.PinholeView`; :class:`LayerBuffers` are the offscreen buffers of one frame
 (A, A's depth, S, R, the proxy's colour and depth) and :func:`draw_composite` turns them into the
-picture. The depth order is given from outside (:mod:`.splat_sort` computes it off the UI thread).
+picture. The depth order is given from outside (:mod:`.sort` computes it off the UI thread).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import gpu
 import numpy as np
 from mathutils import Matrix
 
-from . import splat_shaders
-from .splat_camera import PinholeView
-from .splat_packing import TEXTURE_WIDTH, PackedLayer, back_to_front, texture_rows
+from . import shaders
+from .packing import TEXTURE_WIDTH, PackedLayer, back_to_front, texture_rows
+from .pinhole import PinholeView
 
 NEAR, FAR = 0.01, 1e10
 """The backend's default culling planes (camera-space z)."""
@@ -98,7 +98,7 @@ def draw_layer(layer: GpuLayer, view: PinholeView, feature: str = "color") -> No
     """
     if layer.order is None:
         layer.sort_now(view)
-    sh = splat_shaders.shader("splat")
+    sh = shaders.shader("splat")
     sh.bind()
     sh.uniform_sampler("geometry", layer.geometry)
     sh.uniform_sampler("order", layer.order)
@@ -139,7 +139,7 @@ def proxy_batch(positions: np.ndarray, uvs: np.ndarray) -> gpu.types.GPUBatch:
 
 def draw_proxy(proxy: ProxyMesh, view: PinholeView, feature: str) -> None:
     """Draw the proxy into the bound framebuffer (its own depth test): colour, or ``depth`` (z, 1)."""
-    sh = splat_shaders.shader("proxy")
+    sh = shaders.shader("proxy")
     sh.bind()
     sh.uniform_sampler("image", proxy.image if proxy.image is not None else _black())
     sh.uniform_float("world_to_camera", cv_matrix(view.world_to_camera))
@@ -206,7 +206,7 @@ def draw_composite(buffers: LayerBuffers, mode: str, preview: bool, depth_tolera
     global _FULLSCREEN
     if _FULLSCREEN is None:
         _FULLSCREEN = _batch(3)
-    sh = splat_shaders.shader("composite")
+    sh = shaders.shader("composite")
     sh.bind()
     for name in LayerBuffers.NAMES:
         sh.uniform_sampler(name, buffers.texture(name))

@@ -1,7 +1,7 @@
 """The layers as true splats in every 3D view: the draw handler, what it draws and where from.
 
 With ``Scene.igs.splat_view`` on, each 3D view (perspective) draws the loaded layers with the GPU
-splat engine (:mod:`.splat_engine`) into float offscreen buffers at the view's resolution (times
+splat engine (:mod:`.engine`) into float offscreen buffers at the view's resolution (times
 ``splat_resolution``) and shows the layer picked in the Layers panel: A * S + R for "Composite", or
 one layer, in sRGB, over the viewport. The splats come from the layers' PLY files (all Gaussians,
 whatever the point clouds' Max Points), so the point clouds stay what they were: the selectable,
@@ -25,21 +25,13 @@ import bpy
 import gpu
 import numpy as np
 
-from . import edits, layers, native_render, proxies, scene_objects
-from .errors import UserError
-from .ply_io import SplatLayer, read_splat_ply
-from .splat_camera import PinholeView, from_region
-from .splat_engine import (
-    GpuLayer,
-    LayerBuffers,
-    ProxyMesh,
-    draw_composite,
-    draw_layer,
-    draw_proxy,
-    proxy_batch,
-)
-from .splat_packing import pack_layer
-from .splat_sort import DepthSorter
+from .. import edits, layers, proxies, scene_objects
+from ..errors import UserError
+from ..ply_io import SplatLayer, read_splat_ply
+from .engine import GpuLayer, LayerBuffers, ProxyMesh, draw_composite, draw_layer, draw_proxy, proxy_batch
+from .packing import pack_layer
+from .pinhole import PinholeView, from_region
+from .sort import DepthSorter
 
 MODES = {"composite": "COMPOSITE", "albedo": "ALBEDO", "shading": "SHADING", "residual": "RESIDUAL",
          "radiance": "ALBEDO"}
@@ -273,14 +265,12 @@ def _draw() -> None:
 
 def register() -> None:
     global _HANDLE
-    native_render.register()
     if _HANDLE is None:
         _HANDLE = bpy.types.SpaceView3D.draw_handler_add(_draw, (), "WINDOW", "POST_VIEW")
 
 
 def unregister() -> None:
     global _HANDLE
-    native_render.unregister()
     if _HANDLE is not None:
         bpy.types.SpaceView3D.draw_handler_remove(_HANDLE, "WINDOW")
         _HANDLE = None

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..igs_contract import events
-from ..igs_contract.events import parse_event
-from ..igs_contract.exit_codes import EXIT_BUSY, EXIT_CANCELLED, EXIT_OK, EXIT_USER
+from ...igs_contract import events
+from ...igs_contract.events import parse_event
+from ...igs_contract.exit_codes import EXIT_BUSY, EXIT_CANCELLED, EXIT_OK, EXIT_USER
 
 
 class BackendError(Exception):

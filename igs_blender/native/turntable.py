@@ -17,9 +17,9 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from . import camera_objects, capture_orbit, scene_objects
-from .cameras import SENSOR_WIDTH_MM, blender_matrix_world, read_workspace_cameras
-from .errors import UserError
+from .. import camera_objects, capture_orbit, scene_objects
+from ..cameras import SENSOR_WIDTH_MM, blender_matrix_world, read_workspace_cameras
+from ..errors import UserError
 
 CAMERA = "IGS Turntable"
 PREFIX = "frame_"
