@@ -34,7 +34,7 @@ def register() -> None:
 
     import bpy
 
-    from .igs_blender import jobs, light_bake, props
+    from .igs_blender import display, jobs, light_bake, props
     from .igs_blender.native import compositing
     from .igs_blender.viewport import overlay
 
@@ -45,7 +45,7 @@ def register() -> None:
         if not getattr(cls, "is_registered", False):
             bpy.utils.register_class(cls)
     props.register_pointer()
-    overlay.register()
+    overlay.register(display.viewport_engine_draws)
     compositing.register()
     light_bake.register()
     if _on_load_pre not in bpy.app.handlers.load_pre:

@@ -24,12 +24,11 @@ from pathlib import Path
 
 import bpy
 
-from . import edits, jobs, layers, lights, preferences, scene_objects
+from . import display, jobs, layers, lights, preferences, scene_objects
 from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
 from .env import backend_env
 from .errors import UserError
 from .jobs.client import BackendError, BackendJob
-from .native import splats as native_splats
 from .ply_io import read_splat_ply
 from .workspace_files import existing_workspace
 
@@ -87,16 +86,16 @@ def _reload_shading(scene: bpy.types.Scene, path: Path, key: str) -> bpy.types.O
     shading = read_splat_ply(path)
     if shading.kind != "shading":
         raise UserError(f"{path} holds a {shading.kind} layer, not a shading layer")
-    obj = layers.build_layer_object(layers.object_name("shading"), shading, max_points=props.max_points,
+    obj = display.build_layer_object(layers.object_name("shading"), shading, max_points=props.max_points,
                                     radius_scale=props.radius_scale, source=path)
     obj[KEY] = key
     loaded = layers.loaded_layers()
     if "composite" in loaded and "albedo" in loaded:
         albedo = read_splat_ply(Path(loaded["albedo"]["igs_ply"]))
         residual = read_splat_ply(Path(loaded["residual"]["igs_ply"])) if "residual" in loaded else None
-        layers.build_composite_object(albedo, shading, residual, max_points=props.max_points,
+        display.build_composite_object(albedo, shading, residual, max_points=props.max_points,
                                       radius_scale=props.radius_scale)
-    edits.apply_visibility()
+    display.apply_visibility()
     scene_objects.tag_redraw()
     return obj
 
@@ -148,7 +147,7 @@ def active(scene: bpy.types.Scene) -> bool:
     if props is None or not props.live_lights or not props.workspace:
         return False
     obj = shading_object()
-    return obj is not None and not native_splats.is_native(obj)
+    return obj is not None and not display.is_native(obj)
 
 
 def note_change(scene: bpy.types.Scene, now: float | None = None) -> bool:

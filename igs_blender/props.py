@@ -22,21 +22,21 @@ MIN_SELECTED = 20
 
 
 def _edit_visibility(self, context):
-    from . import edits
+    from . import display
 
-    edits.apply_visibility(self)
+    display.apply_visibility(self)
 
 
 def _layer_display(self, context):
-    from . import edits
+    from . import display
 
-    edits.apply_visibility()
+    display.apply_visibility()
 
 
 def _splat_view(self, context):
-    from . import edits, scene_objects
+    from . import display, scene_objects
 
-    edits.apply_visibility()
+    display.apply_visibility()
     scene_objects.tag_redraw(context)
 
 

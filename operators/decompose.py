@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..igs_blender import edits, layers
+from ..igs_blender import display
 from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
 from .job import BackendOperator, backend_job
@@ -29,13 +29,13 @@ def _load_results(context, kinds_wanted: tuple[str, ...], show: str | None = Non
     """Load the workspace's layers, show ``show`` (else the panel's choice); the point counts of ``kinds_wanted``."""
     props = context.scene.igs
     ws = existing_workspace(props.workspace)
-    objs = layers.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
+    objs = display.load_workspace_layers(ws, max_points=props.max_points, radius_scale=props.radius_scale,
                                         composite=props.build_composite)
     props.metrics_info = metrics_summary(ws)
     props.capture_info = capture_summary(ws)
     if show is not None and show in objs:
         props.layer_display = show  # its update shows it
-    edits.apply_visibility()
+    display.apply_visibility()
     shown = [k for k in objs if k in kinds_wanted or k == "composite"]
     return ", ".join(f"{k} {len(objs[k].data.points)}" for k in shown)
 

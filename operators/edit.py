@@ -21,7 +21,7 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
-from ..igs_blender import edits, layers, proxies, scene_objects
+from ..igs_blender import display, edit_objects, edits, layers, proxies, scene_objects
 from ..igs_blender.camera_objects import render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.jobs.client import BackendJob
@@ -240,13 +240,13 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
         ply = ws / "edits" / self._name / "albedo.ply"
-        obj = layers.load_layer(ply, name=layers.object_name("albedo", self._name), max_points=props.max_points,
+        obj = display.load_layer(ply, name=layers.object_name("albedo", self._name), max_points=props.max_points,
                                 radius_scale=props.radius_scale)
         _, item = edits.find(props, self._name)
         item.albedo = obj
         item.baked = True
         props.layer_display = "albedo"  # the edit changed the albedo: show it (the composite preview predates it)
-        edits.show_only(props, self._name)
+        edit_objects.show_only(props, self._name)
         props.capture_info = capture_summary(ws)
         return f"Baked edit '{self._name}': {len(obj.data.points)} albedo Gaussians shown"
 
@@ -365,7 +365,7 @@ class IGS_OT_remove_edit(bpy.types.Operator):
             except UserError as e:
                 tell(self, context, "ERROR", str(e))
                 return {"CANCELLED"}
-        edits.remove(props, self.name, ws, self.delete_files)
+        edit_objects.remove(props, self.name, ws, self.delete_files)
         tell(self, context, "INFO", f"Removed edit '{self.name}'" + (" and its files" if self.delete_files else ""))
         return {"FINISHED"}
 
@@ -379,7 +379,7 @@ class IGS_OT_load_edits(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
-        result = load_from_workspace(self, context, lambda ws: edits.load_workspace_edits(
+        result = load_from_workspace(self, context, lambda ws: edit_objects.load_workspace_edits(
             props, ws, max_points=props.max_points, radius_scale=props.radius_scale))
         if result is None:
             return {"CANCELLED"}
@@ -394,7 +394,7 @@ class IGS_OT_load_edits(bpy.types.Operator):
         shown = baked[0] if baked else loaded[0]
         if baked:
             props.layer_display = "albedo"
-        edits.show_only(props, shown)
+        edit_objects.show_only(props, shown)
         props.edits_index = edits.find(props, shown)[0]
         props.capture_info = capture_summary(ws)
         msg = (f"Loaded {len(loaded)} edit(s): {', '.join(loaded)}; {len(baked)} baked; showing '{shown}' "

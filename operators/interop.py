@@ -23,7 +23,7 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from ..igs_blender import jobs, layers, preferences, scene_objects
+from ..igs_blender import display, jobs, preferences, scene_objects
 from ..igs_blender.errors import UserError
 from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.ply_io import PLY_SUFFIXES, file_identity, read_splat_ply, with_identity
@@ -223,7 +223,7 @@ class IGS_OT_import_splat_file(BackendOperator, bpy.types.Operator):
         if own.status != "file" or kind or space:
             layer = with_identity(layer, kind or own.kind or layer.kind, space or own.space or layer.space)
         props = context.scene.igs
-        obj = layers.build_layer_object(f"IGS {source.name}", layer, max_points=props.max_points,
+        obj = display.build_layer_object(f"IGS {source.name}", layer, max_points=props.max_points,
                                         radius_scale=props.radius_scale, source=ply)
         obj["igs_imported_from"] = str(source)
         obj.hide_viewport = obj.hide_render = False

@@ -7,7 +7,7 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ..igs_blender import edits, layers, scene_objects
+from ..igs_blender import display, edits, layers, scene_objects
 from ..igs_blender.errors import UserError
 from ..igs_blender.native import compositing
 from ..igs_blender.ply_io import write_splat_ply
@@ -28,17 +28,17 @@ class IGS_OT_load_layers(bpy.types.Operator):
 
     def execute(self, context):
         props = context.scene.igs
-        loaded = load_from_workspace(self, context, lambda ws: layers.load_workspace_layers(
+        loaded = load_from_workspace(self, context, lambda ws: display.load_workspace_layers(
             ws, max_points=props.max_points, radius_scale=props.radius_scale, composite=props.build_composite))
         if loaded is None:
             return {"CANCELLED"}
         ws, objs = loaded
         props.metrics_info = metrics_summary(ws)
         missing = layers.composite_missing(objs)
-        native = layers.use_native()
+        native = display.use_native()
         # F12's A x S + R needs both fields: without one the render would be a wrong image, so say so instead
         notes = compositing.setup(context.scene) if native and not missing else []
-        edits.apply_visibility()
+        display.apply_visibility()
         msg = f"Loaded layers: {loaded_summary(objs)} (showing {layers.shown_kind(props.layer_display)})"
         if native and missing:
             msg += f"; F12 does not render A×S+R: {' and '.join(missing)} missing (run Decompose)"
@@ -76,7 +76,7 @@ class IGS_OT_export_layer(bpy.types.Operator):
     def execute(self, context):
         obj = context.active_object
         try:
-            layer = layers.layer_from_object(obj)
+            layer = display.layer_from_object(obj)
             if not self.filepath:
                 raise UserError("choose a file to write")
             path = write_splat_ply(Path(bpy.path.abspath(self.filepath)), layer)

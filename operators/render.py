@@ -26,7 +26,7 @@ import numpy as np
 from bpy.props import EnumProperty
 from mathutils import Matrix, Vector
 
-from ..igs_blender import compat, edits, images, layers, lights, scene_objects
+from ..igs_blender import compat, display, edits, images, layers, lights, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
 from ..igs_blender.cameras import turntable_matrices
 from ..igs_blender.errors import UserError
@@ -116,7 +116,7 @@ def native_ready(context) -> None:
     if not compositing.is_set_up(context.scene):
         compositing.setup(context.scene)
     compositing.gather_loose(context.scene)
-    edits.apply_visibility()  # the edit the render uses, the previewed proxy, then the view layers
+    display.apply_visibility()  # the edit the render uses, the previewed proxy, then the view layers
 
 
 def _interactive(context) -> bool:
@@ -127,12 +127,12 @@ class _NativeOrBackend(BackendOperator):
     """Blender renders with native splats (:meth:`native`), the backend otherwise (the job)."""
 
     def execute(self, context):
-        if layers.use_native():
+        if display.use_native():
             return self._native(context)
         return BackendOperator.execute(self, context)
 
     def invoke(self, context, event):
-        if layers.use_native():
+        if display.use_native():
             return self._native(context)
         return BackendOperator.invoke(self, context, event)
 

@@ -7,7 +7,7 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import edits, layers, light_bake, lights, preferences, scene_objects
+from ..igs_blender import display, edits, layers, light_bake, lights, preferences, scene_objects
 from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
 from ..igs_blender.errors import UserError
 from ..igs_blender.native import compositing
@@ -172,7 +172,7 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         props = context.scene.igs
-        native = layers.use_native()
+        native = display.use_native()
         col = layout.column()
         col.prop(props, "max_points", text="Max Points (0 = all)")
         if not native:  # Blender sizes its own splats
@@ -338,7 +338,7 @@ class IGS_PT_render(_SubPanel, bpy.types.Panel):
         props = scene.igs
         layout.prop(props, "render_layer")
         layout.prop(props, "render_edit")
-        if layers.use_native():
+        if display.use_native():
             _native_render_info(layout, scene, context)
         row = layout.row()
         row.scale_y = 1.3

@@ -132,7 +132,7 @@ def render(addon: Addon, ws: Path, size: tuple[int, int], samples: int) -> list[
         sun.hide_render = not on
         bpy.context.view_layer.update()
         with tempfile.TemporaryDirectory() as tmp:
-            frames.append(addon.native_outputs.render_outputs(Path(tmp), ("Image",))["Image"])
+            frames.append(addon.outputs.render_outputs(Path(tmp), ("Image",))["Image"])
     return frames
 
 

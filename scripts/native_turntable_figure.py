@@ -39,7 +39,7 @@ def build_scene(addon: Addon, ws: Path, edit: str, samples: int, frames: int,
         raise IGSError(f"{ws}: no edit {edit!r} (the workspace has {', '.join(names) or 'none'})")
     props.edits_index = names.index(edit)
     props.render_edit = True
-    addon.edits.apply_visibility()
+    addon.display.apply_visibility()
     # a mesh on the floor: in front of the walls, behind the room's middle from the far side
     bpy.ops.mesh.primitive_monkey_add(size=0.5, location=mesh_at, rotation=(0.0, 0.0, 2.4))
     monkey = bpy.context.active_object
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         report = scene.igs.last_report
         print(report)
         out_dir = Path(report.split(" into ")[1].split(" and ")[0])
-        frames = addon.native_turntable.frames_written(out_dir)
+        frames = addon.turntable.frames_written(out_dir)
         import cv2
 
         cv2.imwrite(str(args.out), grid(frames, args.columns), [cv2.IMWRITE_JPEG_QUALITY, 90])

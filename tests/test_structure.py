@@ -58,6 +58,15 @@ def _sources() -> dict[str, Path]:
     return out
 
 
+EXTENSION_PACKAGE = "intrinsic_splats"
+"""The extension folder as a package (tests/support/addon_package.py): ``intrinsic_splats.igs_blender.x`` is
+``igs_blender.x`` of this checkout."""
+
+
+def _ours(module: str) -> str:
+    return module[len(EXTENSION_PACKAGE) + 1:] if module.startswith(EXTENSION_PACKAGE + ".") else module
+
+
 def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     """The modules of ours that ``name`` imports: ``from pkg import mod`` names the module when
     ``pkg.mod`` is one, else the package itself (its ``__init__``)."""
@@ -65,7 +74,7 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     found: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
         if isinstance(node, ast.Import):
-            targets = [alias.name for alias in node.names]
+            targets = [_ours(alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 parts = [] if package == "__init__" else package.split(".")
@@ -73,7 +82,7 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
                     continue  # above the repository: the extension's parent package once installed
                 stem = ".".join([*parts[: len(parts) - (node.level - 1)], *([node.module] if node.module else [])])
             else:
-                stem = node.module or ""
+                stem = _ours(node.module or "")
             targets = []
             for alias in node.names:
                 sub = f"{stem}.{alias.name}" if stem else alias.name
@@ -130,6 +139,18 @@ def test_the_backend_reaches_the_addon_only_through_the_test_helper(graph):
     loaders = sorted(p.relative_to(REPO).as_posix() for p in (REPO / "backend").rglob("*.py")
                      if "spec_from_file_location" in p.read_text(encoding="utf-8"))
     assert loaders == [], f"loads a file as a module where the import graph cannot see it: {loaders}"
+    by_name = sorted(f"{p.relative_to(REPO).as_posix()}:{n.lineno}" for p in (REPO / "backend").rglob("*.py")
+                     for n in ast.walk(ast.parse(p.read_text(encoding="utf-8")))
+                     if isinstance(n, ast.Call) and _called(n) in ("import_module", "__import__")
+                     and any(isinstance(c, ast.Constant) and isinstance(c.value, str)
+                             and any(top in c.value for top in (*ADDON_PACKAGES, EXTENSION_PACKAGE))
+                             for a in n.args for c in ast.walk(a)))
+    assert by_name == [], f"imports the add-on by a name made at run time (the graph cannot see it): {by_name}"
+
+
+def _called(call: ast.Call) -> str:
+    f = call.func
+    return f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else ""
 
 
 # Shipped with the add-on but run BY the backend's interpreter (it reports whether torch and the
@@ -192,6 +213,11 @@ def _addon_back_edges(graph: dict[str, set[str]]) -> list[str]:
 def test_every_addon_module_is_on_a_floor(graph):
     homeless = [m for m in graph if m == "__init__" or m.split(".")[0] in ADDON_PACKAGES if _floor(m) is None]
     assert homeless == [], f"add-on modules outside the floors {ADDON_FLOORS}: {homeless}"
+
+
+def test_no_addon_floor_imports_one_above_it(graph):
+    back = _addon_back_edges(graph)
+    assert back == [], "add-on imports against its floors (or between native and viewport):\n" + "\n".join(back)
 
 
 def test_jobs_and_env_import_no_bpy():

@@ -83,7 +83,7 @@ def flow():
     import gpu
     import intrinsic_splats
     intrinsic_splats.register()
-    from intrinsic_splats.igs_blender import edits, layers, ply_io
+    from intrinsic_splats.igs_blender import display, edit_objects, layers, ply_io
     from intrinsic_splats.igs_blender.viewport import agreement, engine, overlay, packing, pinhole
 
     RESULT["gpu"] = f"{gpu.platform.renderer_get()} ({gpu.platform.version_get()})"
@@ -124,11 +124,11 @@ def flow():
             if obj.type == "POINTCLOUD":
                 bpy.data.objects.remove(obj)
         overlay.VIEW.free()
-        layers.load_layer(path, name=layers.object_name("albedo"), max_points=0)
+        display.load_layer(path, name=layers.object_name("albedo"), max_points=0)
         props.layer_display = "albedo"
         row = {"splats": n, "viewport": [region.width, region.height]}
         props.splat_view = False
-        edits.apply_visibility()
+        display.apply_visibility()
         frames(2)
         yield 15.0  # EEVEE compiles its shaders for the points on first draw (seconds on llvmpipe)
         frames(1)
@@ -159,10 +159,10 @@ def flow():
         if obj.type == "POINTCLOUD":
             bpy.data.objects.remove(obj)
     overlay.VIEW.free()
-    layers.load_workspace_layers(ws, max_points=100_000)
+    display.load_workspace_layers(ws, max_points=100_000)
     props.layer_display = "composite"
     props.splat_view = True
-    edits.apply_visibility()
+    display.apply_visibility()
     frames(2)
     RESULT["composite"] = {"splats": sum(len(x.means) for x in ws_layers.values()),
                            "viewport": [region.width, region.height],
@@ -171,13 +171,13 @@ def flow():
     frames(2)
     yield 1.0
     shot("30-viewport-composite")
-    for display, name in (("albedo", "31-viewport-albedo"), ("shading", "32-viewport-shading")):
-        props.layer_display = display
+    for shown, name in (("albedo", "31-viewport-albedo"), ("shading", "32-viewport-shading")):
+        props.layer_display = shown
         frames(1)
         yield 1.0
         shot(name)
     props.layer_display = "composite"
-    loaded, failed = edits.load_workspace_edits(props, ws)
+    loaded, failed = edit_objects.load_workspace_edits(props, ws)
     RESULT["edits"] = {"loaded": loaded, "failed": failed}
     if loaded:
         look_from(views[CONFIG.get("edit_view") or first])

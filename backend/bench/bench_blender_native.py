@@ -27,7 +27,6 @@ Writes JSON (``--out``) and prints a table. The workspace is only read.
 from __future__ import annotations
 
 import argparse
-import importlib
 import math
 import sys
 import tempfile
@@ -104,9 +103,10 @@ class Addon:
         self.package = sys.modules[addon_package.NAME]
         bpy.ops.wm.read_homefile(use_empty=True)
         self.package.register()
-
-    def __getattr__(self, name: str):
-        return importlib.import_module(f"{self.package.__name__}.igs_blender.{name}")
+        modules = addon_package.scene_modules()
+        self.camera_objects, self.compat, self.display = modules.camera_objects, modules.compat, modules.display
+        self.images, self.layers, self.ply_io = modules.images, modules.layers, modules.ply_io
+        self.compositing, self.outputs, self.turntable = modules.compositing, modules.outputs, modules.turntable
 
     def fresh(self):
         self.bpy.ops.wm.read_homefile(use_empty=True)
@@ -135,7 +135,7 @@ def set_engine(scene, engine: Engine, cfg: BenchConfig) -> None:
 
 def render_outputs(addon: Addon, folder: Path, outputs=OUTPUTS) -> dict[str, np.ndarray]:
     """F12 with the composite group's ``outputs`` read back: linear (H, W, 3) float64 by output."""
-    return addon.native_outputs.render_outputs(folder, tuple(outputs))
+    return addon.outputs.render_outputs(folder, tuple(outputs))
 
 
 def engine_works(addon: Addon, engine: Engine, cfg: BenchConfig) -> str | None:
@@ -181,9 +181,9 @@ def agreement(addon: Addon, ws: Path, engines: list[Engine], cfg: BenchConfig, t
     scene = addon.fresh()
     scene.igs.workspace = str(ws)
     addon.camera_objects.import_cameras(scene, ws, backgrounds=False)
-    addon.layers.load_workspace_layers(ws, composite=False)
-    addon.native_render.setup(scene)
-    addon.edits.apply_visibility()
+    addon.display.load_workspace_layers(ws, composite=False)
+    addon.compositing.setup(scene)
+    addon.display.apply_visibility()
     rows = []
     for engine in engines:
         set_engine(scene, engine, cfg)
@@ -317,7 +317,7 @@ def kernel(addon: Addon, engine: Engine, cfg: BenchConfig, tmp: Path) -> list[di
     scales = np.stack([sig_m, np.full(n, 1e-4), sig_m], 1)
     layer = splat_layer(addon, "albedo", means, scales, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), 0.5),
                         np.full(n, 0.99))
-    obj = addon.layers.build_layer_object("IGS kernel", layer)
+    obj = addon.display.build_layer_object("IGS kernel", layer)
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"
     scene.render.filepath = str(tmp / f"kernel-{engine}.exr")
@@ -357,9 +357,9 @@ def ordering(addon: Addon, engine: Engine, cfg: BenchConfig, tmp: Path) -> dict[
         quats = [[math.cos(math.radians(a) / 2), 0.0, 0.0, math.sin(math.radians(a) / 2)] for a in angles]
         layer = splat_layer(addon, "albedo", [[0.0, -0.01, 0.0], [0.0, 0.01, 0.0]], [[0.35, 0.002, 0.3]] * 2, quats,
                             [[0.9, 0.1, 0.1], [0.1, 0.1, 0.9]], [0.95, 0.95])
-        addon.layers.build_layer_object(addon.layers.object_name("albedo"), layer)
-        addon.native_render.setup(scene)
-        addon.edits.apply_visibility()
+        addon.display.build_layer_object(addon.layers.object_name("albedo"), layer)
+        addon.compositing.setup(scene)
+        addon.display.apply_visibility()
         got = render_outputs(addon, tmp / f"order-{engine}-{name}", ("Albedo",))["Albedo"]
         import torch
 
@@ -396,9 +396,9 @@ def timing(addon: Addon, engine: Engine, cfg: BenchConfig, tmp: Path, log) -> li
     for n in cfg.counts:
         scene = addon.fresh()
         for kind, layer in wall_layers(addon, n).items():
-            addon.layers.build_layer_object(addon.layers.object_name(kind), layer)
-        addon.native_render.setup(scene)
-        addon.edits.apply_visibility()
+            addon.display.build_layer_object(addon.layers.object_name(kind), layer)
+        addon.compositing.setup(scene)
+        addon.display.apply_visibility()
         front_camera(addon, scene, 16, 12)
         set_engine(scene, engine, cfg)
         scene.render.filepath = str(tmp / "warm.png")

@@ -29,14 +29,13 @@ import json
 import bpy
 import numpy as np
 
-from .. import compat, scene_objects
+from .. import compat, layers, scene_objects
 from ..ply_io import FILTER, SplatLayer
 from ..point_attributes import get_point_attribute, set_point_attribute
 from . import colors as native_colors
 
 WHAT = "a Gaussian splat layer"  # what a point cloud lacking an attribute is not, in the error
 
-LAYERS_COLLECTION = "IGS Layers"
 """The add-on's collection of layer objects (the fields' collections are inside it)."""
 BASE = "radiance:base"
 REST = "radiance:sh_{}"
@@ -51,7 +50,7 @@ PLAIN_KINDS = ("albedo", "shading")
 
 def field_collection(field: str) -> bpy.types.Collection:
     """The collection of one field's splat objects, inside the add-on's "IGS Layers"."""
-    return scene_objects.collection(field_collection_name(field), scene_objects.collection(LAYERS_COLLECTION))
+    return scene_objects.collection(field_collection_name(field), scene_objects.collection(layers.COLLECTION))
 
 
 def field_collection_name(field: str) -> str:
@@ -198,3 +197,20 @@ def recolor(obj: bpy.types.Object, linear_rgb: np.ndarray) -> None:
     f_dc = ((np.asarray(linear_rgb, dtype=np.float64) - 0.5) / native_colors.C0).astype(np.float32)
     base[:, :3], _ = native_colors.encode(f_dc, np.zeros((len(f_dc), 0, 3), np.float32), "linear")
     pc.attributes[BASE].data.foreach_set("vector", base.ravel())
+
+
+def show_layers(props) -> None:
+    """The viewport shows one layer, the panel's ``layer_display`` (or the first loaded one), and each visible
+    edit's proxy, but only through ``hide_viewport``: what renders is each view layer's business
+    (:mod:`.compositing`), which needs every field."""
+    shown = layers.shown_kind(props.layer_display) or "albedo"
+    edited_shown = False
+    for item in props.edits:
+        if item.proxy is not None:
+            item.proxy.hide_viewport = not item.visible
+        if item.albedo is not None:
+            item.albedo.hide_viewport = not (item.visible and shown == "albedo")
+        edited_shown |= item.visible and item.albedo is not None
+    for kind, obj in layers.loaded_layers().items():
+        obj.hide_viewport = kind != shown or (kind == "albedo" and edited_shown)
+        obj.hide_render = False

@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,7 @@ import numpy as np
 from .. import edits, layers, proxies, scene_objects
 from ..errors import UserError
 from ..ply_io import SplatLayer, read_splat_ply
+from . import point_clouds
 from .engine import GpuLayer, LayerBuffers, ProxyMesh, draw_composite, draw_layer, draw_proxy, proxy_batch
 from .packing import pack_layer
 from .pinhole import PinholeView, from_region
@@ -51,7 +53,7 @@ class Source:
     def load(self) -> SplatLayer:
         if self.path is not None:
             return read_splat_ply(self.path)
-        return layers.layer_from_object(bpy.data.objects[self.obj_name])
+        return point_clouds.layer_from_point_cloud(bpy.data.objects[self.obj_name])
 
 
 def _source(obj) -> Source | None:
@@ -201,6 +203,14 @@ VIEW = SplatView()
 _HANDLE = None
 
 
+def _always() -> bool:
+    return True
+
+
+_engine_draws: Callable[[], bool] = _always
+"""Whether this engine draws the splats now; the display seam says, through :func:`register`."""
+
+
 def _watch_sorts() -> None:
     if not bpy.app.timers.is_registered(_poll_sorts):
         bpy.app.timers.register(_poll_sorts, first_interval=0.02)
@@ -226,7 +236,7 @@ def region_view(context, props) -> PinholeView | None:
 def _draw() -> None:
     context = bpy.context
     props = getattr(context.scene, "igs", None)
-    if props is None or not props.splat_view or layers.use_native():  # native splats: Blender draws them
+    if props is None or not props.splat_view or not _engine_draws():  # native splats: Blender draws them
         return
     t0 = time.perf_counter()
     keys = None
@@ -263,8 +273,10 @@ def _draw() -> None:
                    f"{1000 * float(np.median(VIEW.frame_s)):.0f} ms a frame (CPU side)")
 
 
-def register() -> None:
-    global _HANDLE
+def register(engine_draws: Callable[[], bool]) -> None:
+    """Draw in every 3D view while ``engine_draws()`` (the display seam's choice: not with native splats)."""
+    global _HANDLE, _engine_draws
+    _engine_draws = engine_draws
     if _HANDLE is None:
         _HANDLE = bpy.types.SpaceView3D.draw_handler_add(_draw, (), "WINDOW", "POST_VIEW")
 

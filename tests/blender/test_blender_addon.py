@@ -156,7 +156,7 @@ def test_layers_become_point_clouds_carrying_every_gaussian_parameter(scene, tmp
         if kind == "residual":
             assert "f_rest_15" in obj.data.attributes and "f_rest_16" not in obj.data.attributes
         # The proxy round-trips to the same Gaussians (the backend reads what the add-on writes).
-        out = ply_io.write_splat_ply(tmp_path / f"rt_{kind}.ply", sub("layers").layer_from_object(obj))
+        out = ply_io.write_splat_ply(tmp_path / f"rt_{kind}.ply", sub("display").layer_from_object(obj))
         back, info = read_ply(out)
         assert info.kind == kind
         for key, value in g.params.items():
@@ -185,12 +185,12 @@ def test_layers_become_point_clouds_carrying_every_gaussian_parameter(scene, tmp
 
 def test_splat_material_shows_the_colour_attribute_when_rendered(scene, tmp_path):
     """Cycles renders a layer point with its colour attribute (the shader Material Preview uses too)."""
-    ply_io, layers = sub("ply_io"), sub("layers")
+    ply_io, display = sub("ply_io"), sub("display")
     colour = np.array([0.2, 0.6, 0.9])
     layer = ply_io.SplatLayer("albedo", np.zeros((1, 3), np.float32), ((colour - 0.5) / ply_io.C0)[None].astype(np.float32),
                               np.zeros((1, 0, 3), np.float32), np.array([9.0], np.float32),
                               np.log(np.full((1, 3), 0.5, np.float32)), np.array([[1, 0, 0, 0]], np.float32))
-    layers.build_layer_object("IGS albedo", layer)
+    display.build_layer_object("IGS albedo", layer)
     cam_data = bpy.data.cameras.new("c")
     cam = bpy.data.objects.new("c", cam_data)
     scene.collection.objects.link(cam)

@@ -243,7 +243,7 @@ def test_moving_a_light_in_the_collection_rebakes_the_shading_layer(scene, tmp_p
     bake.LIVE.reset()
     props = scene.igs
     shading = bpy.data.objects["IGS shading"]
-    unlit_dc = sub("layers").layer_from_object(shading).f_dc.copy()
+    unlit_dc = sub("display").layer_from_object(shading).f_dc.copy()
 
     bpy.ops.igs.add_light(kind="POINT")
     light = bpy.context.active_object
@@ -253,7 +253,7 @@ def test_moving_a_light_in_the_collection_rebakes_the_shading_layer(scene, tmp_p
     _run_pending(bake, bake.LIVE.changed_at)
     shading = bpy.data.objects["IGS shading"]
     assert Path(shading["igs_ply"]) == ws / "layers" / "lit" / "shading.ply", props.last_report
-    np.testing.assert_allclose(sub("layers").layer_from_object(shading).f_dc, unlit_dc + 0.25, atol=1e-5)
+    np.testing.assert_allclose(sub("display").layer_from_object(shading).f_dc, unlit_dc + 0.25, atol=1e-5)
     assert "lit by 1 light(s)" in props.last_report and props.job_label == "Light bake"
     sent = read_lights(ws / "layers" / "lit" / "light.json")
     np.testing.assert_allclose(sent[0]["position"], [0.3, 0.2, 1.0], atol=1e-6)
@@ -278,7 +278,7 @@ def test_moving_a_light_in_the_collection_rebakes_the_shading_layer(scene, tmp_p
     _run_pending(bake, bake.LIVE.changed_at)
     shading = bpy.data.objects["IGS shading"]
     assert Path(shading["igs_ply"]) == ws / "layers" / "shading.ply" and not shading.get("igs_lights")
-    np.testing.assert_allclose(sub("layers").layer_from_object(shading).f_dc, unlit_dc, atol=1e-6)
+    np.testing.assert_allclose(sub("display").layer_from_object(shading).f_dc, unlit_dc, atol=1e-6)
     assert len(_argvs(ws)) == 2
 
     light.hide_set(False)  # Bake Lights from the panel, as a script calls it
@@ -419,8 +419,8 @@ def test_real_light_bake_lights_the_floor_with_the_plates_shadow_and_follows_the
         sent = read_lights(ws / "layers" / "lit" / "light.json")
         np.testing.assert_allclose(sent[0]["position"], light_at, atol=1e-6)
         lit = read_ply(ws / "layers" / "lit" / "shading.ply", kind="shading")[0].params["colors"].detach().numpy()
-        ply_io, layers = sub("ply_io"), sub("layers")
-        np.testing.assert_allclose(layers.layer_from_object(shading).f_dc,
+        ply_io, display = sub("ply_io"), sub("display")
+        np.testing.assert_allclose(display.layer_from_object(shading).f_dc,
                                    ply_io.read_splat_ply(ws / "layers" / "lit" / "shading.ply").f_dc, atol=1e-6)
         return (lit - unlit).mean(axis=1), seconds
 

@@ -132,7 +132,7 @@ def test_a_foreign_ply_gets_the_attributes_blenders_own_importer_gives(scene, tm
     g = wall("radiance", 50, 4, sh_degree=2)
     path = write_ply(tmp_path / "foreign.ply", g, space="srgb")
     layer = sub("ply_io").read_splat_ply(path)
-    ours = sub("layers").build_layer_object("IGS foreign", layer)
+    ours = sub("display").build_layer_object("IGS foreign", layer)
     assert bpy.ops.wm.ply_import(filepath=str(path)) == {"FINISHED"}
     theirs = next(o for o in bpy.data.objects if o.type == "POINTCLOUD" and o is not ours)
     assert theirs.data.type == "GAUSSIAN_SPLAT"
@@ -171,7 +171,7 @@ def test_single_splats_render_their_linear_values_above_1_and_below_0(scene, tmp
     layer = ply_io.SplatLayer("shading", means, f_dc, np.zeros((n, 0, 3), np.float32), np.full(n, 9.0, np.float32),
                               np.log(np.full((n, 3), 0.1, np.float32)),
                               np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)), encoding="rgb")
-    sub("layers").build_layer_object("IGS values", layer)
+    sub("display").build_layer_object("IGS values", layer)
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     scene.collection.objects.link(cam)
     scene.camera = cam
@@ -276,7 +276,7 @@ def test_the_edit_preview_shows_the_proxy_over_the_albedo_then_the_baked_albedo(
     obj.select_set(True)
     assert bpy.ops.igs.use_selection_as_proxy() == {"FINISHED"}
     proxies.set_proxy_color(obj, (0.9, 0.1, 0.05))
-    sub("edits").apply_visibility()
+    sub("display").apply_visibility()
     assert scene.view_layers["IGS Edit Preview"].use
     assert [c.name for c in obj.users_collection] == ["IGS Edits"]  # an edit of the albedo, not a scene mesh
     got = render_outputs(scene, tmp_path / "preview")
@@ -292,9 +292,9 @@ def test_the_edit_preview_shows_the_proxy_over_the_albedo_then_the_baked_albedo(
     ply = ws / "edits" / "decal" / "albedo.ply"
     write_ply(ply, baked)
     item = sub("edits").find(props, "decal")[1]
-    item.albedo = sub("layers").load_layer(ply, name="IGS albedo [decal]")
+    item.albedo = sub("display").load_layer(ply, name="IGS albedo [decal]")
     item.baked = True
-    sub("edits").apply_visibility()
+    sub("display").apply_visibility()
     assert not scene.view_layers["IGS Edit Preview"].use
     assert bpy.data.objects["IGS albedo"].hide_render and not item.albedo.hide_render
     got = render_outputs(scene, tmp_path / "baked", ("Albedo",))

@@ -379,14 +379,14 @@ def test_a_baked_edit_is_lit_in_its_new_colour(scene, tmp_path):
     g = read_ply(ws / "layers" / "albedo.ply", kind="albedo")[0]
     g.params["colors"].data[:] = float(np.log(0.8 / 0.2))  # albedo stores the logit of its colour
     ply = write_ply(ws / "edits" / "paint" / "albedo.ply", g)
-    edits, layers = sub("edits"), sub("layers")
+    edits, layers, display = sub("edits"), sub("layers"), sub("display")
     props = scene.igs
     item = edits.ensure(props, "paint")
-    item.albedo = layers.load_layer(ply, name=layers.object_name("albedo", "paint"))
+    item.albedo = display.load_layer(ply, name=layers.object_name("albedo", "paint"))
     item.baked = True
     props.edits_index = len(props.edits) - 1
     props.render_edit = True
-    edits.apply_visibility()
+    display.apply_visibility()
     shadows = bpy.data.collections["IGS Field shadow"].objects
     assert not shadows[f"{item.albedo.name} shadow"].hide_render and shadows["IGS albedo shadow"].hide_render
     after = added("after")

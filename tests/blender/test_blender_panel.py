@@ -354,7 +354,7 @@ def test_load_edits_brings_command_line_edits_into_the_scene(scene, tmp_path, bo
     props.layer_display = "composite"  # no composite (no shading layer): the first loaded layer shows
     assert visible_layers() == {"IGS albedo [baked]"}
     bpy.data.objects.remove(bpy.data.objects["IGS albedo"])  # edits loaded without the layers
-    sub("edits").apply_visibility()
+    sub("display").apply_visibility()
     assert visible_layers() == {"IGS albedo [baked]"}
 
 
