@@ -1,9 +1,10 @@
 """The add-on core, run by Blender's own Python (bpy + numpy, never torch or the backend).
 
-Modules: ``client`` and ``jobs`` (the backend subprocess and its JSON-lines events, no bpy),
-``backend_env`` (interpreter, shipped sources, pinned requirements), ``ply_io`` (splat PLYs with
-numpy), ``cameras`` (the workspace's cameras <-> Blender camera maths), ``layers`` / ``proxies`` /
-``camera_objects`` / ``edits`` / ``scene_objects`` (the scene side), ``compat`` (everything that
-differs between Blender versions), ``preferences`` and ``props`` (settings), ``addon_id`` (the
-add-on's id). The extension's root module registers them with the operators and panels.
+Its wings, from the ground up (docs/structure.md draws them): ``jobs`` (the backend process, the current
+job and its command lines; no bpy), ``env`` (the backend's environment, its checks and the CUDA build;
+no bpy), the scene modules at this level (layers' names and files, edits, proxies, lights, cameras,
+scene objects, PLY files, compat, preferences), ``native`` (Blender 5.3's splats and render) beside
+``viewport`` (our own engine and the point clouds), ``display`` (the one face that picks between
+them), then the scene modules that use it (``edit_objects``, ``light_bake``, ``splat_files``,
+``props``). The extension's root module registers them with the operators and panels.
 """

@@ -16,6 +16,7 @@ from .cameras import (
     from_blender_matrix_world,
     intrinsics_from_blender,
     read_workspace_cameras,
+    turntable_matrices,
 )
 from .errors import UserError
 
@@ -183,3 +184,21 @@ def render_region_rect(scene: bpy.types.Scene, obj: bpy.types.Object) -> tuple[i
     if rect == (0, 0, w, h):
         raise UserError("the render region covers the whole frame; drag a rectangle around the surface with Ctrl+B")
     return rect
+
+
+def turntable_target(context):
+    """The centre of the Render panel's turntable: the 3D cursor, or the selection's centre (Target)."""
+    scene = context.scene
+    if scene.igs.turntable_target == "CURSOR":
+        return scene.cursor.location.copy()
+    return scene_objects.selection_center(context)
+
+
+def turntable_world_matrices(context) -> np.ndarray:
+    """(frames, 4, 4) Blender camera matrices of the Render panel's turntable around :func:`turntable_target`:
+    at its Radius and Height, or on the orbit fitted to the capture (Radius 0, :func:`capture_orbit`)."""
+    props = context.scene.igs
+    target = turntable_target(context)
+    radius, height = ((props.turntable_radius, props.turntable_height) if props.turntable_radius > 0
+                      else capture_orbit(target))
+    return turntable_matrices(np.array(target), radius, height, props.turntable_frames)

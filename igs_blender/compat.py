@@ -28,6 +28,17 @@ def use_nodes(material: bpy.types.Material) -> None:
         material.use_nodes = True
 
 
+def emptied_node_material(name: str) -> tuple[bpy.types.Material, bpy.types.Nodes, bpy.types.NodeLinks,
+                                               bpy.types.Node]:
+    """The material ``name`` (made when missing) with a node tree holding only a Material Output: (the material,
+    its nodes, its links, the output node), for a caller that builds its shader anew."""
+    mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
+    use_nodes(mat)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    return mat, nodes, links, nodes.new("ShaderNodeOutputMaterial")
+
+
 def set_dithered_transparency(material: bpy.types.Material) -> None:
     """Let a material's alpha (splat opacity) show in EEVEE without sorting problems."""
     if hasattr(material, "surface_render_method"):  # 4.2+

@@ -1,5 +1,5 @@
-"""An edit's objects in the scene: its proxy and baked albedo loaded from the workspace, one edit shown, one
-removed (with its folder when asked)."""
+"""An edit's objects in the scene: its proxy and baked albedo loaded from the workspace, one edit shown or
+selected, one removed (with its folder when asked), the image painted on a proxy."""
 
 from __future__ import annotations
 
@@ -75,3 +75,86 @@ def load_workspace_edits(props, workspace: Path, *, max_points: int = 0, radius_
         item.baked = albedo is not None
         loaded.append(name)
     return loaded, failed
+
+
+def attach_proxy(props, name: str, obj: bpy.types.Object) -> None:
+    """Make ``obj`` the (not yet baked) proxy of the edit ``name``, added and selected in the list when missing,
+    and show it (the list's eye)."""
+    item = edits.ensure(props, name)
+    item.proxy = obj
+    item.baked = False
+    item.visible = True  # the update callback shows it
+
+
+def select_only(context, obj: bpy.types.Object) -> None:
+    """Select ``obj`` alone, make it active and visible, with the move/rotate/scale gizmos on."""
+    for other in context.view_layer.objects.selected:
+        other.select_set(False)
+    obj.hide_viewport = False
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+    space = context.space_data
+    if space is not None and space.type == "VIEW_3D":  # the move/rotate/scale gizmos on the proxy
+        space.show_gizmo_object_translate = True
+        space.show_gizmo_object_rotate = True
+        space.show_gizmo_object_scale = True
+
+
+def apply_fill(props, obj: bpy.types.Object) -> None:
+    """Give a freshly fitted proxy the panel's colour unless its file brought a texture."""
+    if proxies.proxy_image(obj) is None:
+        proxies.set_proxy_color(obj, props.edit_color)
+
+
+def paint_image_name(edit: str) -> str:
+    return f"IGS Paint {edit}"
+
+
+def new_paint_image(edit: str, path: Path) -> bpy.types.Image:
+    """A fresh image "IGS Paint <edit>" read from ``path`` (an earlier one of that edit is replaced)."""
+    name = paint_image_name(edit)
+    old = bpy.data.images.get(name)
+    if old is not None:
+        bpy.data.images.remove(old)  # it read the same file, which now holds a new projection
+    try:
+        image = bpy.data.images.load(str(path), check_existing=False)
+    except RuntimeError as e:
+        raise UserError(f"cannot read the projected texture {path}: {e}") from e
+    image.name = name
+    return image
+
+
+def name_paint_image(ws: Path, name: str, obj: bpy.types.Object) -> None:
+    """A loaded proxy painted with Paint shows ``paint.png`` of its edit: name the image as Paint does."""
+    image = proxies.proxy_image(obj) if obj is not None else None
+    if image is None or not image.filepath or paint_image_name(name) in bpy.data.images:
+        return
+    path = Path(bpy.path.abspath(image.filepath)).resolve()
+    if path == (ws / "edits" / name / "paint.png").resolve():
+        image.name = paint_image_name(name)
+
+
+def show_baked(props, ws: Path, name: str) -> bpy.types.Object:
+    """A bake's result: the edit's ``albedo.ply`` loaded as its albedo and shown alone; returns that object."""
+    obj = display.load_layer(ws / "edits" / name / "albedo.ply", name=layers.object_name("albedo", name),
+                             max_points=props.max_points, radius_scale=props.radius_scale)
+    _, item = edits.find(props, name)
+    item.albedo = obj
+    item.baked = True
+    props.layer_display = "albedo"  # the edit changed the albedo: show it (the composite preview predates it)
+    show_only(props, name)
+    return obj
+
+
+def show_loaded(props, ws: Path, loaded: list[str]) -> tuple[str, list[str]]:
+    """After Load Edits: the painted proxies' images named as Paint names them, and one edit shown, the first
+    baked one (with the albedo) else the first loaded; returns (the shown edit, the baked ones)."""
+    for name in loaded:
+        name_paint_image(ws, name, edits.find(props, name)[1].proxy)
+    baked = [n for n in loaded if edits.find(props, n)[1].baked]
+    shown = baked[0] if baked else loaded[0]
+    if baked:
+        props.layer_display = "albedo"
+    show_only(props, shown)
+    props.edits_index = edits.find(props, shown)[0]
+    return shown, baked

@@ -26,15 +26,14 @@ import bpy
 
 from . import display, jobs, layers, lights, preferences, scene_objects
 from .app_handlers import add_depsgraph_handler, remove_depsgraph_handler
-from .env import backend_env
 from .errors import UserError
-from .jobs.client import BackendError, BackendJob
+from .jobs import commands
+from .jobs.client import BackendJob
 from .ply_io import read_splat_ply
 from .workspace_files import existing_workspace
 
 LIT = Path("layers") / "lit" / "shading.ply"
 """The lit shading layer ``light-bake`` writes into the workspace."""
-COMMAND = "light-bake"
 LABEL = "Light bake"
 DEBOUNCE_S = 1.0
 """Seconds the lights must stay still before a bake starts (a drag is one bake, not one per frame)."""
@@ -71,10 +70,7 @@ def bake_job(context, scene: bpy.types.Scene) -> tuple[BackendJob, str]:
     ws = existing_workspace(scene.igs.workspace)
     specs = lights.lights_specs(scene)
     path = lights.write_scene_lights(scene, ws, specs)
-    prefs = preferences.get(context)
-    job = backend_env.backend_job(preferences.interpreter(context), [COMMAND, ws, "--light", path], LABEL,
-                                  root=prefs.backend_root)
-    return job, key_of(specs)
+    return preferences.backend_job(context, commands.light_bake(ws, light=path), LABEL), key_of(specs)
 
 
 def _reload_shading(scene: bpy.types.Scene, path: Path, key: str) -> bpy.types.Object:
@@ -206,37 +202,26 @@ def tick(now: float | None = None) -> float | None:
         if key == shown_key():
             return None
         job, LIVE.job_key = bake_job(bpy.context, scene)
-        jobs.set_current(job)
-        job.start()
-    except (UserError, BackendError, OSError, RuntimeError) as e:
+        jobs.start(job, props)
+    except (*jobs.START_ERRORS, RuntimeError) as e:
         props.last_report = f"Light bake: {e}"
         LIVE.failed_key = key
         return None
     LIVE.job = job
-    jobs.show_job(props, job)
     return 0.25
 
 
 def _follow(scene) -> float | None:
     job = LIVE.job
-    job.poll()
     props = scene.igs
-    jobs.show_job(props, job)
+    ended = jobs.follow(job, props)
     scene_objects.tag_redraw()
-    if not job.finished:
+    if not ended:
         return 0.25
     LIVE.job = None
     key, LIVE.job_key = LIVE.job_key, ""
-    if job.outcome == "ok":
-        try:
-            props.last_report = show_lit(scene, key)
-            LIVE.failed_key = None
-        except (UserError, OSError, RuntimeError) as e:
-            props.last_report = f"{LABEL} finished, but loading its result failed: {e}"
-            LIVE.failed_key = key
-    else:
-        props.last_report = job.report()
-        LIVE.failed_key = key
+    ok, props.last_report = jobs.finish(job, lambda: show_lit(scene, key))
+    LIVE.failed_key = None if ok else key
     props.job_status = props.last_report
     note_change(scene)  # the lights moved on while it ran: bake again
     return 0.25 if LIVE.want is not None else None

@@ -6,9 +6,11 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from .addon_id import ADDON_ID
+from .env import backend_env
 from .env.backend_env import CPU_TORCH_INDEX
 from .env.cuda_build import DEFAULT_ARCHS
 from .errors import UserError
+from .jobs.client import BackendJob
 
 # Download sizes measured with pip (wheels, Linux x86-64): torch 2.13.0+cpu (cp311) 192 MB and the
 # CPU set for Python 3.11 458 MB in all; the CUDA set for Python 3.14 2.96 GB (torch 527 MB, the
@@ -147,3 +149,9 @@ def interpreter(context: bpy.types.Context | None = None) -> str:
 
 
 CLASSES = (IGS_AddonPreferences,)
+
+
+def backend_job(context: bpy.types.Context | None, args: list, label: str, expected_stages: int = 0) -> BackendJob:
+    """A (not yet started) backend job ``args`` run by the preferences' interpreter and backend sources."""
+    return backend_env.backend_job(interpreter(context), args, label, root=get(context).backend_root,
+                                   expected_stages=expected_stages)

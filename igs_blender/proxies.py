@@ -75,11 +75,7 @@ def texture_path(data: dict[str, Any], json_path: Path) -> Path | None:
 
 def proxy_material(name: str) -> bpy.types.Material:
     """A material for a proxy: Principled BSDF whose Base Color comes from an image texture node."""
-    mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
-    compat.use_nodes(mat)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    out = nodes.new("ShaderNodeOutputMaterial")
+    mat, nodes, links, out = compat.emptied_node_material(name)
     bsdf = nodes.new("ShaderNodeBsdfPrincipled")
     bsdf.name = BSDF_NODE
     tex = nodes.new("ShaderNodeTexImage")

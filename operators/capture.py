@@ -7,22 +7,24 @@ from bpy.props import StringProperty
 
 from ..igs_blender import camera_objects, preferences, scene_objects
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.preferences import backend_job
 from ..igs_blender.props import MODEL_PRIORS, cpu_model_warning
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, resolve
-from .job import BackendOperator, backend_job
+from .job import BackendOperator
 
 
 def import_args(props) -> list:
     """The backend command line for the Capture panel's settings."""
     ws = resolve(props.workspace)
-    force = ["--force"] if props.replace_workspace else []
+    force = props.replace_workspace
     if props.source_kind == "SYNTHETIC":
         # The running Blender renders when the backend's Python has no bpy module (3.13/3.14);
         # the backend still prefers its own bpy when it has one. Empty when Blender is the bpy module.
-        blender = ["--blender", bpy.app.binary_path] if bpy.app.binary_path else []
-        family = ["--scene-seed", props.synth_scene_seed] if props.synth_family else []
-        return ["synth", ws, "--preset", props.synth_preset, "--seed", props.synth_seed, *family, *blender, *force]
+        return commands.synth(ws, preset=props.synth_preset, seed=props.synth_seed,
+                              scene_seed=props.synth_scene_seed if props.synth_family else None,
+                              blender=bpy.app.binary_path, force=force)
     src = resolve(props.source_path, "Source")
     if not src.exists():
         raise UserError(f"Source {src} does not exist")
@@ -32,25 +34,21 @@ def import_args(props) -> list:
         raise UserError(f"Source {src} is a file; choose a folder of photos or a COLMAP project")
     if src == ws:
         raise UserError("the workspace must be a different folder from the source")
-    args: list = ["import", src, ws, "--kind", props.source_kind.lower(), *force]
-    if props.source_kind == "VIDEO":
-        args += ["--every", props.every]
-    if props.max_frames:
-        args += ["--max-frames", props.max_frames]
-    if props.max_side:
-        args += ["--max-side", props.max_side]
-    for flag, mode, folder in (("--albedo", props.albedo_prior, props.albedo_folder),
-                               ("--depth", props.depth_prior, props.depth_folder)):
+    priors = {}
+    for name, mode, folder in (("albedo", props.albedo_prior, props.albedo_folder),
+                               ("depth", props.depth_prior, props.depth_folder)):
         if mode == "gt":
-            args += [flag, "gt"]
+            priors[name] = "gt"
         elif mode == "FOLDER":
-            path = resolve(folder, f"{flag[2:].capitalize()} folder")
+            path = resolve(folder, f"{name.capitalize()} folder")
             if not path.is_dir():
-                raise UserError(f"{flag[2:].capitalize()} folder {path} does not exist")
-            args += [flag, f"folder:{path}"]
+                raise UserError(f"{name.capitalize()} folder {path} does not exist")
+            priors[name] = f"folder:{path}"
         elif mode in MODEL_PRIORS:
-            args += [flag, MODEL_PRIORS[mode]]
-    return args
+            priors[name] = MODEL_PRIORS[mode]
+    return commands.import_capture(src, ws, kind=props.source_kind.lower(), force=force,
+                                   every=props.every if props.source_kind == "VIDEO" else None,
+                                   max_frames=props.max_frames, max_side=props.max_side, **priors)
 
 
 def model_warning(context, props) -> str:

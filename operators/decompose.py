@@ -5,24 +5,19 @@ from __future__ import annotations
 import bpy
 
 from ..igs_blender import display
+from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.preferences import backend_job
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
-from .job import BackendOperator, backend_job
+from .job import BackendOperator
 
 
 def decompose_args(props) -> tuple[list, int]:
     """Command line and number of stages for the Decompose panel's settings."""
     ws = existing_workspace(props.workspace)
-    args: list = ["decompose", ws]
-    stages = 3
-    if props.decompose_stage != "ALL":
-        args += ["--stage", props.decompose_stage]
-        stages = 1
-    if props.iterations:
-        args += ["--iterations", props.iterations]
-    if props.restart:
-        args.append("--restart")
-    return args, stages
+    stage = None if props.decompose_stage == "ALL" else props.decompose_stage
+    args = commands.decompose(ws, stage=stage, iterations=props.iterations, restart=props.restart)
+    return args, 3 if stage is None else 1
 
 
 def _load_results(context, kinds_wanted: tuple[str, ...], show: str | None = None) -> str:
@@ -62,11 +57,8 @@ class IGS_OT_train_3dgs(BackendOperator, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
-        args: list = ["train-3dgs", existing_workspace(props.workspace)]
-        if props.iterations:
-            args += ["--iterations", props.iterations]
-        if props.restart:
-            args.append("--restart")
+        args = commands.train_3dgs(existing_workspace(props.workspace), iterations=props.iterations,
+                                   restart=props.restart)
         return backend_job(context, args, "Train 3DGS", expected_stages=1)
 
     def finish(self, context, job: BackendJob) -> str:

@@ -21,13 +21,15 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 
-from ..igs_blender import display, edit_objects, edits, layers, proxies, scene_objects
+from ..igs_blender import edit_objects, edits, proxies
 from ..igs_blender.camera_objects import render_region_rect
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.preferences import backend_job
 from ..igs_blender.props import MIN_SELECTED
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
-from .job import BackendOperator, backend_job, show_job
+from .job import BackendOperator
 from .modes import leave_mode, mode_set, view3d_override
 from .reports import load_from_workspace, tell
 
@@ -64,25 +66,6 @@ def selected_edit_folder(context) -> tuple[Path, str, bpy.types.Object, Path]:
     return ws, name, obj, ws / "edits" / name
 
 
-def select_only(context, obj: bpy.types.Object) -> None:
-    for other in context.view_layer.objects.selected:
-        other.select_set(False)
-    obj.hide_viewport = False
-    obj.select_set(True)
-    context.view_layer.objects.active = obj
-    space = context.space_data
-    if space is not None and space.type == "VIEW_3D":  # the move/rotate/scale gizmos on the proxy
-        space.show_gizmo_object_translate = True
-        space.show_gizmo_object_rotate = True
-        space.show_gizmo_object_scale = True
-
-
-def apply_fill(props, obj: bpy.types.Object) -> None:
-    """Give a freshly fitted proxy the panel's colour unless its file brought a texture."""
-    if proxies.proxy_image(obj) is None:
-        proxies.set_proxy_color(obj, props.edit_color)
-
-
 class IGS_OT_fit_proxy(BackendOperator, bpy.types.Operator):
     """Fit a proxy to the surface inside the render region (Ctrl+B) of the active SfM camera's view"""
 
@@ -104,34 +87,21 @@ class IGS_OT_fit_proxy(BackendOperator, bpy.types.Operator):
         rect = render_region_rect(scene, cam)
         self._out = ws / "edits" / name / "proxy.json"
         self._name = name
-        args = ["edit", f"fit-{self.primitive}", ws, "--view", cam["igs_frame"], "--rect", *rect,
-                "--name", name, "--out", self._out]
-        if props.fit_threshold > 0:
-            args += ["--threshold", f"{props.fit_threshold:.6g}"]  # float32: 0.05, not 0.0500000007
-        if props.fit_min_selected != MIN_SELECTED:
-            args += ["--min-selected", props.fit_min_selected]
+        min_selected = props.fit_min_selected if props.fit_min_selected != MIN_SELECTED else None
+        args = commands.fit(self.primitive, ws, view=cam["igs_frame"], rect=rect, name=name, out=self._out,
+                            threshold=props.fit_threshold, min_selected=min_selected)
         return backend_job(context, args, f"Fit {self.primitive}")
 
-    def _tick(self, context) -> set[str]:
-        job = self._job
-        job.poll()
-        if not job.finished:  # as BackendOperator._tick does, without a second poll that could end the job
-            show_job(context.scene.igs, job)
-            scene_objects.tag_redraw(context)
-            return {"RUNNING_MODAL"}
+    def on_end(self, job: BackendJob) -> None:
         if job.state.error:
             job.state.error = panel_words(job.state.error)
-        return super()._tick(context)
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs
         obj = proxies.create_proxy_object(self._out, self._name)
-        apply_fill(props, obj)
-        item = edits.ensure(props, self._name)
-        item.proxy = obj
-        item.baked = False
-        item.visible = True
-        select_only(context, obj)
+        edit_objects.apply_fill(props, obj)
+        edit_objects.attach_proxy(props, self._name, obj)
+        edit_objects.select_only(context, obj)
         # The rectangle is read: without clearing it a later F12 would render only that region.
         context.scene.render.use_border = False
         return (f"Fitted a {self.primitive} proxy for edit '{self._name}': move it with the gizmos, then Bake "
@@ -156,10 +126,7 @@ class IGS_OT_use_selection_as_proxy(bpy.types.Operator):
         except UserError as e:
             tell(self, context, "ERROR", str(e))
             return {"CANCELLED"}
-        item = edits.ensure(props, name)
-        item.proxy = obj
-        item.baked = False
-        item.visible = True
+        edit_objects.attach_proxy(props, name, obj)
         tell(self, context, "INFO", f"'{obj.name}' is the proxy of edit '{name}': Image…, a colour or Paint, then Bake")
         return {"FINISHED"}
 
@@ -231,42 +198,15 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         data = proxies.proxy_dict(obj, name, proxies.texture_ref(texture, json_path) if texture else None)
         proxies.write_proxy_json(json_path, data)
         self._name = name
-        args = ["edit", "bake", ws, "--proxy", json_path, "--name", name]
-        if props.bake_iterations:
-            args += ["--iterations", props.bake_iterations]
+        args = commands.bake(ws, proxy=json_path, name=name, iterations=props.bake_iterations)
         return backend_job(context, args, f"Bake '{name}'")
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
-        ply = ws / "edits" / self._name / "albedo.ply"
-        obj = display.load_layer(ply, name=layers.object_name("albedo", self._name), max_points=props.max_points,
-                                radius_scale=props.radius_scale)
-        _, item = edits.find(props, self._name)
-        item.albedo = obj
-        item.baked = True
-        props.layer_display = "albedo"  # the edit changed the albedo: show it (the composite preview predates it)
-        edit_objects.show_only(props, self._name)
+        obj = edit_objects.show_baked(props, ws, self._name)
         props.capture_info = capture_summary(ws)
         return f"Baked edit '{self._name}': {len(obj.data.points)} albedo Gaussians shown"
-
-
-def paint_image_name(edit: str) -> str:
-    return f"IGS Paint {edit}"
-
-
-def new_paint_image(edit: str, path: Path) -> bpy.types.Image:
-    """A fresh image "IGS Paint <edit>" read from ``path`` (an earlier one of that edit is replaced)."""
-    name = paint_image_name(edit)
-    old = bpy.data.images.get(name)
-    if old is not None:
-        bpy.data.images.remove(old)  # it read the same file, which now holds a new projection
-    try:
-        image = bpy.data.images.load(str(path), check_existing=False)
-    except RuntimeError as e:
-        raise UserError(f"cannot read the projected texture {path}: {e}") from e
-    image.name = name
-    return image
 
 
 def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) -> bool:
@@ -276,7 +216,7 @@ def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) 
     paint.mode = "IMAGE"  # strokes go to the canvas whatever the material's active node is
     paint.canvas = image
     leave_mode(context)  # another object may be in Edit Mode or a paint mode
-    select_only(context, obj)
+    edit_objects.select_only(context, obj)
     if view3d_override(context) is None:
         return False
     mode_set(context, obj, "TEXTURE_PAINT")
@@ -297,8 +237,7 @@ class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
         proxies.write_proxy_json(state, proxies.proxy_dict(obj, name, None, color=(0.5, 0.5, 0.5)))
         self._name = name
         self._out = edit_dir / "projected.json"
-        args = ["edit", "project", ws, "--proxy", state, "--out", self._out]
-        return backend_job(context, args, f"Project albedo onto '{name}'")
+        return backend_job(context, commands.project(ws, proxy=state, out=self._out), f"Project albedo onto '{name}'")
 
     def finish(self, context, job: BackendJob) -> str:
         props = context.scene.igs
@@ -311,7 +250,7 @@ class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
             raise UserError(f"{self._out}: the backend wrote no projected texture")
         paint = self._out.parent / "paint.png"
         shutil.copyfile(projected, paint)
-        image = new_paint_image(self._name, paint)
+        image = edit_objects.new_paint_image(self._name, paint)
         proxies.set_proxy_image(obj, image, "EXTEND")  # the projection covers UV [0, 1]^2 exactly
         props.texture_mode = "IMAGE"
         item.visible = True
@@ -338,7 +277,7 @@ class IGS_OT_select_edit(bpy.types.Operator):
             return {"CANCELLED"}
         props.edits_index = i
         item.visible = True
-        select_only(context, item.proxy)
+        edit_objects.select_only(context, item.proxy)
         return {"FINISHED"}
 
 
@@ -388,14 +327,7 @@ class IGS_OT_load_edits(bpy.types.Operator):
             why = "; ".join(failed) if failed else "none yet (Fit Plane / Fit Cylinder, or igs edit fit-plane)"
             tell(self, context, "ERROR" if failed else "WARNING", f"{ws / 'edits'}: no edit loaded: {why}")
             return {"CANCELLED"}
-        for name in loaded:
-            _name_paint_image(ws, name, edits.find(props, name)[1].proxy)
-        baked = [n for n in loaded if edits.find(props, n)[1].baked]
-        shown = baked[0] if baked else loaded[0]
-        if baked:
-            props.layer_display = "albedo"
-        edit_objects.show_only(props, shown)
-        props.edits_index = edits.find(props, shown)[0]
+        shown, baked = edit_objects.show_loaded(props, ws, loaded)
         props.capture_info = capture_summary(ws)
         msg = (f"Loaded {len(loaded)} edit(s): {', '.join(loaded)}; {len(baked)} baked; showing '{shown}' "
                "(the eye in the list shows the others)")
@@ -403,16 +335,6 @@ class IGS_OT_load_edits(bpy.types.Operator):
             msg += "; could not read " + "; ".join(failed)
         tell(self, context, "WARNING" if failed else "INFO", msg)
         return {"FINISHED"}
-
-
-def _name_paint_image(ws: Path, name: str, obj: bpy.types.Object) -> None:
-    """A loaded proxy painted with Paint shows ``paint.png`` of its edit: name the image as Paint does."""
-    image = proxies.proxy_image(obj) if obj is not None else None
-    if image is None or not image.filepath or paint_image_name(name) in bpy.data.images:
-        return
-    path = Path(bpy.path.abspath(image.filepath)).resolve()
-    if path == (ws / "edits" / name / "paint.png").resolve():
-        image.name = paint_image_name(name)
 
 
 CLASSES = (IGS_OT_fit_proxy, IGS_OT_use_selection_as_proxy, IGS_OT_set_proxy_image, IGS_OT_set_proxy_color,

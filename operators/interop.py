@@ -23,14 +23,16 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from ..igs_blender import display, jobs, preferences, scene_objects
+from ..igs_blender import jobs, preferences, scene_objects, splat_files
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
-from ..igs_blender.ply_io import PLY_SUFFIXES, file_identity, read_splat_ply, with_identity
+from ..igs_blender.ply_io import PLY_SUFFIXES, file_identity
+from ..igs_blender.preferences import backend_job
 from ..igs_blender.workspace_files import check_edit_name, existing_workspace
 from ..igs_contract import events
 from ..igs_contract.layer_ply import KINDS
-from .job import BackendOperator, backend_job
+from .job import BackendOperator
 from .modes import in_object_mode
 from .reports import tell
 
@@ -196,11 +198,8 @@ class IGS_OT_import_splat_file(BackendOperator, bpy.types.Operator):
         path = self.source()
         out = conversion_dir() / f"{path.name}-{time.strftime('%Y%m%d-%H%M%S')}.ply"
         self._path, self._out = path, out
-        args: list = ["convert", path, out]
         kind, space = self.chosen()
-        args += ["--kind", kind] if kind else []
-        args += ["--space", space] if space else []
-        return backend_job(context, args, "Convert", expected_stages=1)
+        return backend_job(context, commands.convert(path, out, kind=kind, space=space), "Convert", expected_stages=1)
 
     def finish(self, context, job: BackendJob) -> str:
         data = result_data(job, "convert")
@@ -215,23 +214,10 @@ class IGS_OT_import_splat_file(BackendOperator, bpy.types.Operator):
         """Build the point cloud of ``ply`` (``source`` itself, or converted from it), named after ``source``.
 
         The identity is the user's choice, else the PLY's own comments, else what ``source`` records."""
-        layer = read_splat_ply(ply)
         kind, space = self.chosen()
-        own = file_identity(ply)
-        if not own.known and ply != source:
-            own = file_identity(source)
-        if own.status != "file" or kind or space:
-            layer = with_identity(layer, kind or own.kind or layer.kind, space or own.space or layer.space)
         props = context.scene.igs
-        obj = display.build_layer_object(f"IGS {source.name}", layer, max_points=props.max_points,
-                                        radius_scale=props.radius_scale, source=ply)
-        obj["igs_imported_from"] = str(source)
-        obj.hide_viewport = obj.hide_render = False
-        for other in list(context.view_layer.objects.selected):
-            if other is not None:  # an object replaced by this import can linger as None until the next update
-                other.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        obj, layer = splat_files.import_layer(context, source, ply, kind, space, max_points=props.max_points,
+                                              radius_scale=props.radius_scale)
         msg = (f"Imported {len(layer):,} {layer.kind} Gaussians ({layer.space}) from {source.name} as "
                f"'{obj.name}'")
         if status == "manifest-changed":
@@ -283,12 +269,13 @@ class _ExportJob(BackendOperator):
     def modal_again(self, **props) -> None:
         raise NotImplementedError
 
-    def workspace_args(self, context) -> tuple[Path, list]:
+    def target(self, context) -> tuple[Path, str, Path]:
+        """(the workspace, the edit to apply or "", the file to write) of the export."""
         ws = existing_workspace(context.scene.igs.workspace)
-        args: list = ["--edit", check_edit_name(self.edit)] if self.edit else []
+        edit = check_edit_name(self.edit) if self.edit else ""
         if not self.filepath:
             raise UserError("choose the file to write")
-        return ws, args + ["--out", Path(bpy.path.abspath(self.filepath))]
+        return ws, edit, Path(bpy.path.abspath(self.filepath))
 
 
 class IGS_OT_export_viewer(_ExportJob, bpy.types.Operator):
@@ -324,8 +311,8 @@ class IGS_OT_export_viewer(_ExportJob, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         self.check(context)
-        ws, args = self.workspace_args(context)
-        return backend_job(context, ["export", ws, "--layer", self.layer, "--format", self.format, *args],
+        ws, edit, out = self.target(context)
+        return backend_job(context, commands.export(ws, layer=self.layer, format=self.format, out=out, edit=edit),
                            "Export", expected_stages=1)
 
     def finish(self, context, job: BackendJob) -> str:
@@ -359,10 +346,9 @@ class IGS_OT_export_distilled(_ExportJob, bpy.types.Operator):
         bpy.ops.igs.export_distilled("INVOKE_DEFAULT", browsed=True, **props)
 
     def make_job(self, context) -> BackendJob:
-        ws, args = self.workspace_args(context)
-        if self.iterations:
-            args += ["--iterations", self.iterations]
-        return backend_job(context, ["distil", ws, *args], "Distil", expected_stages=1)
+        ws, edit, out = self.target(context)
+        return backend_job(context, commands.distil(ws, out=out, edit=edit, iterations=self.iterations), "Distil",
+                           expected_stages=1)
 
     def finish(self, context, job: BackendJob) -> str:
         data = result_data(job, "distil")

@@ -12,20 +12,10 @@ import time
 
 import bpy
 
-from ..igs_blender import jobs, preferences, scene_objects
-from ..igs_blender.env import backend_env
-from ..igs_blender.errors import UserError
-from ..igs_blender.jobs import show_job
-from ..igs_blender.jobs.client import BackendError, BackendJob
+from ..igs_blender import jobs, scene_objects
+from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.workspace_files import busy_line
 from .modes import in_object_mode
-
-
-def backend_job(context, args: list, label: str, expected_stages: int = 0) -> BackendJob:
-    """A (not yet started) backend job ``args`` run by the add-on preferences' interpreter and backend."""
-    prefs = preferences.get(context)
-    return backend_env.backend_job(preferences.interpreter(context), args, label, root=prefs.backend_root,
-                                   expected_stages=expected_stages)
 
 
 class BackendOperator:
@@ -33,7 +23,9 @@ class BackendOperator:
 
     Subclasses implement ``make_job(context) -> BackendJob`` (raise UserError for bad settings) and
     ``finish(context, job) -> str`` (load the results; returns the message to report). ``finish`` may
-    set ``self.finish_level`` to "WARNING" when the job ran but found a problem (a failed check).
+    set ``self.finish_level`` to "WARNING" when the job ran but found a problem (a failed check), and
+    ``on_end(job)`` may word the ended job's error for the panel. The job's life itself (start, follow,
+    finish) is :mod:`..igs_blender.jobs`'s, which the light bake follows too.
     """
 
     bl_options = {"REGISTER"}
@@ -65,18 +57,19 @@ class BackendOperator:
     def finish(self, context, job: BackendJob) -> str:
         return job.report()
 
+    def on_end(self, job: BackendJob) -> None:
+        """The job has just ended, before the panel shows it: a subclass may reword its error."""
+
     def _start(self, context) -> bool:
         props = context.scene.igs
         try:
             job = self.make_job(context)
-            jobs.set_current(job)
-            job.start()
-        except (UserError, BackendError, OSError) as e:
+            jobs.start(job, props)
+        except jobs.START_ERRORS as e:
             props.last_report = str(e)
             self.report({"ERROR"}, str(e))
             return False
         self._job = job
-        show_job(props, job)
         return True
 
     def execute(self, context):
@@ -123,29 +116,24 @@ class BackendOperator:
             context.window_manager.event_timer_remove(self._timer)
             self._timer = None
 
+    def _load(self, context) -> str:
+        with in_object_mode(context):  # then back, e.g. to Texture Paint on the proxy
+            return self.finish(context, self._job)
+
     def _tick(self, context) -> set[str]:
         job = self._job
-        job.poll()
         props = context.scene.igs
-        show_job(props, job)
+        ended = jobs.follow(job, props, self.on_end)
         scene_objects.tag_redraw(context)
-        if not job.finished:
+        if not ended:
             return {"RUNNING_MODAL"}
-        outcome = job.outcome
-        if outcome == "ok":
-            try:
-                with in_object_mode(context):  # then back, e.g. to Texture Paint on the proxy
-                    msg = self.finish(context, job)
-            except (UserError, OSError, RuntimeError) as e:  # RuntimeError: bpy could not load a result
-                props.last_report = f"{job.state.label} finished, but loading its results failed: {e}"
-                self.report({"ERROR"}, props.last_report)
-                return {"CANCELLED"}
-            props.last_report = msg
+        ok, msg = jobs.finish(job, lambda: self._load(context))
+        props.last_report = msg
+        if ok:
             props.job_status = msg
             self.report({getattr(self, "finish_level", "INFO")}, msg)
             return {"FINISHED"}
-        props.last_report = job.report()
-        self.report({"WARNING"} if outcome == "cancelled" else {"ERROR"}, props.last_report)
+        self.report({"WARNING"} if job.outcome == "cancelled" else {"ERROR"}, msg)
         return {"CANCELLED"}
 
 

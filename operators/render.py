@@ -22,30 +22,22 @@ import time
 from pathlib import Path
 
 import bpy
-import numpy as np
 from bpy.props import EnumProperty
-from mathutils import Matrix, Vector
+from mathutils import Matrix
 
 from ..igs_blender import compat, display, edits, images, layers, lights, scene_objects
-from ..igs_blender.camera_objects import capture_orbit, render_size, sfm_view_from_object
-from ..igs_blender.cameras import turntable_matrices
+from ..igs_blender.camera_objects import render_size, sfm_view_from_object, turntable_world_matrices
 from ..igs_blender.errors import UserError
+from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.native import compositing
 from ..igs_blender.native import turntable as native_turntable
+from ..igs_blender.preferences import backend_job
 from ..igs_blender.workspace_files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, existing_workspace, output_files
 from ..igs_contract import camera_json
-from .job import BackendOperator, backend_job
+from .job import BackendOperator
 from .modes import in_object_mode
 from .reports import tell
-
-
-def orbit(context, target: Vector) -> tuple[float, float]:
-    """(radius, height) of a turntable around ``target``: the panel's, or fitted to the capture (Radius 0)."""
-    props = context.scene.igs
-    if props.turntable_radius > 0:
-        return props.turntable_radius, props.turntable_height
-    return capture_orbit(target)
 
 
 def fresh_output_dir(ws: Path, kind: str) -> Path:
@@ -59,26 +51,24 @@ def fresh_output_dir(ws: Path, kind: str) -> Path:
     return out
 
 
-def edit_args(props) -> list:
-    """``--edit NAME`` when the Render panel uses the selected, baked edit."""
+def render_edit_name(props) -> str:
+    """The edit the render applies: the selected, baked one when the Render panel uses it, else ""."""
     if not props.render_edit:
-        return []
+        return ""
     item = edits.active(props)
-    if item is None or not item.baked:
-        return []
-    return ["--edit", item.name]
+    return item.name if item is not None and item.baked else ""
 
 
-def light_args(scene, ws: Path) -> list:
-    """``--light <ws>/lights/scene_lights.json`` (written now) when Use Lights is on and the lights collection
-    holds a visible light; [] otherwise."""
+def lights_file(scene, ws: Path) -> Path | None:
+    """``<ws>/lights/scene_lights.json`` (written now) when Use Lights is on and the lights collection holds a
+    visible light; None otherwise."""
     if not scene.igs.use_lights:
-        return []
+        return None
     specs = lights.lights_specs(scene)
-    return ["--light", lights.write_scene_lights(scene, ws, specs)] if specs else []
+    return lights.write_scene_lights(scene, ws, specs) if specs else None
 
 
-def output_kind(kind: str, light: list) -> str:
+def output_kind(kind: str, light: Path | None) -> str:
     """The output folder's prefix: ``view``, ``turntable``... and ``view-lit`` etc. with lights."""
     return f"{kind}-lit" if light else kind
 
@@ -96,16 +86,15 @@ def layer_frames(out: Path, layer: str) -> list[Path]:
     return sorted(p for p in folder.glob("*") if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
 
 
-def _render_job(context, cameras: Path | list, out: Path, label: str, mp4: bool = False,
-                light: list | None = None) -> BackendJob:
-    """``cameras``: a cameras.json Blender wrote, or the backend's own camera arguments; ``light``: the
-    lights' arguments (:func:`light_args`)."""
+def _render_job(context, cameras: Path | tuple, out: Path, label: str, mp4: bool = False,
+                light: Path | None = None) -> BackendJob:
+    """``cameras``: a cameras.json Blender wrote, or (frames, width, height) of the backend's own turntable;
+    ``light``: the lights file (:func:`lights_file`)."""
     props = context.scene.igs
     ws = existing_workspace(props.workspace)
-    source = list(cameras) if isinstance(cameras, list) else ["--cameras", cameras]
-    args = ["render", ws, *edit_args(props), *(light or []), *source, "--out", out, "--layers", props.render_layer]
-    if mp4:
-        args.append("--mp4")
+    turntable = cameras if isinstance(cameras, tuple) else None
+    args = commands.render(ws, out=out, layers=props.render_layer, edit=render_edit_name(props), light=light,
+                           cameras=None if turntable else cameras, turntable=turntable, mp4=mp4)
     return backend_job(context, args, label, expected_stages=1)
 
 
@@ -183,7 +172,7 @@ class IGS_OT_render_view(_NativeOrBackend, bpy.types.Operator):
         scene = context.scene
         ws = existing_workspace(scene.igs.workspace)
         view = sfm_view_from_object(scene, scene.camera, name="view")
-        light = light_args(scene, ws)
+        light = lights_file(scene, ws)
         self._out = fresh_output_dir(ws, output_kind("view", light))
         cam_file = write_cameras(self._out / "cameras.json", [view])
         return _render_job(context, cam_file, self._out, "Render view" + (" (lit)" if light else ""), light=light)
@@ -209,14 +198,10 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
 
     def views(self, context) -> list:
         scene = context.scene
-        props = scene.igs
         cam = scene.camera
         if self.mode == "TURNTABLE":
-            target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else scene_objects.selection_center(context)
-            radius, height = orbit(context, target)
-            mats = turntable_matrices(np.array(target), radius, height, props.turntable_frames)
             return [sfm_view_from_object(scene, cam, name=f"turntable_{i:04d}", matrix_world=Matrix(m.tolist()))
-                    for i, m in enumerate(mats)]
+                    for i, m in enumerate(turntable_world_matrices(context))]
         if cam is None:
             raise UserError("the scene has no camera to follow")
         out = []
@@ -233,12 +218,12 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
-        light = light_args(context.scene, ws)
+        light = lights_file(context.scene, ws)
         self._out = fresh_output_dir(ws, output_kind(self.mode.lower(), light))
         if self.mode == "TURNTABLE" and props.turntable_target == "CAPTURE":
             self._count = props.turntable_frames
             w, h = render_size(context.scene)
-            cams = ["--turntable", "--frames", self._count, "--size", w, h]
+            cams = (self._count, w, h)
         else:
             views = self.views(context)
             self._count = len(views)
@@ -278,11 +263,7 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
                 mats, fov = native_turntable.capture_matrices(ws, props.turntable_frames)
                 cam = native_turntable.turntable_camera(scene, mats, fov)
             else:
-                target = scene.cursor.location.copy() if props.turntable_target == "CURSOR" else \
-                    scene_objects.selection_center(context)
-                radius, height = orbit(context, target)
-                cam = native_turntable.turntable_camera(
-                    scene, turntable_matrices(np.array(target), radius, height, props.turntable_frames))
+                cam = native_turntable.turntable_camera(scene, turntable_world_matrices(context))
             native_turntable.sequence_output(scene, out, 1, props.turntable_frames, camera=cam)
         else:
             if scene.camera is None:

@@ -7,8 +7,13 @@ import textwrap
 
 import bpy
 
-from ..igs_blender import display, edits, layers, light_bake, lights, preferences, scene_objects
-from ..igs_blender.camera_objects import capture_orbit, frame_matches_output, render_region_rect
+from ..igs_blender import display, edits, layers, light_bake, lights, preferences
+from ..igs_blender.camera_objects import (
+    capture_orbit,
+    frame_matches_output,
+    render_region_rect,
+    turntable_target,
+)
 from ..igs_blender.errors import UserError
 from ..igs_blender.native import compositing
 from ..igs_blender.native import splats as native_splats
@@ -381,9 +386,7 @@ def _native_render_info(layout, scene, context) -> None:
 def _fitted_orbit(context) -> str:
     """The orbit Radius 0 gives around the cursor or the selection, as one line."""
     try:
-        target = context.scene.cursor.location if context.scene.igs.turntable_target == "CURSOR" else \
-            scene_objects.selection_center(context)
-        radius, height = capture_orbit(target)
+        radius, height = capture_orbit(turntable_target(context))
     except UserError as e:
         return str(e).split(":")[0]
     return f"Fitted: radius {radius:.3g}, height {height:.3g}"

@@ -1,11 +1,20 @@
-"""The one backend job the add-on runs at a time (pure Python, no bpy).
+"""The one backend job the add-on runs at a time, and its life: start, follow, cancel, finish (no bpy).
 
-Operators start a job here; the Cancel button and the add-on's unregister reach it here.
+Operators and the light bake start a job here and follow it with the same steps; the Cancel button and
+the add-on's unregister reach it here.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+from ..errors import UserError
 from .client import BackendError, BackendJob
+
+START_ERRORS = (UserError, BackendError, OSError)
+"""What :func:`start` (and the making of a job before it) raises for the user: one report line."""
+LOAD_ERRORS = (UserError, OSError, RuntimeError)
+"""What loading a finished job's results raises (RuntimeError: bpy could not load a file)."""
 
 _current: dict[str, BackendJob | None] = {"job": None}
 
@@ -54,3 +63,32 @@ def show_job(props, job: BackendJob) -> None:
     props.job_status = st.status_text() if job.running else job.report()
     props.job_stages = "\n".join(f"{s.name}: {s.state}" + (f" {s.step}/{s.total}" if s.total else "")
                                  for s in st.stages.values())
+
+
+def start(job: BackendJob, props) -> None:
+    """Make ``job`` the current job, start its process and show it in the panels (``props``: ``Scene.igs``).
+    Raises one of :data:`START_ERRORS` when it cannot start."""
+    set_current(job)
+    job.start()
+    show_job(props, job)
+
+
+def follow(job: BackendJob, props, on_end: Callable[[BackendJob], None] | None = None) -> bool:
+    """Read the job's new events and show them; True once it has ended (``on_end`` sees it first, to word its
+    error for the panel)."""
+    job.poll()
+    if job.finished and on_end is not None:
+        on_end(job)
+    show_job(props, job)
+    return job.finished
+
+
+def finish(job: BackendJob, load: Callable[[], str]) -> tuple[bool, str]:
+    """An ended job's (success, message): what ``load`` (reading its results) says when the job succeeded and
+    the loading too, else why not (the job's report, or the loading's error)."""
+    if job.outcome != "ok":
+        return False, job.report()
+    try:
+        return True, load()
+    except LOAD_ERRORS as e:
+        return False, f"{job.state.label} finished, but loading its results failed: {e}"

@@ -129,11 +129,7 @@ def preview_proxy(props):
 
 def _override_material(proxy) -> bpy.types.Material:
     """Unlit proxy: its image (its alpha times the proxy's opacity) or its flat colour, as an emission."""
-    mat = bpy.data.materials.get(OVERRIDE) or bpy.data.materials.new(OVERRIDE)
-    compat.use_nodes(mat)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    out = nodes.new("ShaderNodeOutputMaterial")
+    mat, nodes, links, out = compat.emptied_node_material(OVERRIDE)
     emission = nodes.new("ShaderNodeEmission")
     clear = nodes.new("ShaderNodeBsdfTransparent")
     mix = nodes.new("ShaderNodeMixShader")

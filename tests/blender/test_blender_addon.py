@@ -331,7 +331,7 @@ def test_paint_explains_a_missing_edit_and_a_proxy_without_uvs(scene, tmp_path):
     png = tmp_path / "projected.png"
     for value in (50, 200):
         cv2.imwrite(str(png), np.full((3, 5, 3), value, np.uint8))
-        fresh = edit_ops.new_paint_image("rug", png)
+        fresh = sub("edit_objects").new_paint_image("rug", png)
         sub("proxies").set_proxy_image(obj, fresh)
         assert edit_ops.enter_texture_paint(bpy.context, obj, fresh) and paint.canvas == fresh
     assert [i.name for i in bpy.data.images if i.name.startswith("IGS Paint")] == ["IGS Paint rug"]

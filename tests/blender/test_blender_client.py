@@ -21,6 +21,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
+from intrinsic_splats.igs_blender import jobs  # noqa: E402
 from intrinsic_splats.igs_blender.env import backend_env  # noqa: E402
 from intrinsic_splats.igs_blender.errors import UserError  # noqa: E402
 from intrinsic_splats.igs_blender.jobs.client import (  # noqa: E402
@@ -232,3 +233,54 @@ def test_backend_sources_need_the_contract_beside_the_backend(tmp_path):
     (tmp_path / "backend" / "__main__.py").write_text("")
     with pytest.raises(UserError, match="igs_contract/__init__.py is missing"):
         backend_env.backend_root(str(tmp_path))
+
+
+class _Props:
+    """What ``Scene.igs`` holds of a job, for the job's life without Blender."""
+
+    job_label = job_status = job_stages = ""
+    job_running = False
+    job_progress = 0.0
+
+
+def _followed(fake: Path, mode: str, monkeypatch, load) -> tuple[bool, str, _Props, int]:
+    """Start, follow and finish a stand-in job as every operator and the light bake do; (ok, message, the
+    props the panel shows, how many ticks it took)."""
+    monkeypatch.setenv("IGS_FAKE_MODE", mode)
+    argv, env = backend_command(fake, ["decompose", "/ws"])
+    job, props, ticks = BackendJob(argv, "Decompose", env=env), _Props(), 0
+    jobs.start(job, props)
+    assert jobs.current() is job and props.job_label == "Decompose" and props.job_running
+    ended = []
+    while not jobs.follow(job, props, ended.append):
+        ticks += 1
+        time.sleep(0.05)
+        assert ticks < 400, "the stand-in job never ended"
+    assert ended == [job] and not props.job_running
+    return (*jobs.finish(job, load), props, ticks)
+
+
+def test_one_job_life_starts_follows_and_finishes(fake_backend, monkeypatch):
+    ok, msg, props, _ = _followed(fake_backend, "ok", monkeypatch, lambda: "loaded")
+    assert (ok, msg) == (True, "loaded") and props.job_progress == pytest.approx(1.0)
+
+    def broken_load() -> str:
+        raise OSError("layers/albedo.ply: no such file")
+
+    ok, msg, _, _ = _followed(fake_backend, "ok", monkeypatch, broken_load)
+    assert not ok and msg == "Decompose finished, but loading its results failed: layers/albedo.ply: no such file"
+    ok, msg, props, _ = _followed(fake_backend, "user", monkeypatch, lambda: "never called")
+    assert not ok and msg == props.job_status and "never called" not in msg
+
+
+def test_a_second_job_does_not_start_while_one_runs(fake_backend, monkeypatch):
+    monkeypatch.setenv("IGS_FAKE_MODE", "slow")
+    argv, env = backend_command(fake_backend, ["decompose", "/ws"])
+    first, props = BackendJob(argv, "Decompose", env=env), _Props()
+    jobs.start(first, props)
+    try:
+        with pytest.raises(jobs.START_ERRORS):
+            jobs.start(BackendJob(argv, "Decompose", env=env), props)
+        assert jobs.current() is first
+    finally:
+        jobs.stop_all()
