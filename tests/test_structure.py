@@ -34,7 +34,8 @@ ADDON_FLOORS = (
     ("igs_blender.native", "igs_blender.viewport"),  # Blender 5.3's splats | our own engine
     ("igs_blender.display",),  # the one face that decides native or viewport
     # scene modules over the seam
-    ("igs_blender.edit_objects", "igs_blender.light_bake", "igs_blender.props", "igs_blender.splat_files"),
+    ("igs_blender.edit_objects", "igs_blender.light_bake", "igs_blender.props", "igs_blender.scene_renders",
+     "igs_blender.splat_files"),
     ("operators", "panels"),
     ("__init__",),  # the extension's root: registers everything
 )
