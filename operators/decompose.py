@@ -6,8 +6,17 @@ import bpy
 
 from ..igs_blender import edits, layers
 from ..igs_blender.client import BackendJob
+from ..igs_blender.errors import UserError
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
+from ..igs_contract.memory_estimate import workspace_line
 from .job import BackendOperator, backend_job
+
+
+def refuse_over_memory(ws, command: str) -> None:
+    """The backend's own line, before the job starts, when ``command``'s estimated peak memory on the
+    workspace is over what this machine has free (the backend would stop with it)."""
+    if (line := workspace_line(ws, command)) is not None:
+        raise UserError(line)
 
 
 def decompose_args(props) -> tuple[list, int]:
@@ -48,6 +57,7 @@ class IGS_OT_decompose(BackendOperator, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         args, stages = decompose_args(context.scene.igs)
+        refuse_over_memory(args[1], "decompose")
         return backend_job(context, args, "Decompose", expected_stages=stages)
 
     def finish(self, context, job: BackendJob) -> str:
@@ -63,6 +73,7 @@ class IGS_OT_train_3dgs(BackendOperator, bpy.types.Operator):
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         args: list = ["train-3dgs", existing_workspace(props.workspace)]
+        refuse_over_memory(args[1], "train-3dgs")
         if props.iterations:
             args += ["--iterations", props.iterations]
         if props.restart:
