@@ -102,6 +102,10 @@ photo 6, the float32 depth 4, A * S 6) beside the shading stage's, whose albedo 
 A 6, its alpha 2, the albedo's depth 2)."""
 
 
+TRAIN_3DGS_DISK_PER_VIEW_PIXEL = 10
+"""Bytes per view-pixel of train-3dgs's views' file at most: a 16-bit photo 6, the float32 depth 4."""
+
+
 def check_disk_room(folder: Path, need: float, command: str) -> None:
     """One IGSError when the file system of ``folder`` (or its nearest existing parent) has less than
     ``need`` bytes free for the views' file."""
