@@ -12,6 +12,7 @@ from backend.core.errors import IGSError
 from backend.core.proc_status import proc_status_kib
 from igs_contract.errors import ContractError
 from igs_contract.memory_estimate import (  # noqa: F401  (the models: this module's interface)
+    BAKE,
     DECOMPOSE,
     GIB,
     TRAIN_3DGS,

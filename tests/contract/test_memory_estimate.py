@@ -38,10 +38,10 @@ def test_room_comes_from_meminfo_and_the_cgroup(tmp_path, monkeypatch):
 def test_the_workspace_line_reads_the_views_from_transforms_json(tmp_path, monkeypatch):
     cams = [Camera.look_at(f"f{i}.png", [2, i, 1], [0, 0, 0], [0, 0, 1], 1920, 1080, 60) for i in range(300)]
     write_transforms(tmp_path / "transforms.json", cams)
-    monkeypatch.setenv(me.LIMIT_ENV, "4G")
+    monkeypatch.setenv(me.LIMIT_ENV, "3G")
     line = me.workspace_line(tmp_path, "decompose")
     expected = me.over_limit_line("decompose", me.DECOMPOSE, 300, 1920, 1080, me.DEFAULT_GAUSSIANS["decompose"],
-                                  4 << 30, me.LIMIT_ENV)
+                                  3 << 30, me.LIMIT_ENV)
     assert line == expected and line.startswith("decompose: estimated peak memory") and "for 300 views at 1920x1080" in line
     monkeypatch.setenv(me.LIMIT_ENV, "1T")
     assert me.workspace_line(tmp_path, "decompose") is None  # it fits
