@@ -279,7 +279,7 @@ def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], down
         cw = min(w, REPORT_CELL_WIDTH)
         ch = max(1, round(h * cw / w))
 
-        def show(x: torch.Tensor | None) -> np.ndarray | None:
+        def show(x: torch.Tensor | None, cw: int = cw, ch: int = ch) -> np.ndarray | None:
             return None if x is None else resize_image(to_display(x, "linear").numpy(), cw, ch)
 
         half = lambda x: None if x is None else 0.5 * x  # noqa: E731  (shading reaches ~3: halved to show its range)
