@@ -55,7 +55,7 @@ TRAIN_3DGS = MemoryModel(base=1.37 * GIB, per_view_pixel=3.05, per_pixel=290.0, 
 # edit bake: the views are the painted ones (the edit view, the virtual and the capture views), each held
 # at full size as a float32 image and its mask (13 B) until the bake ends; its Gaussians' term is taken
 # as decompose's (the albedo, its copy and the trained part's moments), not fitted.
-BAKE = MemoryModel(base=0.93 * GIB, per_view_pixel=12.5, per_pixel=1277.0, per_gaussian=600.0)
+BAKE = MemoryModel(base=1.02 * GIB, per_view_pixel=13.6, per_pixel=421.0, per_gaussian=600.0)
 MODELS: Mapping[str, MemoryModel] = {"decompose": DECOMPOSE, "train-3dgs": TRAIN_3DGS}
 
 DEFAULT_GAUSSIANS: Mapping[str, int] = {"decompose": 1_000_000, "train-3dgs": 100_000}
