@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..igs_contract import small_file, workspace_lock
+from ..igs_contract.run_record import killed_run
 from .errors import UserError
 
 EDIT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
@@ -85,6 +86,8 @@ def capture_summary(ws: Path) -> str:
     edits = sorted(p.parent.name for p in (ws / "edits").glob("*/proxy.json")) if (ws / "edits").is_dir() else []
     if edits:
         lines.append("Edits: " + ", ".join(edits))
+    if (killed := killed_run(ws)) is not None:
+        lines.append(killed[0].upper() + killed[1:])
     return "\n".join(lines)
 
 

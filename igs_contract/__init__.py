@@ -15,6 +15,9 @@
   in range, whole where whole, small enough to compute with).
 - ``workspace_lock``: the lock file a writing command holds in a workspace, and the line naming
   its holder that both sides show.
+- ``memory_estimate``: a command's peak memory estimated from the workspace's views, the machine's
+  free memory, and the one line over the limit that both sides show.
+- ``run_record``: the last run's record in a workspace, and the line saying it was killed.
 
 The backend imports this package as ``igs_contract`` (the add-on runs it with the extension folder
 first on PYTHONPATH); the add-on imports it relatively, as part of the extension. Nothing here

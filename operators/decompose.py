@@ -5,11 +5,20 @@ from __future__ import annotations
 import bpy
 
 from ..igs_blender import display
+from ..igs_blender.errors import UserError
 from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
 from ..igs_blender.preferences import backend_job
 from ..igs_blender.workspace_files import capture_summary, existing_workspace, metrics_summary
+from ..igs_contract.memory_estimate import workspace_line
 from .job import BackendOperator
+
+
+def refuse_over_memory(ws, command: str) -> None:
+    """The backend's own line, before the job starts, when ``command``'s estimated peak memory on the
+    workspace is over what this machine has free (the backend would stop with it)."""
+    if (line := workspace_line(ws, command)) is not None:
+        raise UserError(line)
 
 
 def decompose_args(props) -> tuple[list, int]:
@@ -43,6 +52,7 @@ class IGS_OT_decompose(BackendOperator, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         args, stages = decompose_args(context.scene.igs)
+        refuse_over_memory(args[1], "decompose")
         return backend_job(context, args, "Decompose", expected_stages=stages)
 
     def finish(self, context, job: BackendJob) -> str:
@@ -57,8 +67,9 @@ class IGS_OT_train_3dgs(BackendOperator, bpy.types.Operator):
 
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
-        args = commands.train_3dgs(existing_workspace(props.workspace), iterations=props.iterations,
-                                   restart=props.restart)
+        ws = existing_workspace(props.workspace)
+        refuse_over_memory(ws, "train-3dgs")
+        args = commands.train_3dgs(ws, iterations=props.iterations, restart=props.restart)
         return backend_job(context, args, "Train 3DGS", expected_stages=1)
 
     def finish(self, context, job: BackendJob) -> str:

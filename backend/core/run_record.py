@@ -3,12 +3,12 @@
 Written when the command's work starts (its first progress: loading the views; state ``running``,
 its process id), updated with its progress every few seconds, and closed with its outcome (``finished``, ``failed``, ``cancelled``). A process
 killed from outside (SIGKILL: the kernel's out-of-memory killer) cannot close it: the next command
-finds it still ``running`` with its process gone and says so, with the stage and step it reached.
+finds it still ``running`` with its process gone and says so, with the stage and step it reached
+(:func:`igs_contract.run_record.killed_run`, which the Blender panel shows too).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Iterator
@@ -20,44 +20,9 @@ from backend.core import events
 from backend.core.atomic_io import write_json
 from backend.core.errors import Cancelled
 from backend.core.proc_status import proc_status_kib
+from igs_contract.run_record import RECORD_NAME, killed_run, record_path  # noqa: F401  (also read from here)
 
-RECORD_NAME = "last_run.json"
 UPDATE_EVERY_S = 5.0
-
-
-def record_path(workspace: str | Path) -> Path:
-    return Path(workspace) / "checkpoints" / RECORD_NAME
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True
-    return True
-
-
-def killed_run(workspace: str | Path) -> str | None:
-    """One line about the last run when it was killed (its record still says running, its process is
-    gone), else None."""
-    try:
-        rec = json.loads(record_path(workspace).read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(rec, dict) or rec.get("state") != "running" or not isinstance(rec.get("pid"), int):
-        return None
-    if rec["pid"] != os.getpid() and _alive(rec["pid"]):
-        return None  # still running (another process)
-    p = rec.get("progress") or {}
-    where = (f" at {p.get('stage')} {p.get('step')}/{p.get('total')}" if p.get("stage") else " while loading")
-    started = rec.get("started_at", "?")
-    peak = rec.get("peak_rss_mib")
-    return (f"the last run ({rec.get('command', '?')}, started {started}) was killed{where} without finishing, "
-            f"most likely for memory (the kernel's out-of-memory killer)"
-            + (f"; it had reached {peak:.0f} MiB" if isinstance(peak, (int, float)) else "")
-            + "; try a larger --downscale")
 
 
 @contextmanager

@@ -61,6 +61,7 @@ from backend.splats.ply import write_ply
 from backend.splats.strategy import DensifyStrategy, scene_extent
 from backend.train.device import describe, resolve_device
 from backend.train.loop import LearningRates, TrainConfig, TrainResult, train
+from backend.train.memory_limit import BAKE, check_memory
 from backend.train.views import View, view_camera
 
 Painted = tuple[Camera, np.ndarray, np.ndarray]
@@ -124,6 +125,14 @@ def _load_inputs(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str
         proxy = load_proxy(proxy_path)
     original, source = load_albedo(capture.workspace, cfg.base)
     return _Inputs(capture, proxy, proxy_path, original, source, out_dir, device)
+
+
+def _check_memory(inp: _Inputs, cfg: BakeConfig) -> None:
+    """Over the memory limit, stop before any render: the estimate counts the painted views at full size
+    (the edit view, the virtual views and the capture views, at most) and the albedo's Gaussians."""
+    cam = view_camera(inp.capture.frames[0].camera, cfg.downscale)
+    check_memory("edit bake", BAKE, 1 + cfg.views + cfg.capture_views, cam.width, cam.height, len(inp.original),
+                 cfg.downscale)
 
 
 def _edit_view(inp: _Inputs, name: str, cfg: BakeConfig) -> _EditView:
@@ -286,6 +295,7 @@ def bake_edit(workspace: str | Path, proxy: str | Path | ProxyMesh, name: str,
     t_start = time.perf_counter()
     check_bake_config(cfg)
     inp = _load_inputs(workspace, proxy, name, cfg)
+    _check_memory(inp, cfg)
     edit = _edit_view(inp, name, cfg)
     painted = _painted_views(inp, edit, cfg)
     views = _windows(painted, cfg.crop_margin)

@@ -259,11 +259,16 @@ def headline_metrics(entry: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
+REPORT_CELL_WIDTH = 640
+"""report.png's cells are at most this many pixels wide: at a phone capture's full size, three rows of
+seven cells and the sheet held 1.7 GiB (96 views at 1920x1440: the run's peak)."""
+
+
 def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
                 backend: Backend = "auto") -> list[tuple[str, list[tuple[str, np.ndarray | None]]]]:
     """Contact-sheet rows, one per frame: input | A | S | R | A*S+R | GT A | GT S (sRGB-encoded float
-    images in [0, 1], shading halved; None where a layer is missing; ground-truth columns only when
-    some frame has them)."""
+    images in [0, 1], shading halved, at most :data:`REPORT_CELL_WIDTH` wide; None where a layer is
+    missing; ground-truth columns only when some frame has them)."""
     rows = []
     has_gt = {p: any(p in f.gt for f in frames) for p in ("albedo", "shading")}
     for f in frames:
@@ -271,8 +276,11 @@ def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], down
         h, w = next(iter(r.values())).shape[:2]
         g = ground_truth(f, w, h)
 
-        def show(x: torch.Tensor | None) -> np.ndarray | None:
-            return None if x is None else to_display(x, "linear").numpy()
+        cw = min(w, REPORT_CELL_WIDTH)
+        ch = max(1, round(h * cw / w))
+
+        def show(x: torch.Tensor | None, cw: int = cw, ch: int = ch) -> np.ndarray | None:
+            return None if x is None else resize_image(to_display(x, "linear").numpy(), cw, ch)
 
         half = lambda x: None if x is None else 0.5 * x  # noqa: E731  (shading reaches ~3: halved to show its range)
         cells = [("input", show(g["image"])), ("albedo A", show(r.get("albedo"))), ("shading S/2", show(half(r.get("shading")))),

@@ -25,11 +25,18 @@ def _fit(img: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def _text(canvas: np.ndarray, text: str, x: int, y: int, scale: float) -> None:
-    # drawn as an 8-bit coverage mask, then laid over the float sheet: OpenCV 5 draws on 8-bit images only
-    mask = np.zeros(canvas.shape[:2], dtype=np.uint8)
-    cv2.putText(mask, text, (x, y), _FONT, scale, 255, 1, cv2.LINE_AA)
+    # drawn as an 8-bit coverage mask, then laid over the float sheet: OpenCV 5 draws on 8-bit images only.
+    # Only the text's box is touched (the whole sheet's mask and blend were hundreds of MiB a line).
+    (tw, th), base = cv2.getTextSize(text, _FONT, scale, 1)
+    x0, y0 = max(0, x - 2), max(0, y - th - 2)
+    x1, y1 = min(canvas.shape[1], x + tw + 2), min(canvas.shape[0], y + base + 2)
+    if x1 <= x0 or y1 <= y0:
+        return
+    mask = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+    cv2.putText(mask, text, (x - x0, y - y0), _FONT, scale, 255, 1, cv2.LINE_AA)
     a = mask.astype(np.float32)[..., None] / 255.0
-    canvas[:] = canvas * (1.0 - a) + np.asarray(_TEXT, dtype=np.float32) * a
+    box = canvas[y0:y1, x0:x1]
+    box[:] = box * (1.0 - a) + np.asarray(_TEXT, dtype=np.float32) * a
 
 
 def contact_sheet(rows: Sequence[Row], title: str = "", min_cell_width: int = 192) -> np.ndarray:

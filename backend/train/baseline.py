@@ -33,6 +33,7 @@ from backend.splats.strategy import DensifyStrategy, scene_extent
 from backend.train.device import describe, resolve_device
 from backend.train.loop import Stage, TrainConfig, train
 from backend.train.memory_limit import TRAIN_3DGS, check_memory
+from backend.train.view_store import TRAIN_3DGS_DISK_PER_VIEW_PIXEL, ViewStore, check_disk_room
 from backend.train.views import (
     ColorSpace,
     check_space,
@@ -106,11 +107,15 @@ def baseline_stage(workspace: str | Path, cfg: BaselineConfig,
     cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
     check_memory("train-3dgs", TRAIN_3DGS, len(capture.frames), cam.width, cam.height,
                  cfg.train.densify.max_gaussians, cfg.downscale)
+    ckpt = capture.workspace.checkpoints
+    check_disk_room(ckpt, TRAIN_3DGS_DISK_PER_VIEW_PIXEL * len(capture.frames) * cam.width * cam.height, "train-3dgs")
+    store = ViewStore(ckpt)  # the views' pixels in a file, read per use: none held in the process
     idx = {f.name: i for i, f in enumerate(capture.frames)}
     with_depth = cfg.train.lambda_depth > 0
     train_views = load_views(train_frames, [idx[f.name] for f in train_frames], cfg.color_space, cfg.downscale,
-                             with_depth=with_depth)
-    test_views = load_views(test_frames, [idx[f.name] for f in test_frames], cfg.color_space, cfg.downscale)
+                             with_depth=with_depth, store=store)
+    test_views = load_views(test_frames, [idx[f.name] for f in test_frames], cfg.color_space, cfg.downscale,
+                            store=store)
     extent = scene_extent([v.camera for v in train_views])
     if initial is None:
         gaussians, source = initial_gaussians(capture, train_frames, cfg, "radiance", cfg.sh_degree)

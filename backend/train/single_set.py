@@ -51,6 +51,7 @@ from backend.train.intrinsic.stages import depth_term, inverse_photometric
 from backend.train.intrinsic.state import PENDING_DIR, STATE_DIR, DecomposeState, jsonable
 from backend.train.loop import Stage, TrainConfig, sum_terms, train
 from backend.train.losses import gray_reg, photometric, scale_reg
+from backend.train.view_store import ViewStore
 from backend.train.views import View
 
 NAME = "single_set"
@@ -210,10 +211,11 @@ def decompose_single_set(workspace: str | Path, config: DecomposeConfig | None =
     state.set(name, {"done": False, "extra": extra})
 
     t0 = time.perf_counter()
-    train_views = setup.views(setup.train_frames, "image", cfg.downscale, tcfg.lambda_depth > 0)
+    store = ViewStore(setup.ckpt_root)  # the views' pixels in a file, read per use (as decompose's stages)
+    train_views = setup.views(setup.train_frames, "image", cfg.downscale, tcfg.lambda_depth > 0, store)
     for v, a in zip(train_views, setup.views(setup.train_frames, "albedo", cfg.downscale, False)):
         v.extras["albedo"] = a.image
-    test_views = setup.views(setup.test_frames, "image", cfg.downscale, False)
+    test_views = setup.views(setup.test_frames, "image", cfg.downscale, False, store)
     init, how = _initial_set(setup, cfg, train_views, gain)
     phases = (cfg.albedo.iterations, cfg.albedo.iterations + cfg.shading.iterations)
     stage = SingleSetStage(name, init, train_views, test_views, tcfg, setup.extent,

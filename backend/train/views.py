@@ -3,7 +3,9 @@
 Images are loaded once, optionally downscaled, and kept as the files' 8/16-bit codes; a view
 decodes them to the stage's working colour space when read (``srgb``: the values as they are, as
 vanilla 3DGS trains; ``linear``: inverse sRGB curve, the pipeline's space for compositing A * S + R).
-Cached layers are kept in 16 bits: host memory per view-pixel stays at a few bytes.
+Cached layers are kept in 16 bits: host memory per view-pixel stays at a few bytes. Given a
+:class:`backend.train.view_store.ViewStore`, a view keeps all of them in its file instead and reads
+them back per use: the process then holds no per-view pixels at all.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from backend.core.errors import IGSError
 from backend.core.imageio import linear_to_srgb, read_depth, read_image_codes, srgb_to_linear
 from backend.core.workspace import Frame
 from backend.render.threads import get_threads
+from backend.train.view_store import Stored, ViewStore
 
 ColorSpace = Literal["srgb", "linear"]
 COLOR_SPACES: tuple[ColorSpace, ...] = get_args(ColorSpace)
@@ -49,6 +52,11 @@ def _compact(t: torch.Tensor) -> torch.Tensor:
     return t.to(torch.float16)
 
 
+def _value(t: torch.Tensor | Stored, pin: bool = False) -> torch.Tensor:
+    """A view's tensor as held, or read back from its store (into pinned memory with ``pin``)."""
+    return t.read(pin) if isinstance(t, Stored) else t
+
+
 def _wide(t: torch.Tensor) -> torch.Tensor:
     """A compact cached layer back as float32 (uint16: sRGB codes, float16: values)."""
     if t.dtype == torch.uint16:
@@ -59,19 +67,21 @@ def _wide(t: torch.Tensor) -> torch.Tensor:
 class Extras(MutableMapping):
     """A view's stage-specific tensors by name. A compact view stores its floating-point entries on the
     host in 2 bytes a value (:func:`_compact`: uint16 sRGB codes in [0, 1], float16 beyond) and reads
-    them back as float32 (:meth:`raw` gives the stored tensor); a working view (:meth:`View.working`)
-    stores and reads them as they are."""
+    them back as float32 (:meth:`raw` gives the stored tensor), in a :class:`ViewStore`'s file when
+    given one; a working view (:meth:`View.working`) stores and reads them as they are."""
 
-    def __init__(self, items: Mapping[str, torch.Tensor] | None = None, compact: bool = False):
+    def __init__(self, items: Mapping[str, torch.Tensor] | None = None, compact: bool = False,
+                 store: ViewStore | None = None):
         self.compact = compact
+        self.store = store if compact else None
         self.pinned = False
         """Whether new entries go to pinned host memory (a compact view that streams to a GPU)."""
-        self._d: dict[str, torch.Tensor] = {}
+        self._d: dict[str, torch.Tensor | Stored] = {}
         for k, v in (items or {}).items():
             self[k] = v
 
     def __getitem__(self, key: str) -> torch.Tensor:
-        t = self._d[key]
+        t = _value(self._d[key])
         return _wide(t) if self.compact else t
 
     def __setitem__(self, key: str, value: torch.Tensor) -> None:
@@ -86,15 +96,23 @@ class Extras(MutableMapping):
     def __len__(self) -> int:
         return len(self._d)
 
-    def raw(self, key: str) -> torch.Tensor:
-        """The tensor as stored (uint16 codes or float16 on a compact view)."""
+    def raw(self, key: str, pin: bool = False) -> torch.Tensor:
+        """The tensor as stored (uint16 codes or float16 on a compact view), read back from the store's
+        file when it is there (into pinned memory with ``pin``)."""
+        return _value(self._d[key], pin)
+
+    def entry(self, key: str) -> torch.Tensor | Stored:
+        """The entry as held: a tensor, or where it is in the store's file (not read)."""
         return self._d[key]
 
-    def put_raw(self, key: str, value: torch.Tensor) -> None:
-        """Store ``value`` as it is (a compact view keeps it on the host, pinned when streaming)."""
-        if self.compact:
+    def put_raw(self, key: str, value: torch.Tensor | Stored) -> None:
+        """Store ``value`` as it is (a compact view keeps it on the host, pinned when streaming, or in its
+        store's file); an entry already in a store's file (:meth:`entry`) is kept where it is."""
+        if self.compact and not isinstance(value, Stored):
             value = value.to("cpu")
-            if self.pinned and not value.is_pinned():
+            if self.store is not None:
+                value = self.store.put(value)
+            elif self.pinned and not value.is_pinned():
                 value = value.pin_memory()
         self._d[key] = value
 
@@ -127,21 +145,26 @@ class View:
     A *compact* view (the image given as uint8/uint16 sRGB codes, as :func:`load_views` makes them)
     holds its tensors on the host at 8/16 bits per channel (image), 16 bits (cached layers: see
     :class:`Extras`) and float32 (the depth prior), and gives float32 on reading (``image``,
-    ``depth``, ``extras[k]``). The loop trains on :meth:`working` copies: float32 on the training
-    device, made per iteration for the views in use, so that neither the host nor the GPU holds
-    float32 tensors for the whole capture."""
+    ``depth``, ``extras[k]``); with a ``store`` all of them are in its file instead, read per use.
+    The loop trains on :meth:`working` copies: float32 on the training device, made per iteration
+    for the views in use, so that neither the host nor the GPU holds float32 tensors for the whole
+    capture."""
 
-    def __init__(self, index: int, camera: Camera, image: torch.Tensor, depth: torch.Tensor | None = None,
-                 extras: Mapping[str, torch.Tensor] | None = None, space: ColorSpace = "srgb"):
+    def __init__(self, index: int, camera: Camera, image: torch.Tensor | Stored,
+                 depth: torch.Tensor | Stored | None = None, extras: Mapping[str, torch.Tensor] | None = None,
+                 space: ColorSpace = "srgb", store: ViewStore | None = None):
         check_space(space)
         self.index = index
         self.camera = camera
         self.space: ColorSpace = space
         """The working colour space a compact image decodes to."""
-        self._image = image
         compact = not image.is_floating_point()
+        if compact and store is not None:  # the pixels go to the store's file; the view keeps where
+            image = image if isinstance(image, Stored) else store.put(image)
+            depth = depth if depth is None or isinstance(depth, Stored) else store.put(depth)
+        self._image = image
         self._depth = depth  # float32: the depth prior's exact values (half precision moved the fit)
-        self.extras = Extras(extras, compact=compact)
+        self.extras = Extras(extras, compact=compact, store=store)
 
     @property
     def compact(self) -> bool:
@@ -153,7 +176,7 @@ class View:
 
     @property
     def image(self) -> torch.Tensor:
-        return decode_image(self._image, self.space)
+        return decode_image(_value(self._image), self.space)
 
     @image.setter
     def image(self, value: torch.Tensor) -> None:
@@ -161,27 +184,28 @@ class View:
 
     @property
     def depth(self) -> torch.Tensor | None:
-        return self._depth
+        return _value(self._depth) if self._depth is not None else None
 
     def nbytes(self) -> int:
-        """Bytes the view holds (image, depth and extras as stored)."""
+        """Bytes the view holds in memory (image, depth and extras as stored; none for those in a store's file)."""
         ts = [self._image, *([self._depth] if self._depth is not None else []),
-              *(self.extras.raw(k) for k in self.extras)]
-        return sum(t.numel() * t.element_size() for t in ts)
+              *(self.extras.entry(k) for k in self.extras)]
+        return sum(t.numel() * t.element_size() for t in ts if isinstance(t, torch.Tensor))
 
     def to_(self, device: torch.device) -> View:
         """Put the view where a stage on ``device`` reads it, in place: a working view's tensors move
         to ``device``; a compact view's stay on the host (pinned for a CUDA device, so that
-        :meth:`working` copies them asynchronously)."""
+        :meth:`working` copies them asynchronously; those in a store's file are read into pinned memory)."""
         device = torch.device(device)
         if self.compact:
             if device.type == "cuda" and not self.extras.pinned:
-                self._image = self._image.pin_memory()
-                if self._depth is not None:
+                if isinstance(self._image, torch.Tensor):
+                    self._image = self._image.pin_memory()
+                if isinstance(self._depth, torch.Tensor):
                     self._depth = self._depth.pin_memory()
                 self.extras.pinned = True
                 for k in list(self.extras):
-                    self.extras.put_raw(k, self.extras.raw(k))
+                    self.extras.put_raw(k, self.extras.entry(k))
             return self
         self._image = self._image.to(device)
         if self._depth is not None:
@@ -200,13 +224,14 @@ class View:
                 None if self._depth is None else self._depth.to(device),
                 {k: v.to(device) for k, v in self.extras.items()})
 
-        def move(t: torch.Tensor) -> torch.Tensor:
+        def move(t: torch.Tensor | Stored) -> torch.Tensor:
+            t = _value(t, pin=device.type == "cuda")  # a read from the store's file: pinned for a GPU
             return t.to(device, non_blocking=t.is_pinned())
 
         image = decode_image(move(self._image), self.space)
         depth = None if self._depth is None else move(self._depth)
         return View(self.index, self.camera, image, depth,
-                    {k: _wide(move(self.extras.raw(k))) for k in self.extras})
+                    {k: _wide(move(self.extras.entry(k))) for k in self.extras})
 
 
 def check_space(space: str) -> None:
@@ -264,9 +289,9 @@ def view_camera(camera: Camera, downscale: float) -> Camera:
 
 
 def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpace = "srgb", downscale: float = 1.0,
-               with_depth: bool = False, image_of=None) -> list[View]:
+               with_depth: bool = False, image_of=None, store: ViewStore | None = None) -> list[View]:
     """Load the images (and depth maps) of ``frames`` as compact views (:class:`View`): 8/16-bit codes
-    as the files hold them.
+    as the files hold them, in ``store``'s file when given (the views then hold none of their pixels).
 
     ``image_of(frame) -> Path`` picks which image of the frame is the target (default: the input
     photo; a stage may pass the albedo map instead).
@@ -287,7 +312,7 @@ def load_views(frames: Sequence[Frame], indices: Sequence[int], space: ColorSpac
                 raise IGSError(f"{frame.depth}: depth map is {d.shape[1]}x{d.shape[0]} but the image is "
                                f"{frame.camera.width}x{frame.camera.height}")
             depth = torch.from_numpy(resize_depth(d, cam.width, cam.height))
-        return View(index, cam, torch.from_numpy(np.ascontiguousarray(img)), depth, space=space)
+        return View(index, cam, torch.from_numpy(np.ascontiguousarray(img)), depth, space=space, store=store)
 
     if not frames:
         return []

@@ -550,3 +550,24 @@ def test_writing_buttons_are_greyed_out_while_another_program_writes(scene, tmp_
             holder.stdin.close()
             holder.wait(timeout=60)
     assert bpy.ops.igs.decompose.poll()
+
+
+def test_a_job_over_the_memory_limit_is_refused_with_the_backends_line(scene, tmp_path, fake_python, monkeypatch):
+    ws = tmp_path / "ws"
+    make_tiny_workspace(ws)
+    scene.igs.workspace = str(ws)
+    bpy.context.preferences.addons[MOD].preferences.backend_python = str(fake_python)
+    monkeypatch.setenv("IGS_MEMORY_LIMIT", "1M")  # the machine's room as the backend reads it
+    for op, command in ((bpy.ops.igs.decompose, "decompose"), (bpy.ops.igs.train_3dgs, "train-3dgs")):
+        with pytest.raises(RuntimeError, match=rf"{command}: estimated peak memory [0-9.]+ GiB is over the limit 0.0 GiB "
+                                               r"\(IGS_MEMORY_LIMIT\)"):
+            op()
+        assert not scene.igs.job_running and not (ws / "checkpoints").exists()  # no job was started
+    # the line the backend stops with, word for word
+    p = subprocess.run([PYTHON, "-m", "backend", "train-3dgs", str(ws)], capture_output=True, text=True, cwd=ROOT,
+                       env={**os.environ, "IGS_MEMORY_LIMIT": "1M"}, timeout=300)
+    assert p.returncode == 2 and p.stderr.strip().endswith(scene.igs.last_report)
+    monkeypatch.setenv("IGS_MEMORY_LIMIT", "1T")  # room enough: the job starts (and says what the stand-in says)
+    monkeypatch.setenv("IGS_FAKE_MODE", "user")
+    with pytest.raises(RuntimeError, match="Train 3DGS failed: /ws/images: missing images folder"):
+        bpy.ops.igs.train_3dgs()

@@ -526,3 +526,23 @@ def test_the_synthetic_capture_can_be_a_scene_of_the_procedural_family(scene, tm
     props.synth_family, props.synth_scene_seed = True, 103
     args = [str(a) for a in capture.import_args(props)]
     assert args[args.index("--scene-seed") + 1] == "103" and args[args.index("--seed") + 1] == "0"
+
+
+def test_the_panel_says_the_last_run_was_killed(scene, tmp_path):
+    ws = tmp_path / "ws"
+    make_tiny_workspace(ws)
+    scene.igs.workspace = str(ws)
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a process id that no longer runs: the backend's, killed for memory
+    (ws / "checkpoints").mkdir()
+    (ws / "checkpoints" / "last_run.json").write_text(json.dumps(
+        {"command": "decompose", "pid": gone.pid, "state": "running", "started_at": "2026-11-29 05:00:00",
+         "progress": {"stage": "shading", "step": 40, "total": 5250}, "peak_rss_mib": 9800.0}))
+    bpy.ops.igs.load_cameras()
+    shown = shown_text(draw())
+    assert ("The last run (decompose, started 2026-11-29 05:00:00) was killed at shading 40/5250 without finishing, "
+            "most likely for memory") in shown and "9800 MiB" in shown
+    (ws / "checkpoints" / "last_run.json").write_text(json.dumps({"command": "decompose", "pid": gone.pid,
+                                                                  "state": "finished"}))
+    bpy.ops.igs.load_cameras()
+    assert "killed" not in shown_text(draw())

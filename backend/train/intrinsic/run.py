@@ -49,6 +49,7 @@ from backend.train.intrinsic.state import (
 )
 from backend.train.loop import Stage, TrainConfig, train
 from backend.train.memory import release_freed_memory
+from backend.train.view_store import ViewStore
 from backend.train.views import View
 
 MODE = "three-set"
@@ -144,8 +145,11 @@ def run_stage(name: StageName, setup: Setup, cfg: DecomposeConfig, layers: dict[
     release_freed_memory()
     with_depth = tcfg.lambda_depth > 0
     target = "albedo" if name == "albedo" else "image"
-    train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual")
-    test_views = setup.views(setup.test_frames, target, cfg.downscale, False)
+    # the stage's views and caches in a file of the checkpoints folder, read per use (view_store): the
+    # process holds one step's views, not the capture's
+    store = ViewStore(setup.ckpt_root)
+    train_views = setup.views(setup.train_frames, target, cfg.downscale, with_depth or name == "residual", store)
+    test_views = setup.views(setup.test_frames, target, cfg.downscale, False, store)
     stage, init, how = _stage_with_init(name, setup, cfg, layers, train_views, test_views, carried)
     tcfg = stage.config  # the shading's budget is set from the albedo layer
     initial_n = len(init)

@@ -17,6 +17,7 @@ from backend.splats.strategy import scene_extent
 from backend.train.device import resolve_device
 from backend.train.intrinsic.config import STAGES, DecomposeConfig
 from backend.train.memory_limit import DECOMPOSE, check_memory
+from backend.train.view_store import DECOMPOSE_DISK_PER_VIEW_PIXEL, ViewStore, check_disk_room
 from backend.train.views import View, load_views, view_camera
 
 ViewTarget = Literal["albedo", "image"]
@@ -38,11 +39,14 @@ class Setup:
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
     """Where the stages train and the layers are evaluated."""
 
-    def views(self, frames: Sequence[Frame], target: ViewTarget, downscale: float, with_depth: bool) -> list[View]:
-        """Views in linear RGB; ``target`` 'albedo' (the albedo maps) or 'image' (the input photos)."""
+    def views(self, frames: Sequence[Frame], target: ViewTarget, downscale: float, with_depth: bool,
+              store: ViewStore | None = None) -> list[View]:
+        """Views in linear RGB; ``target`` 'albedo' (the albedo maps) or 'image' (the input photos); their
+        pixels in ``store``'s file when given."""
         image_of = (lambda f: f.albedo) if target == "albedo" else None  # noqa: E731
         return load_views(frames, [self.indices[f.name] for f in frames], "linear", downscale,
-                          with_depth=with_depth and all(f.depth is not None for f in frames), image_of=image_of)
+                          with_depth=with_depth and all(f.depth is not None for f in frames), image_of=image_of,
+                          store=store)
 
 
 def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path | None = None,
@@ -67,6 +71,8 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
     cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
     check_memory("decompose", DECOMPOSE, len(capture.frames), cam.width, cam.height,
                  cfg.albedo.densify.max_gaussians, cfg.downscale)  # the largest set a stage trains
+    check_disk_room(ckpt_root or ws.checkpoints,
+                    DECOMPOSE_DISK_PER_VIEW_PIXEL * len(capture.frames) * cam.width * cam.height, "decompose")
     summary = capture_summary(capture)["priors"]
     priors = {"albedo": summary["albedo"], "depth": summary["depth"] if summary["depth_views"] == len(capture.frames)
               else f"{summary['depth']} ({summary['depth_views']}/{len(capture.frames)} views: depth terms off)",

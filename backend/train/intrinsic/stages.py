@@ -27,6 +27,7 @@ from backend.train.intrinsic.shading_priors import (
 )
 from backend.train.loop import Stage, TrainConfig, depth_loss_applies, make_optimizer, means_lr, sum_terms
 from backend.train.losses import depth_l1, gray_reg, inverse_domain, photometric, scale_reg
+from backend.train.view_store import Stored
 from backend.train.views import View
 
 
@@ -110,14 +111,15 @@ def cache_frozen(views: Sequence[View], frozen: Sequence[GaussianSet], backend: 
     return time.perf_counter() - t0
 
 
-def albedo_renders(views: Sequence[View]) -> dict[str, dict[str, torch.Tensor]]:
+def albedo_renders(views: Sequence[View]) -> dict[str, dict[str, torch.Tensor | Stored]]:
     """G_A's cached renders of ``views`` by view name, to put into the same views of a later stage
-    (:func:`reuse_albedo_renders`) when it freezes the same albedo layer in the same process."""
-    return {v.name: {k: v.extras.raw(k) for k in (*ALBEDO_KEYS, "depth_A") if k in v.extras}
+    (:func:`reuse_albedo_renders`) when it freezes the same albedo layer in the same process. Renders in
+    a store's file stay there (the entries say where)."""
+    return {v.name: {k: v.extras.entry(k) for k in (*ALBEDO_KEYS, "depth_A") if k in v.extras}
             for v in views if _holds_albedo(v)}
 
 
-def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, torch.Tensor]]) -> int:
+def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, torch.Tensor | Stored]]) -> int:
     """Put the renders of :func:`albedo_renders` into ``views`` (matched by name, as they are stored);
     returns how many views took them."""
     n = 0

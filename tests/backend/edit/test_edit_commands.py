@@ -88,6 +88,16 @@ def test_bad_inputs_fail_with_clear_errors(ws, tmp_path, capsys):
     _bad(["edit", "bake", str(ws), "--proxy", str(tmp_path / "missing.json")], capsys, "missing.json", "not found")
 
 
+def test_a_bake_over_the_memory_limit_stops_before_any_render(ws, tmp_path, capsys, monkeypatch):
+    plane = tmp_path / "plane.json"
+    plane.write_text(json.dumps({"center": [1, 0, 0], "normal": [1, 0, 0], "u_axis": [0, 1, 0], "v_axis": [0, 0, 1],
+                                 "size": [0.5, 0.5]}))
+    monkeypatch.setenv("IGS_MEMORY_LIMIT", "512M")  # under the bake's base: nothing fits
+    _bad(["edit", "bake", str(ws), "--plane", str(plane), "--color", "1,0,0", "--name", "big"], capsys,
+         "edit bake: estimated peak memory", "is over the limit 0.5 GiB (IGS_MEMORY_LIMIT)")
+    assert not (ws / "edits" / "big").exists()
+
+
 def test_bake_changes_the_edit_and_keeps_the_rest(ws):
     from backend.capture.load import load_capture
     proxy = plane_proxy([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.7, 0.7],

@@ -220,3 +220,17 @@ def test_bench_table_prints_the_foreground_columns_and_the_leakage():
     header, _, _, shading_row = text.splitlines()[:4]
     assert "PSNR fg" in header and "SSIM fg" in header and "33.25" in shading_row and "0.950" in shading_row
     assert "80.0 % of the pixels" in text and "0.310, 0.120; ground-truth S (floor): 0.050, n/a" in text
+
+
+def test_report_cells_are_capped_in_width(tmp_path):
+    from backend.capture.load import load_capture
+    from backend.eval.layer_metrics import REPORT_CELL_WIDTH, report_rows
+    from backend.splats.ply import read_ply
+
+    root = make_layered_workspace(tmp_path / "box")
+    layers = {k: read_ply(root / "layers" / f"{k}.ply", kind=k)[0] for k in ("albedo", "shading", "residual")}
+    frames = load_capture(root).frames[:1]
+    (_, small), = report_rows(layers, frames, 1.0, "cpu")
+    assert {c.shape for _, c in small if c is not None} == {(24, 32, 3)}  # a small capture as it is
+    (_, big), = report_rows(layers, frames, 32 / 1280, "cpu")  # rendered at 1280x960: the cells at 640x480
+    assert {c.shape for _, c in big if c is not None} == {(480, REPORT_CELL_WIDTH, 3)}
