@@ -57,10 +57,10 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.workspace import Workspace
 from backend.synth import room
+from backend.synth.added_meshes import resolve_meshes
 from backend.synth.blender import BlenderWorker, choose_blender
 from backend.synth.family.build import build_family_scene
 from backend.synth.gt_edits import choose_edit_view, render_edits, write_edit_definitions, write_edit_json
-from backend.synth.added_meshes import resolve_meshes
 from backend.synth.gt_lights import PASSES as LIGHT_PASSES
 from backend.synth.gt_lights import (
     LightViews,
