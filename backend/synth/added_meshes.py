@@ -119,7 +119,8 @@ def default_meshes(settings: SynthSettings, description: dict[str, Any]) -> list
     out: list[dict[str, Any]] = []
     for spec in DEFAULTS:
         spot = free_spot(hx, hy, blocked, spec["size"], held, [m["position"] for m in out])
-        out.append({**spec, "position": [round(float(spot[0]), 3), round(float(spot[1]), 3), 0.0]})
+        x, y = (round(float(v), 3) + 0.0 for v in spot)  # + 0.0: no -0.0 in the file
+        out.append({**spec, "position": [x, y, 0.0]})
     return out
 
 
