@@ -157,6 +157,8 @@ def parser() -> argparse.ArgumentParser:
                    "(no mesh rows)")
     p.add_argument("--no-native", action="store_true", help="leave out Blender's own render (the native and "
                    "mesh rows, which need the bpy 5.3 module)")
+    p.add_argument("--native-samples", type=int, default=None,
+                   help="Cycles samples per pixel of Blender's native renders (default: the capture's)")
     p.add_argument("--shadow-threshold", type=float, default=ev.shadow_threshold,
                    help=f"linear luminance by which the truth with the meshes is darker in their shadow region "
                         f"(default {ev.shadow_threshold})")
@@ -196,10 +198,13 @@ def main(argv: list[str] | None = None) -> int:
         s.check()
         if args.lit_threshold <= 0 or args.edge_band < 0 or args.shadow_threshold <= 0:
             raise IGSError("--lit-threshold and --shadow-threshold must be > 0 and --edge-band >= 0")
+        if args.native_samples is not None and not 1 <= args.native_samples <= 65536:
+            raise IGSError(f"--native-samples must be 1 to 65536, got {args.native_samples}")
         relight = replace(RelightConfig(), normals=args.normals, shadow_size=args.shadow_size, backend=args.backend)
         relight.check()
         ev = EvalSettings(lit_threshold=args.lit_threshold, edge_band=args.edge_band, relight=relight,
-                          figures=args.figures, native=not args.no_native, shadow_threshold=args.shadow_threshold)
+                          figures=args.figures, native=not args.no_native, shadow_threshold=args.shadow_threshold,
+                          native_samples=args.native_samples)
         meshes = None if args.meshes == "none" else args.meshes
         settings = {"capture_and_decomposition": s.decomposition_json(), "lights": args.lights, "meshes": meshes,
                     "evaluation": {**{k: v for k, v in asdict(ev).items() if k != "relight"},

@@ -89,6 +89,8 @@ class EvalSettings:
     ours, sh_strip and ceiling (sRGB)."""
     native: bool = True
     """Also render the ``native`` and ``mesh`` rows with Blender 5.3 (:mod:`backend.bench.relight_native`)."""
+    native_samples: int | None = None
+    """Cycles' samples per pixel of the native renders (None: the capture's)."""
     shadow_threshold: float = 0.02
     """Linear luminance by which the truth with the meshes is darker than without them in their shadow region."""
     relight: RelightConfig = field(default_factory=RelightConfig)
@@ -185,7 +187,8 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
     if missing or not views:
         raise IGSError(f"{lights_path}: views {missing or '(none)'} are not views of the capture")
     meshes = meshes_of(ws)
-    native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native") if s.native \
+    native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native",
+                           samples=s.native_samples) if s.native \
         else NativeRenders(note="not asked for")
     mesh_scores = MeshScores() if meshes and native.folder is not None else None
     layers = {k: read_ply(ws.layers / f"{k}.ply", kind=k) for k in ("albedo", "shading", "residual", "radiance")}

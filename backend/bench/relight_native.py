@@ -59,6 +59,7 @@ class NativeRenders:
     note: str = ""
     seconds: list[float] = field(default_factory=list)
     jobs_ran: int | None = None
+    samples: int | None = None
 
     @staticmethod
     def file(stem: str, light: str, meshes: bool) -> str:
@@ -72,6 +73,7 @@ class NativeRenders:
     def summary(self) -> dict[str, Any]:
         s = sorted(self.seconds)
         return {"rendered": len(s), "note": self.note or None, "backend_jobs_started": self.jobs_ran,
+                "samples": self.samples,
                 "seconds_per_frame_median": round(s[len(s) // 2], 3) if s else None}
 
 
@@ -82,10 +84,11 @@ def meshes_of(ws: Workspace) -> list[dict[str, Any]]:
 
 
 def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: list[dict], folder: Path,
-                  python: str | None = None) -> NativeRenders:
+                  python: str | None = None, samples: int | None = None) -> NativeRenders:
     """Blender's render of every view in ``views`` with each light of ``lights`` (canonical), without and
     (when ``meshes``) with the meshes, into ``folder``; a :class:`NativeRenders` with a note and no
-    renders when ``python`` (default: this one) has no bpy 5.3 module."""
+    renders when ``python`` (default: this one) has no bpy 5.3 module. ``samples``: Cycles' samples per pixel
+    (default: the capture's)."""
     python = python or sys.executable
     if python == sys.executable and importlib.util.find_spec("bpy") is None:
         return NativeRenders(note=f"no bpy module in {python}: the native rows need Blender 5.3's")
@@ -93,9 +96,10 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     renders = [{"view": v, "light": li["name"], "meshes": m, "file": NativeRenders.file(Path(v).stem, li["name"], m)}
                for v in views for li in lights for m in ((False, True) if meshes else (False,))]
     folder.mkdir(parents=True, exist_ok=True)
-    job = {"workspace": str(ws.root), "out": str(folder), "samples": settings["samples"], "seed": settings["seed"],
+    job = {"workspace": str(ws.root), "out": str(folder), "samples": samples or settings["samples"],
+           "seed": settings["seed"],
            "threads": os.cpu_count() or 1, "lights": lights, "meshes": meshes, "renders": renders}
-    out = NativeRenders(folder=folder)
+    out = NativeRenders(folder=folder, samples=job["samples"])
     root = Path(__file__).resolve().parents[2]
     with tempfile.NamedTemporaryFile("w", suffix=".json", prefix="igs_native_jobs_", delete=False) as f:
         json.dump(job, f)
