@@ -40,21 +40,11 @@ def say(**fields: Any) -> None:
 
 
 def install_addon(tmp: Path):
-    """Build the extension from this checkout, install it into a temporary repository and enable it; the
-    add-on's preferences."""
-    import bpy
+    """The extension built from this checkout, installed into a temporary repository in ``tmp`` and enabled, as
+    the add-on's tests install it (:mod:`tests.support.addon_install`), with native splats on; its preferences."""
+    from tests.support.addon_install import install
 
-    from tests.support.blender import MOD, PYTHON, REPO, build_zip
-
-    bpy.ops.wm.read_homefile(use_empty=True)
-    prefs = bpy.context.preferences
-    repo = prefs.extensions.repos.new(name="IGS bench", module=REPO, source="USER", custom_directory=str(tmp / "repo"))
-    bpy.ops.extensions.package_install_files(filepath=str(build_zip(tmp / "build")), repo=repo.module,
-                                             enable_on_install=True)
-    if MOD not in prefs.addons:
-        raise RuntimeError("the extension did not install")
-    addon = prefs.addons[MOD].preferences
-    addon.backend_python = PYTHON
+    addon = install(tmp)
     if hasattr(addon, "native_splats"):
         addon.native_splats = True
     return addon
