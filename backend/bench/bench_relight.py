@@ -157,6 +157,9 @@ def parser() -> argparse.ArgumentParser:
                    "(no mesh rows)")
     p.add_argument("--no-native", action="store_true", help="leave out Blender's own render (the native and "
                    "mesh rows, which need the bpy 5.3 module)")
+    p.add_argument("--eval-views", type=int, default=None,
+                   help="score only this many of the held-out views, evenly spaced (default: all); every method "
+                        "on the same views")
     p.add_argument("--native-samples", type=int, default=None,
                    help="Cycles samples per pixel of Blender's native renders (default: the capture's)")
     p.add_argument("--shadow-threshold", type=float, default=ev.shadow_threshold,
@@ -198,13 +201,15 @@ def main(argv: list[str] | None = None) -> int:
         s.check()
         if args.lit_threshold <= 0 or args.edge_band < 0 or args.shadow_threshold <= 0:
             raise IGSError("--lit-threshold and --shadow-threshold must be > 0 and --edge-band >= 0")
+        if args.eval_views is not None and args.eval_views < 1:
+            raise IGSError(f"--eval-views must be >= 1, got {args.eval_views}")
         if args.native_samples is not None and not 1 <= args.native_samples <= 65536:
             raise IGSError(f"--native-samples must be 1 to 65536, got {args.native_samples}")
         relight = replace(RelightConfig(), normals=args.normals, shadow_size=args.shadow_size, backend=args.backend)
         relight.check()
         ev = EvalSettings(lit_threshold=args.lit_threshold, edge_band=args.edge_band, relight=relight,
                           figures=args.figures, native=not args.no_native, shadow_threshold=args.shadow_threshold,
-                          native_samples=args.native_samples)
+                          native_samples=args.native_samples, views=args.eval_views)
         meshes = None if args.meshes == "none" else args.meshes
         settings = {"capture_and_decomposition": s.decomposition_json(), "lights": args.lights, "meshes": meshes,
                     "evaluation": {**{k: v for k, v in asdict(ev).items() if k != "relight"},

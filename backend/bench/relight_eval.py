@@ -89,6 +89,8 @@ class EvalSettings:
     ours, sh_strip and ceiling (sRGB)."""
     native: bool = True
     """Also render the ``native`` and ``mesh`` rows with Blender 5.3 (:mod:`backend.bench.relight_native`)."""
+    views: int | None = None
+    """Score only this many of the held-out views, evenly spaced (None: all): every method on the same ones."""
     native_samples: int | None = None
     """Cycles' samples per pixel of the native renders (None: the capture's)."""
     shadow_threshold: float = 0.02
@@ -186,6 +188,8 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
     missing = [v for v in views if v not in frames]
     if missing or not views:
         raise IGSError(f"{lights_path}: views {missing or '(none)'} are not views of the capture")
+    if s.views is not None and s.views < len(views):
+        views = [views[round(i * (len(views) - 1) / max(s.views - 1, 1))] for i in range(s.views)]
     meshes = meshes_of(ws)
     native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native",
                            samples=s.native_samples) if s.native \

@@ -79,3 +79,16 @@ def test_bad_options_are_one_error(tmp_path, capsys):
 def test_a_too_small_shadow_map_is_refused(tmp_path, capsys, flag):
     assert bench_relight.main(["--root", str(tmp_path), flag]) == 2
     assert "shadow-size" in capsys.readouterr().err
+
+
+def test_eval_views_and_no_native_pick_what_is_scored(tmp_path):
+    needs_synth_renderer()
+    out = tmp_path / "relight.json"
+    argv = ["--root", str(tmp_path), "--scene-seeds", "room", "--preset", "test", "--views", "9", "--iterations", "20",
+            "--max-gaussians", "2000", "--backend", "cpu", "--shadow-size", "64", "--meshes", "none",
+            "--eval-views", "1", "--no-native", "--out", str(out)]
+    assert bench_relight.main(argv) == 0
+    scene = json.loads(out.read_text())["scenes"]["room"]
+    assert scene["views"] == ["frame_0000.png"] and scene["pixels"]["image"] == 3 * 64 * 48
+    assert scene["native"]["rendered"] == 0 and scene["native"]["note"] == "not asked for"
+    assert scene["psnr"]["native"]["lit"] is None and scene["mesh"] is None and scene["meshes"] == []
