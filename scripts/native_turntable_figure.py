@@ -65,6 +65,7 @@ def build_scene(ws: Path, edit: str | None, meshes: list[dict], light_at: list[f
     check(bpy.ops.igs.add_light(kind="POINT"), "Add Light", scene)
     light = bpy.context.active_object
     light.data.energy, light.data.shadow_soft_size = power, 0.03
+    light.visible_camera = False  # its light, not the lamp itself
     light.location = to_world @ Vector(at)
     bpy.context.view_layer.update()
     scene.render.engine = "CYCLES"

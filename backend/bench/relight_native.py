@@ -13,8 +13,9 @@ workspace has ``gt_mesh/`` (``igs synth --meshes``), once with them. The ``mesh`
   from the render without the meshes (a mesh pasted onto the capture);
 
 in the regions ``shadow`` (not a mesh's pixel, and the truth with the meshes darker than without them by
-more than ``shadow_threshold`` in linear luminance: the meshes' shadows, the light's and the captured
-light's), ``mesh`` (the meshes' pixels, ``gt_mesh/capture/mask``) and ``image``.
+more than ``shadow_threshold`` in linear luminance, averaged over 5 x 5 pixels, since Cycles' noise at the
+capture's samples is above it per pixel where the meshes change the bounces: the meshes' shadows, the
+light's and the captured light's), ``mesh`` (the meshes' pixels, ``gt_mesh/capture/mask``) and ``image``.
 
 Renders use the capture's sample count and seed, Cycles on the CPU, no denoising, a 1 px box filter (as the
 truth). Without the bpy 5.3 module the rows are empty and the JSON says why.
@@ -60,6 +61,8 @@ class NativeRenders:
     seconds: list[float] = field(default_factory=list)
     jobs_ran: int | None = None
     samples: int | None = None
+    reused: int = 0
+    """Renders of an earlier run with the same layers and settings, read again."""
 
     @staticmethod
     def file(stem: str, light: str, meshes: bool) -> str:
@@ -72,7 +75,8 @@ class NativeRenders:
 
     def summary(self) -> dict[str, Any]:
         s = sorted(self.seconds)
-        return {"rendered": len(s), "note": self.note or None, "backend_jobs_started": self.jobs_ran,
+        return {"rendered": len(s), "reused": self.reused, "note": self.note or None,
+                "backend_jobs_started": self.jobs_ran,
                 "samples": self.samples,
                 "seconds_per_frame_median": round(s[len(s) // 2], 3) if s else None}
 
@@ -100,6 +104,12 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
            "seed": settings["seed"],
            "threads": os.cpu_count() or 1, "lights": lights, "meshes": meshes, "renders": renders}
     out = NativeRenders(folder=folder, samples=job["samples"])
+    made = _reusable(ws, folder, job)
+    job["renders"] = [r for r in renders if r["file"] not in made]
+    out.reused = len(renders) - len(job["renders"])
+    if not job["renders"]:
+        out.jobs_ran = 0
+        return out
     root = Path(__file__).resolve().parents[2]
     with tempfile.NamedTemporaryFile("w", suffix=".json", prefix="igs_native_jobs_", delete=False) as f:
         json.dump(job, f)
@@ -129,6 +139,24 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     return out
 
 
+def _reusable(ws: Workspace, folder: Path, job: dict[str, Any]) -> set[str]:
+    """The files in ``folder`` rendered earlier for the same layers, lights, meshes, samples and seed (its
+    ``job.json``); ``job.json`` is rewritten for ``job`` (and the other files dropped) when they differ."""
+    key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
+    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(ws.layers.glob("*.ply"))}
+    path = folder / "job.json"
+    try:
+        same = json.loads(path.read_text()) == key
+    except (OSError, ValueError):
+        same = False
+    if same:
+        return {p.name for p in folder.glob("*.exr")}
+    for p in folder.glob("*.exr"):
+        p.unlink()
+    path.write_text(json.dumps(key))
+    return set()
+
+
 def _json(line: str) -> dict[str, Any]:
     if not line.startswith("{"):
         return {}
@@ -154,7 +182,9 @@ class MeshScores:
             read_exr(ws.gt_mesh / light / "images" / f"{stem}.exr")[..., :3]
         mask = read_image(ws.gt_mesh / CAPTURE / "mask" / f"{stem}.png")[..., 0] > 0.5
         grown = torch.nn.functional.max_pool2d(torch.from_numpy(mask)[None, None].float(), 3, 1, 1)[0, 0].numpy() > 0
-        masks = {"shadow": ~grown & (luminance(target_open) - luminance(target) > threshold), "mesh": mask,
+        darker = torch.from_numpy(luminance(target_open) - luminance(target)).float()[None, None]
+        darker = torch.nn.functional.avg_pool2d(darker, 5, 1, 2, count_include_pad=False)[0, 0].numpy()
+        masks = {"shadow": ~grown & (darker > threshold), "mesh": mask,
                  "image": np.ones(mask.shape, bool)}
         preds = {"mesh": with_meshes, "no_shadow": np.where(grown[..., None], with_meshes, without)}
         for method, pred in preds.items():

@@ -66,6 +66,8 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     assert bench_relight.main(argv) == 0
     again = json.loads(out.read_text())["scenes"]["room"]
     assert again["layers"] == "reused" and again["psnr"] == scene["psnr"]
+    if native:  # Blender's frames too: the same layers, lights, meshes and samples
+        assert again["native"]["reused"] == 2 * 3 * 2 and again["native"]["rendered"] == 0
 
 
 def test_bad_options_are_one_error(tmp_path, capsys):
