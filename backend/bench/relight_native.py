@@ -139,11 +139,18 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     return out
 
 
+def job_key(ws: Workspace, job: dict[str, Any]) -> dict[str, Any]:
+    """What decides Blender's frames of a job: the samples, seed, lights and meshes, and the layers' sizes and
+    times."""
+    key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
+    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(ws.layers.glob("*.ply"))}
+    return key
+
+
 def _reusable(ws: Workspace, folder: Path, job: dict[str, Any]) -> set[str]:
     """The files in ``folder`` rendered earlier for the same layers, lights, meshes, samples and seed (its
     ``job.json``); ``job.json`` is rewritten for ``job`` (and the other files dropped) when they differ."""
-    key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
-    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(ws.layers.glob("*.ply"))}
+    key = job_key(ws, job)
     path = folder / "job.json"
     try:
         same = json.loads(path.read_text()) == key
