@@ -132,11 +132,13 @@ def test_contract_imports_nothing_of_ours(graph):
 
 def test_the_backend_reaches_the_addon_only_through_the_test_helper(graph):
     """A bench that measures the add-on in bpy loads it through ``tests/support/addon_package.py`` (the
-    package Blender makes of the extension folder, as the add-on's tests load it), an arrow this graph
-    sees; no backend module imports the add-on or the tests otherwise, or loads a file as a module."""
+    package Blender makes of the extension folder, as the add-on's tests load it) or installs it through
+    ``tests/support/addon_install.py`` (the extension built and installed, as the tests under tests/blender/
+    install it), arrows this graph sees; no backend module imports the add-on or the tests otherwise, or
+    loads a file as a module."""
     bad = sorted(f"{m} -> {t}" for m, targets in graph.items() if m.startswith("backend.") for t in targets
                  if t.split(".")[0] in (*ADDON_PACKAGES, "tests", "__init__")
-                 and not (_room(m) == "bench" and t == "tests.support.addon_package"))
+                 and not (_room(m) == "bench" and t in ("tests.support.addon_package", "tests.support.addon_install")))
     assert bad == [], "the backend reaching the add-on:\n" + "\n".join(bad)
     loaders = sorted(p.relative_to(REPO).as_posix() for p in (REPO / "backend").rglob("*.py")
                      if "spec_from_file_location" in p.read_text(encoding="utf-8"))

@@ -7,6 +7,9 @@ render, :mod:`backend.synth.gt_lights`). The methods, each with the same light, 
 geometry's rendered depth and shadows from its own geometry's depth maps (:mod:`backend.relight`):
 
 - ``ours``: the decomposition, ``A * (S + S_new) + R``, its geometry the albedo field;
+- ``native``: the decomposition rendered by Blender 5.3 through the add-on, the light in its lights
+  collection: ``A * S + A * S_new + R`` with ``S_new`` from Cycles (:mod:`backend.bench.relight_native`,
+  which also scores the added meshes' rows);
 - ``unlit``: the decomposition without the light, ``A * S + R``: what ``ours`` owes to the decomposition's
   own error rather than to the light;
 - ``none``: no relighting, ``I_orig`` itself;
@@ -36,6 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from backend.bench.relight_native import MeshScores, NativeRenders, meshes_of, render_native
 from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.cameras import Camera
@@ -63,8 +67,9 @@ from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply
 from backend.synth.gt_lights import LIGHTS_FILE
 from backend.train.intrinsic.stages import layer_splats
+from igs_contract.light_json import read_lights
 
-METHODS = ("ours", "unlit", "none", "sh_strip", "ceiling")
+METHODS = ("ours", "native", "unlit", "none", "sh_strip", "ceiling")
 REGIONS = ("lit", "image", "edges")
 LEAD_OVER = ("unlit", "none", "sh_strip")
 
@@ -82,6 +87,14 @@ class EvalSettings:
     figures: bool = False
     """Also write ``<ws>/bench_relight/<view>.png``: a row per light of the capture, Cycles with the light,
     ours, sh_strip and ceiling (sRGB)."""
+    native: bool = True
+    """Also render the ``native`` and ``mesh`` rows with Blender 5.3 (:mod:`backend.bench.relight_native`)."""
+    views: int | None = None
+    """Score only this many of the held-out views, evenly spaced (None: all): every method on the same ones."""
+    native_samples: int | None = None
+    """Cycles' samples per pixel of the native renders (None: the capture's)."""
+    shadow_threshold: float = 0.02
+    """Linear luminance by which the truth with the meshes is darker than without them in their shadow region."""
     relight: RelightConfig = field(default_factory=RelightConfig)
 
 
@@ -168,12 +181,20 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
     ws = Workspace(Path(ws_path))
     lights_path = ws.gt_light / LIGHTS_FILE
     lights: list[Light] = load_lights(lights_path, flag="bench_relight:")
+    specs = read_lights(lights_path)
     views = json.loads(lights_path.read_text()).get("views") or []
     capture = load_capture(ws.root)
     frames = {f.name: f for f in capture.frames}
     missing = [v for v in views if v not in frames]
     if missing or not views:
         raise IGSError(f"{lights_path}: views {missing or '(none)'} are not views of the capture")
+    if s.views is not None and s.views < len(views):
+        views = [views[round(i * (len(views) - 1) / max(s.views - 1, 1))] for i in range(s.views)]
+    meshes = meshes_of(ws)
+    native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native",
+                           samples=s.native_samples) if s.native \
+        else NativeRenders(note="not asked for")
+    mesh_scores = MeshScores() if meshes and native.folder is not None else None
     layers = {k: read_ply(ws.layers / f"{k}.ply", kind=k) for k in ("albedo", "shading", "residual", "radiance")}
     albedo, shading_l, residual = (layer_splats(layers[k][0]) for k in ("albedo", "shading", "residual"))
     radiance_set, radiance_file = layers["radiance"]
@@ -191,11 +212,13 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
         with events.stage("relight views", len(views), unit="view") as bar:
             for name in views:
                 _score_view(ws, frames[name].camera, lights, s, (albedo, shading_l, residual), (radiance, dc),
-                            radiance_file.space, (rig_ours, rig_sh, rig_truth), scores, no_light, angles)
+                            radiance_file.space, (rig_ours, rig_sh, rig_truth), scores, no_light, angles,
+                            native, mesh_scores)
                 bar.update(1)
     psnr = scores.psnr()
     leads = {f"lead_{b}_{r}_db": _diff(psnr["ours"][r], psnr[b][r]) for b in LEAD_OVER for r in REGIONS}
     leads.update({f"gap_ceiling_{r}_db": _diff(psnr["ceiling"][r], psnr["ours"][r]) for r in REGIONS})
+    leads.update({f"native_minus_ours_{r}_db": _diff(psnr["native"][r], psnr["ours"][r]) for r in REGIONS})
     return {"workspace": str(ws.root), "views": views, "lights": [li.name for li in lights],
             "psnr": psnr, "leads": leads, "pixels": scores.pixels(),
             "per_light": {li.name: {"psnr": scores.psnr(li.name), "pixels": scores.pixels(li.name)} for li in lights},
@@ -203,6 +226,8 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
             if no_light["se"] > 0 else None,
             "normal_error_deg": {k: _angle_summary(v) for k, v in angles.items()},
             "gaussians": {"albedo": len(albedo), "radiance": len(radiance), "truth": len(truth)},
+            "native": native.summary(), "meshes": [m["name"] for m in meshes],
+            "mesh": mesh_scores.result() if mesh_scores is not None else None,
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
@@ -220,7 +245,8 @@ def _diff(a: float | None, b: float | None) -> float | None:
 
 def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings, ours: tuple[Splats, ...],
                 sh: tuple[Splats, Splats], sh_space: str, rigs: tuple[LightRig, LightRig, LightRig],
-                scores: Scores, no_light: dict[str, float], angles: dict[str, list]) -> None:
+                scores: Scores, no_light: dict[str, float], angles: dict[str, list], native: NativeRenders,
+                mesh_scores: MeshScores | None) -> None:
     stem = Path(cam.name).stem
     a_gt = srgb_to_linear(read_image(ws.gt_pass("albedo") / cam.name))
     i_orig = a_gt * read_exr(ws.gt_pass("shading") / f"{stem}.exr")[..., :3] + \
@@ -263,6 +289,11 @@ def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings
         preds = {"ours": A * (S + s_ours[light.name].numpy()) + R, "unlit": model, "none": i_orig,
                  "sh_strip": i_3dgs + dc * s_sh[light.name].numpy(),
                  "ceiling": i_orig + a_gt * s_truth[light.name].numpy()}
+        blender = native.image(stem, light.name, False)
+        if blender is not None:
+            preds["native"] = blender
+        if mesh_scores is not None:
+            mesh_scores.add_view(ws, stem, light.name, native, target, s.shadow_threshold, display)
         for method, pred in preds.items():
             scores.add(light.name, method, pred, target, masks)
         rows.append([i_orig, target, preds["ours"], preds["sh_strip"], preds["ceiling"]])

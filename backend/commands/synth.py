@@ -45,6 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--light-views", choices=LIGHT_VIEWS, default="held",
                    help="views the added lights are rendered for: held (default: the held-out views, every 8th) "
                         "or all")
+    p.add_argument("--meshes", default=None, metavar="default|FILE",
+                   help="stand meshes in the scene and render the held-out views (--light-views) again with them, "
+                        "the capture's light and each added light, into gt_mesh/: 'default' (a cube and a sphere "
+                        "on the floor) or a meshes JSON file (docs/relighting.md)")
     p.add_argument("--blender", default=None, metavar="PATH",
                    help="the Blender binary for --renderer binary/auto (default: $IGS_BLENDER)")
     locking.writes(p, locking.workspace_arg, create=True)
@@ -55,5 +59,5 @@ def run(args: argparse.Namespace) -> None:
     summary = synthesize(args.workspace, preset=args.preset, seed=args.seed, views=args.views,
                          samples=args.samples, force=args.force, threads=args.threads,
                          renderer=args.renderer, blender=args.blender, scene_seed=args.scene_seed,
-                         lights=args.lights, light_views=args.light_views)
+                         lights=args.lights, light_views=args.light_views, meshes=args.meshes)
     events.output("workspace", summary["workspace"])

@@ -77,6 +77,11 @@ class Workspace:
         return self.root / "gt_light"
 
     @property
+    def gt_mesh(self) -> Path:
+        """Renders with meshes added to a synthetic capture (``igs synth --meshes``)."""
+        return self.root / "gt_mesh"
+
+    @property
     def layers(self) -> Path:
         return self.root / "layers"
 

@@ -104,11 +104,28 @@ def _inside(xy, z: float, blocked: list[tuple[Rect, float]]) -> bool:
                for r, top in blocked)
 
 
+def family_blocked(layout: FamilyLayout) -> list[tuple[Rect, float]]:
+    """What stands on a family scene's floor: each piece's (footprint, top height with what stands on it)."""
+    return [(p.footprint, p.height + max([0.0, *(i["height"] for i in p.extra.get("items", [])),
+                                          p.extra.get("statue", {}).get("height", 0.0)]))
+            for p in layout.pieces]
+
+
+def room_blocked(description: dict[str, Any]) -> list[tuple[Rect, float]]:
+    """What stands on the room's floor (its ``gt/scene.json`` ``description``): the table, the column and the
+    monkey's plinth, as (footprint, top height)."""
+    tx, ty, _ = description["table_top_center"]
+    col = description["column"]
+    table = (Rect.around(tx, ty, 1.3, 0.8), 0.775 + 0.34)  # the top and what stands on it
+    column = (Rect.around(col["base_center"][0], col["base_center"][1], 2 * col["radius"], 2 * col["radius"]),
+              col["height"])
+    plinth = (Rect.around(-2.2, 0.8, 0.45, 0.65), 1.1)  # the monkey's plinth (its y varies by 0.2)
+    return [table, column, plinth]
+
+
 def _family_lights(rng: np.random.Generator, layout: FamilyLayout) -> list[dict]:
     walls = layout.walls()
-    blocked = [(p.footprint, p.height + max([0.0, *(i["height"] for i in p.extra.get("items", [])),
-                                             p.extra.get("statue", {}).get("height", 0.0)]))
-               for p in layout.pieces]
+    blocked = family_blocked(layout)
     central = layout.pieces[0]
     top = blocked[0][1]
     spot = _shadow_spot(rng, central.footprint.center, central.footprint.size, top, layout.half_x, layout.half_y,
@@ -123,12 +140,8 @@ def _room_lights(rng: np.random.Generator, description: dict[str, Any]) -> list[
     hx, hy, h = description["room"]["x"][1], description["room"]["y"][1], description["room"]["z"][1]
     walls = room_walls(hx, hy)
     tx, ty, _ = description["table_top_center"]
-    col = description["column"]
-    table = (Rect.around(tx, ty, 1.3, 0.8), 0.775 + 0.34)  # the top and what stands on it
-    column = (Rect.around(col["base_center"][0], col["base_center"][1], 2 * col["radius"], 2 * col["radius"]),
-              col["height"])
-    plinth = (Rect.around(-2.2, 0.8, 0.45, 0.65), 1.1)  # the monkey's plinth (its y varies by 0.2)
-    blocked = [table, column, plinth]
+    blocked = room_blocked(description)
+    table = blocked[0]
     spot = _shadow_spot(rng, (tx, ty), (1.3, 0.8), table[1], hx, hy, h, blocked)
     grazing = _grazing_point(rng, walls["north"], h, blocked)  # the wallpapered back wall
     area = _soft_area(rng, walls["east"], h, blocked)

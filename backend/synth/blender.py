@@ -254,6 +254,10 @@ class BlenderScene(SynthScene):
         what = "the scene's own lights" if light is None else f"the added light {light['name']}"
         self.worker.call({"cmd": "set_light", "light": light}, f"while showing {what}")
 
+    def set_meshes(self, meshes: list[dict[str, Any]] | None) -> None:
+        assert self.worker is not None
+        self.worker.call({"cmd": "set_meshes", "meshes": meshes}, "while adding the meshes")
+
 
 class BinaryRenderer:
     """:class:`backend.synth.module_renderer.Renderer`'s interface over a :class:`BlenderWorker`."""

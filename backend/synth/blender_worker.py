@@ -13,6 +13,7 @@ descriptor N is one end of a socket pair; the backend holds the other (see
 - ``{"cmd": "setup", "params"}`` -> ``{"ok"}``: sets Cycles up (:class:`CyclesParams` fields);
 - ``{"cmd": "set_edit", "name"}`` -> ``{"ok"}``: shows one edit (or none) to camera rays;
 - ``{"cmd": "set_light", "light"}`` -> ``{"ok"}``: only that added light on (null: the scene's own);
+- ``{"cmd": "set_meshes", "meshes"}`` -> ``{"ok"}``: those added meshes standing in the scene (null: none);
 - ``{"cmd": "render", "camera", "border"}`` -> ``{"ok", "layer"}`` + ``exr`` (the file's bytes);
 - ``{"cmd": "quit"}``, or the backend closing its end: the worker returns and Blender exits.
 
@@ -130,6 +131,12 @@ class Worker:
 
             self._need(self.scene, "build")
             show_light(msg["light"])
+            return {"ok": True}, {}
+        if cmd == "set_meshes":
+            from backend.synth.mesh_rig import show_meshes
+
+            self._need(self.scene, "build")
+            show_meshes(msg["meshes"])
             return {"ok": True}, {}
         if cmd == "setup":
             scene = self._need(self.scene, "build")

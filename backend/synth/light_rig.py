@@ -33,7 +33,7 @@ def _black_world(bpy):
     return world
 
 
-def _matrix(light: dict[str, Any]):
+def light_matrix(light: dict[str, Any]):
     """The light object's world matrix: -Z along ``direction``, X along ``x_axis`` (area)."""
     from mathutils import Matrix, Vector
 
@@ -82,6 +82,15 @@ def show_light(light: dict[str, Any] | None) -> None:
         scene["igs_saved_world"] = scene.world.name if scene.world is not None else ""
     scene.world = _black_world(bpy)
     data = bpy.data.lights.new(RIG_NAME, TYPES[light["type"]])
+    configure(data, light)
+    obj = bpy.data.objects.new(RIG_NAME, data)
+    obj.matrix_world = light_matrix(light)
+    obj.visible_camera = False  # as the scene's own lights: no light source in the frames
+    scene.collection.objects.link(obj)
+
+
+def configure(data, light: dict[str, Any]) -> None:
+    """Give the Blender light ``data`` (of the light's type) the settings of ``light`` (canonical)."""
     data.energy = float(light["power"])
     data.color = tuple(float(c) for c in light["color"])
     if light["type"] in ("point", "spot"):
@@ -95,7 +104,3 @@ def show_light(light: dict[str, Any] | None) -> None:
         data.shape = light["shape"].upper()
         data.size = float(light["size"])
         data.size_y = float(light["size_y"])
-    obj = bpy.data.objects.new(RIG_NAME, data)
-    obj.matrix_world = _matrix(light)
-    obj.visible_camera = False  # as the scene's own lights: no light source in the frames
-    scene.collection.objects.link(obj)

@@ -26,7 +26,8 @@ equals Combined per pixel up to float rounding whatever the pixel filter or samp
 Denoising, adaptive sampling, light clamping and the view transform are all off/neutral.
 
 With ``--lights``, lights added to the ground truth are rendered alone into ``gt_light/``
-(:mod:`~backend.synth.gt_lights`).
+(:mod:`~backend.synth.gt_lights`); with ``--meshes``, the capture and those lights again with meshes
+standing in the scene, into ``gt_mesh/`` (:mod:`~backend.synth.gt_meshes`).
 
 Edits (``gt_edit/<edit>/images``, ``albedo``, ``shading`` and ``residual``) only differ where camera rays
 hit the edit region
@@ -56,6 +57,7 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.core.workspace import Workspace
 from backend.synth import room
+from backend.synth.added_meshes import resolve_meshes
 from backend.synth.blender import BlenderWorker, choose_blender
 from backend.synth.family.build import build_family_scene
 from backend.synth.gt_edits import choose_edit_view, render_edits, write_edit_definitions, write_edit_json
@@ -67,6 +69,7 @@ from backend.synth.gt_lights import (
     render_lights,
     resolve_lights,
 )
+from backend.synth.gt_meshes import CAPTURE, prepare_meshes, render_meshes
 from backend.synth.module_renderer import Renderer, ViewRenderer, blender_output_captured, cycles_params
 from backend.synth.scene import SynthScene
 from backend.synth.settings import SynthSettings, read_saved
@@ -80,7 +83,8 @@ SYNTH_KEYS = ("schema", "source", "frames", "size", "priors", "gt", "edits", "re
 def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: int | None = None,
                samples: int | None = None, force: bool = False, threads: int | None = None,
                renderer: str = "auto", blender: str | None = None, scene_seed: int | None = None,
-               lights: str | None = None, light_views: LightViews = "held") -> dict[str, Any]:
+               lights: str | None = None, light_views: LightViews = "held",
+               meshes: str | None = None) -> dict[str, Any]:
     """Render (or finish rendering) a synthetic capture into ``ws_path``; logs and returns a summary.
 
     ``scene_seed`` None renders the room of :mod:`backend.synth.room` (``seed`` varies its
@@ -97,6 +101,10 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
     ``lights``: add lights to the ground truth (:mod:`backend.synth.gt_lights`): ``"default"`` (the
     scene's three, :mod:`backend.synth.added_lights`) or a lights file (:mod:`igs_contract.light_json`),
     each rendered alone for the views ``light_views`` picks (``held``: the held-out views, ``all``).
+
+    ``meshes``: stand meshes in the scene for the same views (:mod:`backend.synth.gt_meshes`): ``"default"``
+    (a cube and a sphere on the floor, :mod:`backend.synth.added_meshes`) or a meshes file; the capture and
+    each added light are rendered again with them.
 
     Re-running with the same settings resumes: views and edits whose files all exist are skipped.
     Different settings on a partly or fully written workspace raise :class:`IGSError` unless
@@ -130,6 +138,9 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
         added = [] if lights is None else resolve_lights(lights, settings, scene.description)
         if added:
             prepare_lights(ws, added, [cameras[i].name for i in light_indices], light_views, force)
+        standing = [] if meshes is None else resolve_meshes(meshes, settings, scene.description)
+        if standing:
+            prepare_meshes(ws, standing, [cameras[i].name for i in light_indices], added, force)
         timings["build_scene"] = time.perf_counter() - t
         write_edit_definitions(ws, scene)
 
@@ -143,6 +154,10 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
             t = time.perf_counter()
             n_lights = render_lights(ws, scene, render, cameras, added, light_indices, Path(tmp)) if added else 0
             timings["render_lights"] = time.perf_counter() - t
+            t = time.perf_counter()
+            n_meshes = render_meshes(ws, scene, render, cameras, standing, added, light_indices, Path(tmp)) \
+                if standing else 0
+            timings["render_meshes"] = time.perf_counter() - t
 
     t = time.perf_counter()
     n_points = write_sparse(ws, cameras)
@@ -161,9 +176,10 @@ def synthesize(ws_path: str | Path, preset: str = "demo", seed: int = 0, views: 
         "rendered_views": n_views, "rendered_edit_views": n_edits,
         "skipped_views": settings.views - n_views, "points3D": n_points,
         "added_lights": [light["name"] for light in added], "rendered_light_views": n_lights,
+        "added_meshes": [m["name"] for m in standing], "rendered_mesh_views": n_meshes,
         "seconds": {k: round(v, 3) for k, v in timings.items()},
         "cpu_seconds": round(_cpu_seconds() - cpu_start, 3),
-        "files": _count_files(ws, scene, added),
+        "files": _count_files(ws, scene, added, standing),
     }
     _write_capture_json(ws, settings, cameras, scene, summary, blender_version, "module" if binary is None else "binary")
     write_json(ws.root / "gt" / "scene.json", scene.description)
@@ -193,6 +209,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"points+metadata {s['points_and_metadata']:.1f}, total {s['total']:.1f} (cpu {summary['cpu_seconds']:.1f})",
         *([f"  added lights {', '.join(summary['added_lights'])}: rendered {summary['rendered_light_views']} "
            f"light-only views in {s['render_lights']:.1f} s -> gt_light/"] if summary.get("added_lights") else []),
+        *([f"  added meshes {', '.join(summary['added_meshes'])}: rendered {summary['rendered_mesh_views']} "
+           f"views with them in {s['render_meshes']:.1f} s -> gt_mesh/"] if summary.get("added_meshes") else []),
         "  files: " + ", ".join(f"{k} {v}" for k, v in summary["files"].items()),
     ]
     return "\n".join(lines)
@@ -227,14 +245,14 @@ def _prepare_workspace(ws: Workspace, settings: SynthSettings, force: bool) -> N
         elif not force:
             return
     if force:
-        for sub in ("images", "gt", "gt_edit", "gt_light", "sparse"):
+        for sub in ("images", "gt", "gt_edit", "gt_light", "gt_mesh", "sparse"):
             shutil.rmtree(ws.root / sub, ignore_errors=True)
         for f in (ws.transforms_json, ws.capture_json):
             f.unlink(missing_ok=True)
     write_json(settings_path, settings.as_dict())
 
 
-def _count_files(ws: Workspace, scene: SynthScene, lights: list[dict]) -> dict[str, int]:
+def _count_files(ws: Workspace, scene: SynthScene, lights: list[dict], meshes: list[dict]) -> dict[str, int]:
     def count(folder: Path) -> int:
         return sum(1 for p in folder.iterdir() if not p.name.startswith(".")) if folder.exists() else 0
 
@@ -247,6 +265,9 @@ def _count_files(ws: Workspace, scene: SynthScene, lights: list[dict]) -> dict[s
     for light in lights:
         for sub in LIGHT_PASSES:
             out[f"gt_light/{light['name']}/{sub}"] = count(ws.gt_light / light["name"] / sub)
+    for part in ([CAPTURE, *(light["name"] for light in lights)] if meshes else []):
+        for sub in ("images", "mask") if part == CAPTURE else ("images",):
+            out[f"gt_mesh/{part}/{sub}"] = count(ws.gt_mesh / part / sub)
     return out
 
 

@@ -107,6 +107,13 @@ class SynthScene:
 
         show_light(light)
 
+    def set_meshes(self, meshes: list[dict[str, Any]] | None) -> None:
+        """Stand ``meshes`` (canonical, :mod:`backend.synth.added_meshes`) in the scene; None: as built
+        (:mod:`backend.synth.mesh_rig`)."""
+        from backend.synth.mesh_rig import show_meshes
+
+        show_meshes(meshes)
+
     def edit(self, name: str) -> EditSpec:
         return next(e for e in self.edits if e.name == name)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import importlib
 import json
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,35 +19,7 @@ from mathutils import Vector  # noqa: E402
 
 from backend.splats.gaussians import GaussianSet  # noqa: E402
 from backend.splats.ply import write_ply  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-PYTHON = sys.executable
-
-
-SCRIPTS = Path(bpy.utils.system_resource("SCRIPTS"))
-
-
-BLENDER_EXT = SCRIPTS / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"
-
-
-VALID_TAGS = SCRIPTS / "modules" / "_bpy_internal" / "extensions" / "tags.py"
-
-
-REPO = "igs_test"
-
-
-MOD = f"bl_ext.{REPO}.intrinsic_splats"
-
-
-def build_zip(out_dir: Path) -> Path:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for sub in (["validate", "--valid-tags", str(VALID_TAGS), str(ROOT)],
-                ["build", "--valid-tags", str(VALID_TAGS), "--source-dir", str(ROOT), "--output-dir", str(out_dir)]):
-        res = subprocess.run([PYTHON, str(BLENDER_EXT), *sub], capture_output=True, text=True, timeout=120)
-        assert res.returncode == 0, res.stdout + res.stderr
-    return out_dir / "intrinsic_splats-0.1.0.zip"
+from tests.support.addon_install import MOD, PYTHON, REPO, ROOT, build_zip  # noqa: E402, F401  (the tests' names for them)
 
 
 def sub(name: str):

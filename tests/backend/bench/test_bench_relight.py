@@ -1,6 +1,7 @@
-"""bench_relight end to end on the room of the `test` preset: synth with the added lights, a tiny 3DGS and
-decomposition, every method scored against Cycles; then the run again, which reuses the capture, the
-lights and the layers. Needs a synthetic renderer."""
+"""bench_relight end to end on the room of the `test` preset: synth with the added lights and meshes, a tiny
+3DGS and decomposition, every method scored against Cycles (Blender 5.3's native render among them, with
+the bpy 5.3 module); then the run again, which reuses the capture, the lights and the layers. Needs a
+synthetic renderer."""
 
 import json
 
@@ -10,6 +11,14 @@ import pytest
 from backend.bench import bench_relight
 from backend.bench.relight_eval import METHODS, REGIONS, _edges
 from tests.support.synth_capture import needs_synth_renderer
+
+
+def has_bpy_53() -> bool:
+    try:
+        import bpy
+    except ImportError:
+        return False
+    return bpy.app.version >= (5, 3, 0)
 
 
 def test_edges_are_a_band_around_the_visibility_boundary():
@@ -28,12 +37,13 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
             "--out", str(out)]
     assert bench_relight.main(argv) == 0
     printed = capsys.readouterr().out
-    assert "| room | ours |" in printed and "ours minus" in printed
+    assert "| room | ours |" in printed and "ours minus" in printed and "| room | native |" in printed
     doc = json.loads(out.read_text())
     scene = doc["scenes"]["room"]
     assert scene["layers"] == "trained" and scene["views"] == ["frame_0000.png", "frame_0008.png"]
     assert scene["lights"] == ["shadow_spot", "grazing_point", "soft_area"]
-    for m in METHODS:
+    native = has_bpy_53()
+    for m in METHODS if native else [m for m in METHODS if m != "native"]:
         for r in ("lit", "image"):
             assert 5.0 < scene["psnr"][m][r] < 60.0, (m, r, scene["psnr"][m][r])
     assert scene["pixels"]["lit"] > 0 and scene["pixels"]["image"] == 2 * 3 * 64 * 48
@@ -42,10 +52,22 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     assert set(scene["per_light"]) == set(scene["lights"])
     assert doc["aggregate"]["ours_lit"]["n"] == 1 and doc["aggregate"]["ours_lit"]["std"] is None
     assert set(REGIONS) <= set(scene["psnr"]["ours"])
+    assert scene["meshes"] == ["cube", "sphere"] and "added meshes" in printed
+    if native:  # Blender rendered every view and light without and with the meshes, and started no backend job
+        assert scene["native"]["rendered"] == 2 * 3 * 2 and scene["native"]["backend_jobs_started"] == 0
+        mesh = scene["mesh"]
+        assert mesh["pixels"]["mesh"] > 20 and mesh["pixels"]["shadow"] > 0
+        for m in ("mesh", "no_shadow"):
+            assert 5.0 < mesh["psnr"][m]["image"] < 60.0, (m, mesh["psnr"][m])
+        assert mesh["psnr"]["mesh"]["mesh"] == mesh["psnr"]["no_shadow"]["mesh"]  # the same pixels on the mesh
+    else:
+        assert scene["native"]["rendered"] == 0 and scene["native"]["note"] and scene["mesh"] is None
     # again: the capture, its lights and the layers are reused, the numbers are the same
     assert bench_relight.main(argv) == 0
     again = json.loads(out.read_text())["scenes"]["room"]
     assert again["layers"] == "reused" and again["psnr"] == scene["psnr"]
+    if native:  # Blender's frames too: the same layers, lights, meshes and samples
+        assert again["native"]["reused"] == 2 * 3 * 2 and again["native"]["rendered"] == 0
 
 
 def test_bad_options_are_one_error(tmp_path, capsys):
@@ -59,3 +81,16 @@ def test_bad_options_are_one_error(tmp_path, capsys):
 def test_a_too_small_shadow_map_is_refused(tmp_path, capsys, flag):
     assert bench_relight.main(["--root", str(tmp_path), flag]) == 2
     assert "shadow-size" in capsys.readouterr().err
+
+
+def test_eval_views_and_no_native_pick_what_is_scored(tmp_path):
+    needs_synth_renderer()
+    out = tmp_path / "relight.json"
+    argv = ["--root", str(tmp_path), "--scene-seeds", "room", "--preset", "test", "--views", "9", "--iterations", "20",
+            "--max-gaussians", "2000", "--backend", "cpu", "--shadow-size", "64", "--meshes", "none",
+            "--eval-views", "1", "--no-native", "--out", str(out)]
+    assert bench_relight.main(argv) == 0
+    scene = json.loads(out.read_text())["scenes"]["room"]
+    assert scene["views"] == ["frame_0000.png"] and scene["pixels"]["image"] == 3 * 64 * 48
+    assert scene["native"]["rendered"] == 0 and scene["native"]["note"] == "not asked for"
+    assert scene["psnr"]["native"]["lit"] is None and scene["mesh"] is None and scene["meshes"] == []

@@ -1,0 +1,61 @@
+"""bench_relight's mesh rows scored on made-up renders, and the native rows' note where Blender 5.3 is missing."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from backend.bench.relight_eval import display
+from backend.bench.relight_native import MeshScores, NativeRenders, render_native
+from backend.core.imageio import write_exr, write_image
+from backend.core.workspace import Workspace
+
+H, W = 12, 16
+
+
+def made_up(tmp_path, shadow_in_native: float) -> tuple[Workspace, NativeRenders, np.ndarray]:
+    """A grey floor (0.5) with a mesh (0.8) over columns 2-4 whose shadow darkens columns 6-11 to 0.1 in the
+    truth; Blender's render with the mesh darkens them to ``shadow_in_native``."""
+    ws = Workspace(tmp_path / "ws")
+    open_ = np.full((H, W, 3), 0.5, np.float32)
+    mask = np.zeros((H, W), bool)
+    mask[:, 2:5] = True
+    truth = open_.copy()
+    truth[mask] = 0.8
+    truth[:, 6:12] = 0.1
+    write_exr(ws.gt_mesh / "capture" / "images" / "v.exr", truth - 0.05)  # the capture's part ...
+    write_exr(ws.gt_mesh / "key" / "images" / "v.exr", np.full((H, W, 3), 0.05, np.float32))  # ... and the light's
+    write_image(ws.gt_mesh / "capture" / "mask" / "v.png", np.repeat(mask[..., None], 3, 2).astype(np.float32))
+    folder = tmp_path / "native"
+    with_mesh = truth.copy()
+    with_mesh[:, 6:12] = shadow_in_native
+    write_exr(folder / NativeRenders.file("v", "key", True), with_mesh)
+    write_exr(folder / NativeRenders.file("v", "key", False), open_)
+    return ws, NativeRenders(folder=folder), open_
+
+
+def test_a_right_shadow_leads_no_shadow_and_a_missing_one_does_not(tmp_path):
+    ws, native, open_ = made_up(tmp_path / "right", 0.12)
+    right = MeshScores()
+    right.add_view(ws, "v", "key", native, open_, 0.02, display)
+    got = right.result()
+    # the shadow's 6 columns and the 2 beyond it that its 5 x 5 average reaches (those beside the mesh are out)
+    assert got["pixels"]["shadow"] == H * 8 and got["pixels"]["mesh"] == H * 3
+    assert got["psnr"]["mesh"]["mesh"] == got["psnr"]["no_shadow"]["mesh"]  # the mesh is the same in both
+    assert got["lead_shadow_over_no_shadow_db"] > 10  # 0.12 against 0.1, where no shadow shows 0.5
+    ws, native, open_ = made_up(tmp_path / "none", 0.5)
+    none = MeshScores()
+    none.add_view(ws, "v", "key", native, open_, 0.02, display)
+    assert abs(none.result()["lead_shadow_over_no_shadow_db"]) < 1e-6  # no shadow rendered: no lead
+
+
+def test_without_blender_53_the_native_rows_say_why(tmp_path):
+    fake = tmp_path / "python"
+    fake.write_text("#!/bin/sh\necho 'native splats need Blender 5.3; this bpy is 5.0.1' >&2\nexit 3\n")
+    fake.chmod(0o755)
+    ws = Workspace(tmp_path / "ws")
+    (ws.root / "gt").mkdir(parents=True)
+    (ws.root / "gt" / "synth_settings.json").write_text('{"samples": 4, "seed": 0}')
+    ws.layers.mkdir()
+    got = render_native(ws, ["v.png"], [{"name": "key"}], [], tmp_path / "out", python=str(fake))
+    assert got.folder is None and got.image("v", "key", False) is None
+    assert got.summary()["note"] == "native splats need Blender 5.3; this bpy is 5.0.1"
