@@ -19,6 +19,9 @@ UPSTREAM: dict[StageName, tuple[StageName, ...]] = {"albedo": (), "shading": ("a
 ShadingGeometry = Literal["albedo", "points"]
 """Where the shading Gaussians start (DecomposeConfig.shading_geometry)."""
 SHADING_GEOMETRIES: tuple[ShadingGeometry, ...] = get_args(ShadingGeometry)
+ShadingTarget = Literal["image", "multiview"]
+"""What the shading stage fits A * S to (DecomposeConfig.shading_target)."""
+SHADING_TARGETS: tuple[ShadingTarget, ...] = get_args(ShadingTarget)
 ShadingInit = Literal["ratio", "gray"]
 """Initial shading colour (DecomposeConfig.shading_init)."""
 SHADING_INITS: tuple[ShadingInit, ...] = get_args(ShadingInit)
@@ -94,6 +97,19 @@ class DecomposeConfig:
     c / A, the albedo's pattern inverted; a low quantile fits under it. Off by default: at 0.25 the
     leakage score reached the ground truth's on family scenes 0-1 (0.07 / 0.03 against 0.08 / 0.02),
     but S fell to 0.69-0.76 of the truth on scene 0's glossy poster and its repaint lost 3.5 dB."""
+    shading_target: ShadingTarget = "image"
+    """What the shading stage fits ``A * S`` to. 'image': the training image. 'multiview': the image
+    less the light that moves with the view. Each pixel's surface point is projected into every
+    training view that sees it (occlusion from the depth), and the light above the views' agreement
+    (the ``multiview_quantile`` of their radiance there), beyond ``multiview_tolerance`` of the pixel's,
+    is taken out (:mod:`backend.train.intrinsic.multiview`): a reflection is left to the residual,
+    which is then spawned where it is."""
+    multiview_quantile: float = 0.25
+    """With shading_target 'multiview': the quantile of the views' radiance at a point that counts as
+    their agreement (the diffuse light's upper bound)."""
+    multiview_tolerance: float = 0.1
+    """With shading_target 'multiview': the share of a pixel's light above the agreement that is left in
+    the target, because 16-sample noise alone spreads the views by several percent."""
     joint_residual: float = 0.0
     """The fraction of the shading stage's iterations, at its end, in which the residual is trained
     with the shading (``I = A * S + R``, both updated); the residual stage then continues from that
@@ -140,7 +156,8 @@ class DecomposeConfig:
     def shading_terms(self) -> ShadingTerms:
         """The shading stage's regulariser weights."""
         return ShadingTerms(gray=self.lambda_gray, dark=self.lambda_dark, dark_level=self.dark_level,
-                            texture=self.lambda_texture, quantile=self.shading_quantile)
+                            texture=self.lambda_texture, quantile=self.shading_quantile, target=self.shading_target,
+                            target_quantile=self.multiview_quantile, target_tolerance=self.multiview_tolerance)
 
     def stage(self, name: StageName) -> TrainConfig:
         """The training config of stage ``name``."""

@@ -19,6 +19,7 @@ from backend.core.imageio import luminance
 from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
+from backend.train.intrinsic.multiview import diffuse_targets
 from backend.train.intrinsic.shading_priors import (
     ShadingTerms,
     free_shading_loss,
@@ -129,6 +130,10 @@ def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, tor
     return n
 
 
+DIFFUSE_TARGET = "diffuse_target"
+"""The training views' extra holding the shading's multi-view target (:func:`diffuse_targets`)."""
+
+
 @dataclass
 class JointResidual:
     """The residual trained with the shading in the shading stage's last part.
@@ -235,6 +240,17 @@ class ShadingStage(Stage):
     def prepare(self) -> None:
         self.cache_seconds += cache_frozen(self.train_views + self.test_views, [self.albedo],
                                            self.config.backend, "albedo")
+        if self.terms.target == "multiview" and not all(DIFFUSE_TARGET in v.extras for v in self.train_views):
+            t0 = time.perf_counter()
+            diffuse_targets(self.train_views, self.terms.target_quantile, self.terms.target_tolerance, DIFFUSE_TARGET)
+            self.cache_seconds += time.perf_counter() - t0
+
+    def target(self, view: View) -> torch.Tensor:
+        """The image less its light above the views' agreement (shading target 'multiview') while the
+        shading is fitted alone; the image itself once the residual trains beside it, and on held-out views."""
+        if self._residual_out is None and DIFFUSE_TARGET in view.extras:
+            return view.extras[DIFFUSE_TARGET]
+        return view.image
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         diffuse = compose(view.extras["A"], out.color)
@@ -243,7 +259,7 @@ class ShadingStage(Stage):
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         w = self.terms
-        terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim, w.quantile)}
+        terms = {"photo": inverse_photometric(pred, self.target(view), cfg.lambda_dssim, w.quantile)}
         r = self._residual_out
         weights = None  # the lit/dark/absent split, for the free-shading term and the residual's L1
         if w.dark > 0 or (r is not None and self.joint.weight > 0):
