@@ -120,7 +120,9 @@ class DecomposeConfig:
     same and the shading -0.5 dB; on the demo room the full image -0.21 dB and the leakage further
     from the ground truth's (docs/decomposition.md), so it is not the default."""
     joint_residual_weight: float = 0.5
-    """Weight of the L1 on the rendered residual where the albedo is lit, while the residual trains
+    """Weight of the L1 on the rendered residual where the albedo is lit (with shading_target
+    'multiview': also scaled by the share of the pixel's light that the views agree on, so R is free
+    where the light moves with the view), while the residual trains
     with the shading: where A * S and R explain a pixel equally well, the light stays in S. Without
     it R took diffuse light too (scenes 0-2: the shading -1.5 to -2.6 dB on the foreground); at 0.2
     the shading lost 0.2-0.8 dB, at 0.5 nothing."""

@@ -134,6 +134,13 @@ DIFFUSE_TARGET = "diffuse_target"
 """The training views' extra holding the shading's multi-view target (:func:`diffuse_targets`)."""
 
 
+def _agreement(view: View) -> torch.Tensor:
+    """(H, W): the share of the view's light that its multi-view target keeps (1 where the views agree,
+    less where light moves with the view): the joint residual's L1 holds R back only where they agree."""
+    kept = luminance(view.extras[DIFFUSE_TARGET].clamp_min(0)) / luminance(view.image.clamp_min(0)).clamp_min(1e-6)
+    return kept.clamp(0.0, 1.0)
+
+
 @dataclass
 class JointResidual:
     """The residual trained with the shading in the shading stage's last part.
@@ -266,7 +273,8 @@ class ShadingStage(Stage):
             weights = free_shading_weights(view.extras["A"], view.extras["alpha_A"], w.dark_level)
         if r is not None:
             if self.joint.weight > 0:  # where the albedo is lit: elsewhere (the environment) only R can draw
-                terms["residual_l1"] = self.joint.weight * (weights[0] * r.color.abs().mean(-1)).mean()
+                held = weights[0] if DIFFUSE_TARGET not in view.extras else weights[0] * _agreement(view)
+                terms["residual_l1"] = self.joint.weight * (held * r.color.abs().mean(-1)).mean()
             if (d := depth_term(self.joint.config, view, r)) is not None:
                 terms["residual_depth"] = d
             if self.joint.config.lambda_scale > 0:

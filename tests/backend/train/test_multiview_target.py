@@ -74,6 +74,9 @@ def test_a_highlight_seen_by_one_view_is_its_share_and_nothing_elsewhere():
     assert float(target[core].mean()) == pytest.approx(1.0 * (1 - 0.4), abs=0.04)
     assert torch.equal(target[far], views[0].image[far])
     assert all(bool((v.extras[DIFFUSE_TARGET] <= v.image + 1e-6).all()) for v in views)
+    # the joint residual's L1 holds R back by the share kept: 0.6 on the highlight, fully elsewhere
+    held = stages._agreement(views[0])
+    assert float(held[core].mean()) == pytest.approx(0.6, abs=0.04) and float(held[far].min()) == pytest.approx(1.0)
 
 
 def test_an_occluder_is_no_evidence_of_a_reflection():
