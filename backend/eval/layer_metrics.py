@@ -273,19 +273,21 @@ def headline_metrics(entry: Mapping[str, Any]) -> dict[str, float]:
 RESIDUAL_SCALES = (1, 2, 4, 8, 16, 32)
 """The factors report.png may multiply the residual by (a power of two, named in its column's label)."""
 RESIDUAL_SHOW_LEVEL = 0.5
-"""report.png scales the residual so that its 99th percentile (linear) reaches at most this."""
+"""report.png scales the residual so that its :data:`RESIDUAL_PERCENTILE` (linear) reaches at most this."""
+RESIDUAL_PERCENTILE = 0.95
+"""The residual's quantile that sets report.png's scale: the brightest 5 % (a metal's highlight) may clip."""
 
 
 def residual_scale(residuals: Sequence[torch.Tensor], masks: Sequence[torch.Tensor | None]) -> int:
-    """The largest of :data:`RESIDUAL_SCALES` that keeps the 99th percentile of the residuals' values
+    """The largest of :data:`RESIDUAL_SCALES` that keeps the 95th percentile of the residuals' values
     ((H, W, 3) linear, each over its (H, W) bool mask where given) at most :data:`RESIDUAL_SHOW_LEVEL`:
     a reflection of a few percent of the light is then readable, and a bright one is not blown out."""
     vals = [(r if m is None else r[m]).reshape(-1).clamp_min(0) for r, m in zip(residuals, masks)]
     vals = [v for v in vals if v.numel()]
     if not vals:
         return 1
-    p99 = float(torch.quantile(torch.cat(vals)[:1_000_000], 0.99))
-    fits = [k for k in RESIDUAL_SCALES if k * p99 <= RESIDUAL_SHOW_LEVEL]
+    p95 = float(torch.quantile(torch.cat(vals)[:1_000_000], RESIDUAL_PERCENTILE))
+    fits = [k for k in RESIDUAL_SCALES if k * p95 <= RESIDUAL_SHOW_LEVEL]
     return fits[-1] if fits else 1
 
 
