@@ -49,7 +49,7 @@ import torch
 from backend.bench import bench_decompose, bench_edit
 from backend.bench.bench_cli import error, timed_step
 from backend.bench.bench_edit import PROXY_SOURCES, ProxySource
-from backend.bench.seed_headline import headline_table, leakage_vs_gt
+from backend.bench.seed_headline import baseline_table, headline_table, leakage_vs_gt
 from backend.bench.seed_stats import aggregate, cell, markdown, spread_cells
 from backend.core import events
 from backend.core.atomic_io import write_json
@@ -95,7 +95,8 @@ EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image",
 )
 # the per-seed table's decomposition columns, where some seed has them (all metrics: JSON and aggregate)
 DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_psnr", "3dgs_full_psnr_fg",
-                       "full_psnr_fg", "albedo_psnr_fg", "shading_psnr_fg", "leakage")
+                       "full_psnr_fg", "albedo_psnr_fg", "shading_psnr_fg", "shading_psnr_glossy",
+                       "shading_psnr_matte", "residual_recall", "residual_false_matte", "leakage")
 # decomposition metrics the printed aggregate leaves to the JSON (SSIM, LPIPS)
 JSON_ONLY = ("_ssim", "_lpips")
 DECOMPOSITION_SETTINGS = ("preset", "views", "seed", "iterations", "downscale", "max_gaussians", "residual_points",
@@ -384,26 +385,49 @@ def reusable(entry: dict[str, Any] | None, settings: dict[str, Any]) -> bool:
     return bool(entry) and entry.get("settings") == settings and "decomposition" in entry and "edits" in entry
 
 
-def document(s: SeedSettings, requested: Sequence[str], seeds: dict[str, Any]) -> dict[str, Any]:
+def load_baseline(path: Path) -> dict[str, Any]:
+    """The aggregate of an earlier bench_seeds output at ``path`` (``--baseline``); one error naming the
+    option when it is missing, unreadable or has no aggregate."""
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as e:
+        raise IGSError(f"--baseline: {path}: no such file (an earlier bench_seeds.json)") from e
+    except (OSError, json.JSONDecodeError) as e:
+        raise IGSError(f"--baseline: {path}: not a readable JSON file ({e})") from e
+    agg = data.get("aggregate") if isinstance(data, dict) else None
+    if not isinstance(agg, dict) or not isinstance(agg.get("decomposition"), dict):
+        raise IGSError(f"--baseline: {path}: no 'aggregate' of a bench_seeds run in it")
+    return agg
+
+
+def document(s: SeedSettings, requested: Sequence[str], seeds: dict[str, Any],
+             baseline: tuple[Path, dict[str, Any]] | None = None) -> dict[str, Any]:
     """The output JSON: every stored seed (also ones not requested this time), the aggregate over the
-    requested ones that are done, and the tables."""
+    requested ones that are done, and the tables; with ``baseline`` (its file and :func:`load_baseline`'s
+    aggregate) also the headline beside the baseline's."""
     done = {k: seeds[k] for k in requested if k in seeds}
     agg = aggregate(done)
-    return {"benchmark": "bench_seeds", "date": _now(), "machine": machine(), "settings": s.as_json(),
-            "scene_seeds": list(requested), "seeds": seeds, "aggregate": agg,
-            "spread": "sample standard deviation (n - 1) over the seeds with a finite value; null below 2 seeds",
-            "tables": {"headline": headline_table(done, agg), "per_seed": per_seed_table(done),
-                       "aggregate": aggregate_table(agg)}}
+    tables = {"headline": headline_table(done, agg), "per_seed": per_seed_table(done), "aggregate": aggregate_table(agg)}
+    out = {"benchmark": "bench_seeds", "date": _now(), "machine": machine(), "settings": s.as_json(),
+           "scene_seeds": list(requested), "seeds": seeds, "aggregate": agg,
+           "spread": "sample standard deviation (n - 1) over the seeds with a finite value; null below 2 seeds",
+           "tables": tables}
+    if baseline is not None:
+        out["baseline"] = {"file": str(baseline[0]), "aggregate": baseline[1]}
+        tables["baseline"] = baseline_table(agg, baseline[1], str(baseline[0]))
+    return out
 
 
 def run(root: Path, scene_seeds: Sequence[int | None], s: SeedSettings, out: Path | None = None,
         force: bool = False,
-        seed_runner: Callable[[Path, int | None, SeedSettings, str, dict[str, Any] | None], dict[str, Any]] = run_seed
-        ) -> dict[str, Any]:
+        seed_runner: Callable[[Path, int | None, SeedSettings, str, dict[str, Any] | None], dict[str, Any]] = run_seed,
+        baseline: Path | None = None) -> dict[str, Any]:
     """Run (or reuse) every seed, writing ``out`` (default ``<root>/bench_seeds.json``) after each;
-    returns the final document. ``seed_runner``: what runs one seed (:func:`run_seed`)."""
+    returns the final document. ``seed_runner``: what runs one seed (:func:`run_seed`); ``baseline``: an
+    earlier output whose aggregate the headline is set beside (read before any work)."""
     s.check()
     check_scene_seeds(scene_seeds)
+    base = None if baseline is None else (baseline, load_baseline(baseline))
     out = out or root / "bench_seeds.json"
     seeds = load_previous(out)
     requested = [label(k) for k in scene_seeds]
@@ -414,9 +438,9 @@ def run(root: Path, scene_seeds: Sequence[int | None], s: SeedSettings, out: Pat
             events.log(f"bench_seeds: {where}: results in {out} with these settings, not rerun (--force reruns)")
             continue
         seeds[label(k)] = seed_runner(root, k, s, where, None if force else seeds.get(label(k)))
-        write_json(out, document(s, requested, seeds))
+        write_json(out, document(s, requested, seeds, base))
         events.output("bench_seeds", out)
-    result = document(s, requested, seeds)
+    result = document(s, requested, seeds, base)
     write_json(out, result)
     return result
 
@@ -474,6 +498,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--root", required=True, help="folder of the seeds' workspaces (<root>/seed_<K>)")
     p.add_argument("--out", default=None, help="JSON output (default <root>/bench_seeds.json)")
     p.add_argument("--force", action="store_true", help="rerun seeds whose results are already in --out")
+    p.add_argument("--baseline", default=None,
+                   help="an earlier bench_seeds.json (e.g. the previous defaults) whose means are printed beside this run's")
     p.add_argument("--preset", default=d.preset, choices=list(PRESETS), help=f"capture preset (default {d.preset})")
     p.add_argument("--views", type=int, default=None, help="views per capture (default: the preset's)")
     p.add_argument("--seed", type=int, default=d.seed, help="igs synth --seed: camera path and Cycles seed (default 0)")
@@ -519,10 +545,12 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.root)
     try:
         result = run(root, parse_scene_seeds(args.scene_seeds), settings_from(args),
-                     Path(args.out) if args.out else None, args.force)
+                     Path(args.out) if args.out else None, args.force,
+                     baseline=Path(args.baseline) if args.baseline else None)
     except IGSError as e:
         return error("bench_seeds", e)
-    print("\n\n".join(result["tables"][t] for t in ("headline", "per_seed", "aggregate")))
+    print("\n\n".join(result["tables"][t] for t in ("headline", "baseline", "per_seed", "aggregate")
+                       if t in result["tables"]))
     print(f"wrote {Path(args.out) if args.out else root / 'bench_seeds.json'}", file=sys.stderr)
     return 0
 

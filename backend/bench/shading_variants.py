@@ -10,6 +10,8 @@ reports on the held-out views:
 
 - the full image, the shading (whole image and foreground) and the texture leakage beside the
   ground truth's (:mod:`backend.eval.leakage`);
+- the shading on glossy and on matte pixels, and the residual's recall and false share on matte
+  surfaces (:mod:`backend.eval.gloss`);
 - the repaint of ``--edit`` (a ``gt_edit`` recolour) imaged with OUR shading and residual: the
   ground-truth edited albedo times our S plus our R against the edited render, in the pixels the
   edit's mask covers fully. It is what a user sees after a perfect bake, so it isolates what S and
@@ -128,6 +130,8 @@ def run_variant(src: Path, dst: Path, v: Variant, iterations: int, downscale: fl
     m = headline_metrics(evaluate_decomposition(run))
     return {"albedo_psnr": m.get("albedo_psnr"), "full_psnr": m.get("full_psnr"), "shading_psnr": m.get("shading_psnr"),
             "shading_psnr_fg": m.get("shading_psnr_fg"), "leakage": m.get("leakage"), "leakage_gt": m.get("leakage_gt"),
+            **{k: m.get(k) for k in ("shading_psnr_glossy", "shading_psnr_matte", "residual_recall",
+                                     "residual_false_matte")},
             "repaint_psnr": repaint_psnr(dst, edit, downscale), "seconds": round(seconds, 1),
             "stages": {k: {s: e.get(s) for s in ("train_seconds", "cache_seconds", "gaussians")}
                        for k, e in run.stages.items() if k in stages}}
@@ -140,10 +144,13 @@ def table(result: dict[str, Any]) -> str:
     for name, seeds in result["variants"].items():
         for seed, r in seeds.items():
             rows.append([name, seed, f(r.get("albedo_psnr"), ".2f"), f(r["full_psnr"], ".2f"), f(r["shading_psnr_fg"], ".2f"),
+                         f(r.get("shading_psnr_glossy"), ".2f"), f(r.get("shading_psnr_matte"), ".2f"),
+                         f(r.get("residual_recall"), ".2f"), f(r.get("residual_false_matte"), ".3f"),
                          f(r["repaint_psnr"], ".2f"), f(r["leakage"], "+.3f"), f(r["leakage_gt"], "+.3f"),
                          f(r["seconds"], ".0f")])
-    return markdown(("variant", "seed", "albedo dB", "full dB", "shading fg dB", f"{result['edit']} repaint, our S and R",
-                     "leakage", "leakage GT", f"s ({' + '.join(result['stages'])})"), rows)
+    return markdown(("variant", "seed", "albedo dB", "full dB", "shading fg dB", "S glossy dB", "S matte dB", "R recall",
+                     "R false on matte", f"{result['edit']} repaint, our S and R", "leakage", "leakage GT",
+                     f"s ({' + '.join(result['stages'])})"), rows)
 
 
 def main(argv: list[str] | None = None) -> int:

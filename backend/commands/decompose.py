@@ -55,6 +55,15 @@ OPTIONS = (
     Option("--shading-quantile", "shading_quantile",
            "quantile of the views that the shading stage fits, under a glossy surface's reflection "
            f"(default {_D.shading_quantile}; 0.5 = the median, a plain L1)", type=opt.number(0, 0.5, lo_open=True)),
+    Option("--shading-target", "shading_target",
+           "what the shading stage fits A*S to: 'image' (default) or 'multiview' (the image less the light "
+           "above the views' agreement on each surface point: reflections left to the residual)"),
+    Option("--multiview-quantile", "multiview_quantile",
+           f"with --shading-target multiview: the quantile of the views' radiance at a point that counts as "
+           f"their agreement (default {_D.multiview_quantile})", type=opt.number(0, 0.5, lo_open=True)),
+    Option("--multiview-tolerance", "multiview_tolerance",
+           f"with --shading-target multiview: the share of a pixel's light above the agreement kept in the "
+           f"target (default {_D.multiview_tolerance})", type=opt.number(0, 1, hi_open=True)),
     Option("--joint-residual", "joint_residual",
            "the fraction of the shading stage's iterations, at its end, in which the residual trains with "
            f"the shading (default {_D.joint_residual}; 0 = the residual only after the shading)",

@@ -52,6 +52,7 @@ def evaluate_decomposition(run: DecompositionRun) -> dict[str, Any]:
         "per_view": ev["per_view"],
         "foreground": ev["foreground"],
         "leakage": ev["leakage"],
+        "gloss": ev["gloss"],
         "stages": run.stages,
         "gaussians": {**run.counts, "total": sum(run.counts.values())},
         "train_seconds": round(train_s, 2),
@@ -100,13 +101,23 @@ def _leak(leak: dict[str, Any] | None) -> str:
     return f" | leakage S {leak['shading']:.2f}" + (f" (GT S {gt:.2f})" if gt is not None else "")
 
 
+def _gloss(gloss: dict[str, Any] | None) -> str:
+    """' | S glossy/matte 18.2/25.0 dB, R recall 0.12, false on matte 0.01': the gloss entry's means."""
+    if gloss is None:
+        return ""
+    share = lambda x: f"{x:.2f}" if isinstance(x, float) else "n/a"  # noqa: E731
+    return (f" | S glossy/matte {_db(gloss.get('shading_psnr_glossy'))}/{_db(gloss.get('shading_psnr_matte'))} dB,"
+            f" R recall {share(gloss.get('residual_recall'))}, false on matte {share(gloss.get('residual_false_matte'))}")
+
+
 def mean_caption(ev: dict[str, Any]) -> str:
-    """One line of held-out means: PSNR whole/foreground per layer, foreground share, leakage."""
+    """One line of held-out means: PSNR whole/foreground per layer, foreground share, leakage, and the
+    shading on glossy / matte pixels with the residual's recall and false share (:mod:`backend.eval.gloss`)."""
     fg = ev.get("foreground")
     if fg is None:
         return f"mean PSNR dB: {_psnr_pairs(ev['layers'], None)}"
     return (f"mean PSNR dB whole/fg: {_psnr_pairs(ev['layers'], fg['layers'])} | fg {100 * fg['fraction']:.0f}%"
-            + _leak(ev.get("leakage")))
+            + _leak(ev.get("leakage")) + _gloss(ev.get("gloss")))
 
 
 def view_caption(ev: dict[str, Any], name: str) -> str:

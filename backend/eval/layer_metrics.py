@@ -36,6 +36,8 @@ from backend.eval.foreground import (
     masked_image_metrics,
     masked_psnr,
 )
+from backend.eval.gloss import HEADLINE_KEYS as GLOSS_KEYS
+from backend.eval.gloss import gloss_summary, view_gloss
 from backend.eval.leakage import LEAKAGE_BLUR_SIGMA, LOG_EPSILON, view_leakage
 from backend.render import Backend, render_layers
 from backend.render.threads import torch_threads
@@ -97,7 +99,9 @@ def evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], 
                     albedo_source: str, backend: Backend = "auto") -> dict[str, Any]:
     """Per-layer metrics on ``frames`` (held-out views): {"layers": means per layer, "per_view",
     "alignment", "metric_space", "foreground": the same on the foreground (None without a ground-truth
-    albedo), "leakage": texture leakage of the learned and the true shading (None without one)}.
+    albedo), "leakage": texture leakage of the learned and the true shading (None without one), "gloss":
+    the shading on glossy and matte surfaces and the residual's recall (:mod:`backend.eval.gloss`; None
+    without a ground-truth albedo and residual)}.
 
     Torch runs on one thread meanwhile, as in training (:func:`backend.render.threads.torch_threads`)."""
     with torch_threads():
@@ -113,6 +117,7 @@ def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame],
     per_view: dict[str, dict[str, Any]] = {}
     fg_views: dict[str, dict[str, Any]] = {}
     leak_views: dict[str, dict[str, Any]] = {}
+    gloss_views: dict[str, dict[str, Any]] = {}
     for f in frames:
         r, g = _view_pair(layers, f, downscale, backend)
         if k is not None:
@@ -126,9 +131,11 @@ def _evaluate_layers(layers: Mapping[str, GaussianSet], frames: Sequence[Frame],
         leak = view_leakage(r["shading"], g["albedo"], mask, g.get("shading")) if "shading" in r else None
         if leak is not None:
             leak_views[f.name] = leak
+        if (gloss := view_gloss(r, g, mask)) is not None:
+            gloss_views[f.name] = gloss
     return {"layers": _layer_means(per_view), "alignment": alignment, "metric_space": METRIC_SPACE,
             "per_view": per_view, "foreground": _foreground_summary(fg_views),
-            "leakage": _leakage_summary(leak_views)}
+            "leakage": _leakage_summary(leak_views), "gloss": gloss_summary(gloss_views)}
 
 
 def _view_pair(layers: Mapping[str, GaussianSet], frame: Frame, downscale: float,
@@ -238,7 +245,8 @@ def headline_metrics(entry: Mapping[str, Any]) -> dict[str, float]:
     ``{layer}_{psnr,ssim,lpips}`` on the whole image and ``{layer}_{psnr,ssim,lpips}_fg`` on the
     foreground, for layer in albedo, shading, residual, diffuse (A*S), full (A*S+R);
     ``shading_psnr_inverse[_fg]``; ``foreground_fraction``; ``leakage`` / ``leakage_gt`` (correlation
-    of the learned / ground-truth shading) and ``leakage_gain`` / ``leakage_gain_gt``.
+    of the learned / ground-truth shading) and ``leakage_gain`` / ``leakage_gain_gt``; and the 'gloss'
+    entry's :data:`backend.eval.gloss.HEADLINE_KEYS` (``shading_psnr_glossy``, ``residual_recall``, ...).
     """
     out: dict[str, float] = {}
 
@@ -256,39 +264,81 @@ def headline_metrics(entry: Mapping[str, Any]) -> dict[str, float]:
     for key, name in (("shading", "leakage"), ("gt_shading", "leakage_gt"), ("shading_gain", "leakage_gain"),
                       ("gt_shading_gain", "leakage_gain_gt")):
         put(name, leak.get(key))
+    gloss = entry.get("gloss") or {}
+    for key in GLOSS_KEYS:
+        put(key, gloss.get(key))
     return out
 
 
 REPORT_CELL_WIDTH = 640
 """report.png's cells are at most this many pixels wide: at a phone capture's full size, three rows of
 seven cells and the sheet held 1.7 GiB (96 views at 1920x1440: the run's peak)."""
+RESIDUAL_SCALES = (1, 2, 4, 8, 16, 32)
+"""The factors report.png may multiply the residual by (a power of two, named in its column's label)."""
+RESIDUAL_SHOW_LEVEL = 0.5
+"""report.png scales the residual so that its :data:`RESIDUAL_PERCENTILE` (linear) reaches at most this."""
+RESIDUAL_PERCENTILE = 0.95
+"""The residual's quantile that sets report.png's scale: the brightest 5 % (a metal's highlight) may clip."""
+
+
+def residual_scale(residuals: Sequence[torch.Tensor], masks: Sequence[torch.Tensor | None]) -> int:
+    """The largest of :data:`RESIDUAL_SCALES` that keeps the 95th percentile of the residuals' values
+    ((H, W, 3) linear, each over its (H, W) bool mask where given) at most :data:`RESIDUAL_SHOW_LEVEL`:
+    a reflection of a few percent of the light is then readable, and a bright one is not blown out."""
+    vals = [(r if m is None else r[m]).reshape(-1).clamp_min(0) for r, m in zip(residuals, masks)]
+    vals = [v for v in vals if v.numel()]
+    if not vals:
+        return 1
+    p95 = float(torch.quantile(torch.cat(vals)[:1_000_000], RESIDUAL_PERCENTILE))
+    fits = [k for k in RESIDUAL_SCALES if k * p95 <= RESIDUAL_SHOW_LEVEL]
+    return fits[-1] if fits else 1
+
+
+def _cell_size(x: dict[str, torch.Tensor], w: int, h: int) -> dict[str, torch.Tensor]:
+    """The (H, W, C) images of ``x`` shrunk to a report cell (at most :data:`REPORT_CELL_WIDTH` wide), so
+    that every frame's layers can wait for the sheet's residual scale without holding full-size renders."""
+    cw = min(w, REPORT_CELL_WIDTH)
+    ch = max(1, round(h * cw / w))
+    def shrink(v: torch.Tensor) -> torch.Tensor:
+        small = resize_image(v.detach().cpu().numpy(), cw, ch)
+        return torch.from_numpy(np.ascontiguousarray(small.reshape(ch, cw, v.shape[2])))
+
+    return {k: shrink(v) if v.dim() == 3 else v for k, v in x.items()}
 
 
 def report_rows(layers: Mapping[str, GaussianSet], frames: Sequence[Frame], downscale: float,
                 backend: Backend = "auto") -> list[tuple[str, list[tuple[str, np.ndarray | None]]]]:
-    """Contact-sheet rows, one per frame: input | A | S | R | A*S+R | GT A | GT S (sRGB-encoded float
-    images in [0, 1], shading halved, at most :data:`REPORT_CELL_WIDTH` wide; None where a layer is
+    """Contact-sheet rows, one per frame: input | A | S | R | A*S+R | GT A | GT S | GT R (sRGB-encoded
+    float images in [0, 1], shading halved, at most :data:`REPORT_CELL_WIDTH` wide, both residuals
+    multiplied by one :func:`residual_scale` for the sheet, named in their labels; None where a layer is
     missing; ground-truth columns only when some frame has them)."""
-    rows = []
-    has_gt = {p: any(p in f.gt for f in frames) for p in ("albedo", "shading")}
+    has_gt = {p: any(p in f.gt for f in frames) for p in ("albedo", "shading", "residual")}
+    pairs = []
     for f in frames:
         r = render_frame(layers, f, downscale, backend)
         h, w = next(iter(r.values())).shape[:2]
-        g = ground_truth(f, w, h)
+        pairs.append((f, _cell_size(r, w, h), _cell_size(ground_truth(f, w, h), w, h)))
+    # the scale from the true residual on the foreground where there is one (the environment through an
+    # open side is all residual and bright), else from ours
+    shown = [(g["residual"], foreground_mask(g["albedo"]) if "albedo" in g else None) for _, _, g in pairs
+             if "residual" in g] or [(r["residual"], None) for _, r, _ in pairs if "residual" in r]
+    k = residual_scale([x for x, _ in shown], [m for _, m in shown])
 
-        cw = min(w, REPORT_CELL_WIDTH)
-        ch = max(1, round(h * cw / w))
+    def show(x: torch.Tensor | None, factor: float = 1.0) -> np.ndarray | None:
+        return None if x is None else to_display(factor * x, "linear").numpy()
 
-        def show(x: torch.Tensor | None, cw: int = cw, ch: int = ch) -> np.ndarray | None:
-            return None if x is None else resize_image(to_display(x, "linear").numpy(), cw, ch)
-
-        half = lambda x: None if x is None else 0.5 * x  # noqa: E731  (shading reaches ~3: halved to show its range)
-        cells = [("input", show(g["image"])), ("albedo A", show(r.get("albedo"))), ("shading S/2", show(half(r.get("shading")))),
-                 ("residual R", show(r.get("residual"))), ("A*S+R", show(r.get("full")))]
+    rows = []
+    for f, r, g in pairs:
+        # shading reaches ~3: halved to show its range
+        cells = [("input", show(g["image"])), ("albedo A", show(r.get("albedo"))),
+                 ("shading S/2", show(r.get("shading"), 0.5)), (f"residual R x{k}", show(r.get("residual"), k)),
+                 ("A*S+R", show(r.get("full")))]
         if has_gt["albedo"]:
             cells.append(("GT albedo", show(g.get("albedo"))))
         if has_gt["shading"]:
-            cells.append(("GT shading/2", show(half(g.get("shading")))))
+            cells.append(("GT shading/2", show(g.get("shading"), 0.5)))
+        if has_gt["residual"]:
+            cells.append((f"GT residual x{k}", show(g.get("residual"), k)))
         rows.append((f.name, cells))
     return rows
 

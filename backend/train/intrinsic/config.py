@@ -19,6 +19,9 @@ UPSTREAM: dict[StageName, tuple[StageName, ...]] = {"albedo": (), "shading": ("a
 ShadingGeometry = Literal["albedo", "points"]
 """Where the shading Gaussians start (DecomposeConfig.shading_geometry)."""
 SHADING_GEOMETRIES: tuple[ShadingGeometry, ...] = get_args(ShadingGeometry)
+ShadingTarget = Literal["image", "multiview"]
+"""What the shading stage fits A * S to (DecomposeConfig.shading_target)."""
+SHADING_TARGETS: tuple[ShadingTarget, ...] = get_args(ShadingTarget)
 ShadingInit = Literal["ratio", "gray"]
 """Initial shading colour (DecomposeConfig.shading_init)."""
 SHADING_INITS: tuple[ShadingInit, ...] = get_args(ShadingInit)
@@ -94,6 +97,22 @@ class DecomposeConfig:
     c / A, the albedo's pattern inverted; a low quantile fits under it. Off by default: at 0.25 the
     leakage score reached the ground truth's on family scenes 0-1 (0.07 / 0.03 against 0.08 / 0.02),
     but S fell to 0.69-0.76 of the truth on scene 0's glossy poster and its repaint lost 3.5 dB."""
+    shading_target: ShadingTarget = "image"
+    """What the shading stage fits ``A * S`` to. 'image': the training image. 'multiview': the image
+    less the light that moves with the view. Each pixel's surface point is projected into every
+    training view that sees it (occlusion from the depth), and the light above the views' agreement
+    (the ``multiview_quantile`` of their radiance there), beyond ``multiview_tolerance`` of the pixel's,
+    is taken out (:mod:`backend.train.intrinsic.multiview`): a reflection is left to the residual,
+    which is then spawned where it is. Not the default: alone it took 0.8 % of the light out on family
+    scene 0 (S on glossy pixels -0.1 to +0.2 dB on scenes 0-1); with ``joint_residual`` 0.5 and the
+    shading at N / 2, S on glossy pixels +0.5 / +2.3 / +0.9 dB on scenes 0-2 but -0.4 to -1.7 dB on
+    matte ones (docs/decomposition.md)."""
+    multiview_quantile: float = 0.25
+    """With shading_target 'multiview': the quantile of the views' radiance at a point that counts as
+    their agreement (the diffuse light's upper bound)."""
+    multiview_tolerance: float = 0.1
+    """With shading_target 'multiview': the share of a pixel's light above the agreement that is left in
+    the target, because 16-sample noise alone spreads the views by several percent."""
     joint_residual: float = 0.0
     """The fraction of the shading stage's iterations, at its end, in which the residual is trained
     with the shading (``I = A * S + R``, both updated); the residual stage then continues from that
@@ -104,7 +123,9 @@ class DecomposeConfig:
     same and the shading -0.5 dB; on the demo room the full image -0.21 dB and the leakage further
     from the ground truth's (docs/decomposition.md), so it is not the default."""
     joint_residual_weight: float = 0.5
-    """Weight of the L1 on the rendered residual where the albedo is lit, while the residual trains
+    """Weight of the L1 on the rendered residual where the albedo is lit (with shading_target
+    'multiview': also scaled by the share of the pixel's light that the views agree on, so R is free
+    where the light moves with the view), while the residual trains
     with the shading: where A * S and R explain a pixel equally well, the light stays in S. Without
     it R took diffuse light too (scenes 0-2: the shading -1.5 to -2.6 dB on the foreground); at 0.2
     the shading lost 0.2-0.8 dB, at 0.5 nothing."""
@@ -140,7 +161,8 @@ class DecomposeConfig:
     def shading_terms(self) -> ShadingTerms:
         """The shading stage's regulariser weights."""
         return ShadingTerms(gray=self.lambda_gray, dark=self.lambda_dark, dark_level=self.dark_level,
-                            texture=self.lambda_texture, quantile=self.shading_quantile)
+                            texture=self.lambda_texture, quantile=self.shading_quantile, target=self.shading_target,
+                            target_quantile=self.multiview_quantile, target_tolerance=self.multiview_tolerance)
 
     def stage(self, name: StageName) -> TrainConfig:
         """The training config of stage ``name``."""

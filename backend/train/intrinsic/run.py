@@ -22,7 +22,14 @@ from backend.core.errors import IGSError
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyStrategy
-from backend.train.intrinsic.config import SHADING_GEOMETRIES, STAGES, UPSTREAM, DecomposeConfig, StageName
+from backend.train.intrinsic.config import (
+    SHADING_GEOMETRIES,
+    SHADING_TARGETS,
+    STAGES,
+    UPSTREAM,
+    DecomposeConfig,
+    StageName,
+)
 from backend.train.intrinsic.initial import (
     initial_albedo,
     initial_shading,
@@ -73,6 +80,7 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
         if cfg.shading_geometry not in SHADING_GEOMETRIES:  # before the albedo cache is built
             raise IGSError(f"shading_geometry must be one of {', '.join(SHADING_GEOMETRIES)}, "
                            f"got {cfg.shading_geometry!r}")
+        check_shading_target(cfg)
         stage = ShadingStage("shading", GaussianSet.empty("shading"), train_views, test_views,
                              albedo=layers["albedo"], terms=cfg.shading_terms(), joint=joint_residual(cfg, tcfg),
                              **common).to(setup.device)
@@ -102,6 +110,16 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
             how = f"{len(init)} spawned at high |I - A*S| pixels"
     stage.gaussians = init
     return stage, init, how
+
+
+def check_shading_target(cfg: DecomposeConfig) -> None:
+    """One :class:`IGSError` for a bad shading target or multi-view setting, named by its option."""
+    if cfg.shading_target not in SHADING_TARGETS:
+        raise IGSError(f"--shading-target: must be one of {', '.join(SHADING_TARGETS)}, got {cfg.shading_target!r}")
+    if not 0 < cfg.multiview_quantile <= 0.5:
+        raise IGSError(f"--multiview-quantile: must be in (0, 0.5], got {cfg.multiview_quantile}")
+    if not 0 <= cfg.multiview_tolerance < 1:
+        raise IGSError(f"--multiview-tolerance: must be in [0, 1), got {cfg.multiview_tolerance}")
 
 
 def joint_residual_path(setup: Setup) -> Path:

@@ -39,6 +39,13 @@ class ShadingTerms:
     """S's log gradient penalised where the albedo has an edge."""
     quantile: float = 0.5
     """Quantile of the photometric L1 (0.5: plain L1)."""
+    target: str = "image"
+    """What A * S is fitted to: 'image', or 'multiview' (the image less its light above the views'
+    agreement: :mod:`backend.train.intrinsic.multiview`)."""
+    target_quantile: float = 0.25
+    """With target 'multiview': the quantile of the views' radiance that counts as their agreement."""
+    target_tolerance: float = 0.1
+    """With target 'multiview': the share of a pixel's light above the agreement that is kept (noise)."""
 
 
 def push_pull_fill(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

@@ -19,6 +19,7 @@ from backend.core.imageio import luminance
 from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
 from backend.train.intrinsic.composite import compose
+from backend.train.intrinsic.multiview import diffuse_targets
 from backend.train.intrinsic.shading_priors import (
     ShadingTerms,
     free_shading_loss,
@@ -131,6 +132,17 @@ def reuse_albedo_renders(views: Sequence[View], renders: dict[str, dict[str, tor
     return n
 
 
+DIFFUSE_TARGET = "diffuse_target"
+"""The training views' extra holding the shading's multi-view target (:func:`diffuse_targets`)."""
+
+
+def _agreement(view: View) -> torch.Tensor:
+    """(H, W): the share of the view's light that its multi-view target keeps (1 where the views agree,
+    less where light moves with the view): the joint residual's L1 holds R back only where they agree."""
+    kept = luminance(view.extras[DIFFUSE_TARGET].clamp_min(0)) / luminance(view.image.clamp_min(0)).clamp_min(1e-6)
+    return kept.clamp(0.0, 1.0)
+
+
 @dataclass
 class JointResidual:
     """The residual trained with the shading in the shading stage's last part.
@@ -237,6 +249,17 @@ class ShadingStage(Stage):
     def prepare(self) -> None:
         self.cache_seconds += cache_frozen(self.train_views + self.test_views, [self.albedo],
                                            self.config.backend, "albedo")
+        if self.terms.target == "multiview" and not all(DIFFUSE_TARGET in v.extras for v in self.train_views):
+            t0 = time.perf_counter()
+            diffuse_targets(self.train_views, self.terms.target_quantile, self.terms.target_tolerance, DIFFUSE_TARGET)
+            self.cache_seconds += time.perf_counter() - t0
+
+    def target(self, view: View) -> torch.Tensor:
+        """The image less its light above the views' agreement (shading target 'multiview') while the
+        shading is fitted alone; the image itself once the residual trains beside it, and on held-out views."""
+        if self._residual_out is None and DIFFUSE_TARGET in view.extras:
+            return view.extras[DIFFUSE_TARGET]
+        return view.image
 
     def predict(self, view: View, out: RenderOutput) -> torch.Tensor:
         diffuse = compose(view.extras["A"], out.color)
@@ -245,14 +268,15 @@ class ShadingStage(Stage):
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         w = self.terms
-        terms = {"photo": inverse_photometric(pred, view.image, cfg.lambda_dssim, w.quantile)}
+        terms = {"photo": inverse_photometric(pred, self.target(view), cfg.lambda_dssim, w.quantile)}
         r = self._residual_out
         weights = None  # the lit/dark/absent split, for the free-shading term and the residual's L1
         if w.dark > 0 or (r is not None and self.joint.weight > 0):
             weights = free_shading_weights(view.extras["A"], view.extras["alpha_A"], w.dark_level)
         if r is not None:
             if self.joint.weight > 0:  # where the albedo is lit: elsewhere (the environment) only R can draw
-                terms["residual_l1"] = self.joint.weight * (weights[0] * r.color.abs().mean(-1)).mean()
+                held = weights[0] if DIFFUSE_TARGET not in view.extras else weights[0] * _agreement(view)
+                terms["residual_l1"] = self.joint.weight * (held * r.color.abs().mean(-1)).mean()
             if (d := depth_term(self.joint.config, view, r)) is not None:
                 terms["residual_depth"] = d
             if self.joint.config.lambda_scale > 0:

@@ -44,6 +44,8 @@ def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
         return jsonable({**common, "lambda_gray": cfg.lambda_gray, "lambda_dark": cfg.lambda_dark,
                          "dark_level": cfg.dark_level, "lambda_texture": cfg.lambda_texture,
                          "shading_quantile": cfg.shading_quantile, "shading_budget": cfg.shading_budget,
+                         "shading_target": cfg.shading_target, "multiview_quantile": cfg.multiview_quantile,
+                         "multiview_tolerance": cfg.multiview_tolerance,
                          "shading_init": cfg.shading_init,
                          "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo,
                          **_joint_settings(cfg)})

@@ -159,6 +159,8 @@ def _issue_entry(leak: float, full_vs: float, ratio: float, ours: float, true: f
     result = {"psnr": {"multi_view/image": true, "multi_view/image_decomposed": ours, "single_view/image": true - 5,
                        "single_view/image_decomposed": ours - 3, "oracle/image_decomposed": ours + 1}}
     return {"decomposition": {"leakage": leak, "leakage_gt": -0.02, "leakage_vs_gt": round(leak + 0.02, 4),
+                              "shading_psnr_glossy": 18.0, "shading_psnr_matte": 25.0, "residual_recall": 0.2,
+                              "residual_false_matte": 0.01, "albedo_psnr": 35.0,
                               "full_vs_3dgs_db": full_vs, "time_vs_3dgs": ratio},
             "edits": {"poster_recolor": bench_seeds.edit_headline(result)}, "seconds": {"total": 5.0}}
 
@@ -173,16 +175,50 @@ def test_headline_table_has_leakage_vs_gt_3dgs_time_and_the_repaint_with_our_s_a
     assert edit["single_view_image_decomposed"] == pytest.approx(25.7)
     text = bench_seeds.headline_table(seeds, aggregate(seeds))
     lines = text.splitlines()
-    assert lines[0] == "| seed | leakage | leakage GT | leakage − GT | ours − 3DGS dB | time ÷ 3DGS |"
-    assert "| 100 | -0.20 | -0.02 | -0.18 | 0.50 | 1.90 |" in lines
-    assert "| mean ± std | -0.05 ± 0.21 | -0.02 ± 0.00 | -0.03 ± 0.21 | 0.40 ± 0.14 | 1.80 ± 0.14 |" in lines
+    assert lines[0] == ("| seed | leakage | leakage GT | leakage − GT | S glossy dB | S matte dB | R recall | "
+                        "R false on matte | albedo dB | ours − 3DGS dB | time ÷ 3DGS |")
+    assert "| 100 | -0.20 | -0.02 | -0.18 | 18.00 | 25.00 | 0.20 | 0.01 | 35.00 | 0.50 | 1.90 |" in lines
+    assert ("| mean ± std | -0.05 ± 0.21 | -0.02 ± 0.00 | -0.03 ± 0.21 | 18.00 ± 0.00 | 25.00 ± 0.00 | 0.20 ± 0.00 | "
+            "0.01 ± 0.00 | 35.00 ± 0.00 | 0.40 ± 0.14 | 1.80 ± 0.14 |") in lines
     assert ("| seed | edit | image, true S and R | image, our S and R | oracle, our S and R | lead, true S and R | "
             "lead, our S and R |") in lines
     assert "| 101 | poster_recolor | 42.00 | 30.70 | 31.70 | 5.00 | 3.00 |" in lines
     assert "| mean ± std | poster_recolor | 41.00 ± 1.41 | 29.70 ± 1.41 | 30.70 ± 1.41 | 5.00 ± 0.00 | 3.00 ± 0.00 |" in lines
     failed = {**seeds, "102": {"decomposition": {}, "edits": {"poster_recolor": {"metrics": {}, "error": "no fit"}}}}
     text = bench_seeds.headline_table(failed, aggregate(failed))
-    assert "| 102 | - | - | - | - | - |" in text and "| 102 | poster_recolor | failed: no fit |" in text
+    assert "| 102 | - | - | - | - | - | - | - | - | - | - |" in text and "| 102 | poster_recolor | failed: no fit |" in text
+
+
+def test_a_baseline_run_is_printed_beside_this_one_and_a_bad_one_is_one_error(tmp_path, monkeypatch):
+    """--baseline: every headline column as this run's mean ± std, the baseline's and the difference."""
+    monkeypatch.setattr(bench_seeds, "check_scene_seeds", lambda seeds: None)
+    old = {"100": _issue_entry(-0.20, 0.5, 1.9, 28.7, 40.0), "101": _issue_entry(0.10, 0.3, 1.7, 30.7, 42.0)}
+    base = tmp_path / "base.json"
+    base.write_text(json.dumps({"aggregate": aggregate(old)}))
+    s = SeedSettings(preset="test", iterations=30)
+
+    def runner(root, k, s, where, previous):
+        e = _issue_entry(-0.05, 0.7, 1.5, 31.7, 40.0)
+        e["decomposition"]["shading_psnr_glossy"] = 21.5
+        return {**e, "settings": s.as_json()}
+
+    result = bench_seeds.run(tmp_path / "new", [100, 101], s, seed_runner=runner, baseline=base)
+    text = result["tables"]["baseline"]
+    assert text.startswith(f"this run (seeds 100, 101) against {base} (seeds 100, 101)")
+    assert "| S glossy dB | 21.50 ± 0.00 | 18.00 ± 0.00 | +3.50 |" in text
+    assert "| leakage − GT | -0.03 ± 0.00 | -0.03 ± 0.21 | +0.00 |" in text
+    assert "| poster_recolor: lead, our S and R | 3.00 ± 0.00 | 3.00 ± 0.00 | +0.00 |" in text
+    assert "| poster_recolor: image, our S and R | 31.70 ± 0.00 | 29.70 ± 1.41 | +2.00 |" in text
+    assert result["baseline"]["file"] == str(base)
+    for bad, says in ((tmp_path / "none.json", "no such file"), (tmp_path / "new" / "seed_x", "not a readable"),
+                      (tmp_path / "empty.json", "no 'aggregate'")):
+        if bad.name == "empty.json":
+            bad.write_text("{}")
+        elif bad.name == "seed_x":
+            bad.write_text("{")
+        with pytest.raises(IGSError, match=f"--baseline: .*{says}"):
+            bench_seeds.run(tmp_path / "other", [100], s, seed_runner=runner, baseline=bad)
+    assert not (tmp_path / "other").exists()  # read before any work
 
 
 def test_tiny_run_end_to_end_on_the_test_room(tmp_path):

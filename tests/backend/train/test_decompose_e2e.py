@@ -84,8 +84,13 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
     assert 0.5 < fg["fraction"] <= 1.0 and fg["views"] == m["held_out_views"]
     assert all(set(fg["layers"][k]) >= {"psnr", "ssim", "lpips"} for k in m["layers"])
     assert -1.0 <= leak["shading"] <= 1.0 and -1.0 <= leak["gt_shading"] <= 1.0
+    # where the view-dependent light went: the shading on glossy / matte pixels, the residual's recall
+    gloss = m["gloss"]
+    assert gloss["views"] == m["held_out_views"] and 0.0 <= gloss["residual_recall"] <= 1.0
+    assert 0.0 < gloss["matte_fraction"] < 1.0 and gloss["residual_false_matte"] >= 0.0
     flat = headline_metrics(m)
-    assert {"shading_psnr", "shading_psnr_fg", "full_psnr_fg", "leakage", "leakage_gt"} <= set(flat)
+    assert {"shading_psnr", "shading_psnr_fg", "full_psnr_fg", "leakage", "leakage_gt", "residual_recall",
+            "shading_psnr_matte"} <= set(flat)
     assert m["decompose_seconds"] > 0 and all(st[s]["train_seconds"] > 0 for s in st)
     assert st["shading"]["cache_seconds"] > 0 and st["residual"]["cache_seconds"] > 0
     assert "spawned at high" in st["residual"]["init"]  # by default the residual starts after the shading

@@ -1,0 +1,139 @@
+"""The views' agreement on each surface point: the share of a pixel's light that moves with the view,
+and the diffuse target the shading stage fits in its place.
+
+The diffuse light ``A * S`` of a surface point is the same from every camera; a reflection ``R >= 0``
+adds to it in some views and not in others. So the light that every view of the point agrees on, a
+low quantile of its radiance over the views that see it, bounds the diffuse part from above, and
+what a view holds above that is view-dependent: evidence for R that one image does not have.
+
+For a training view v and pixel p with depth, the point X is back-projected from the depth and
+projected into every training view u; u sees X where its own depths there (every pixel of the
+sample's footprint) agree with X's distance (within ``depth_tolerance`` of it: the occlusion test,
+which also drops samples on a silhouette). Over those views (v included, at least
+``min_views`` of them), Q(p) is the ``quantile`` of the views' luminance at X, divided by the
+frozen albedo's luminance in the same view and blurred over 3x3 pixels (so that a texture's edge a
+fraction of a pixel off is no view-dependence), and
+
+    share(p) = clamp(1 - Q(p) / L_v(p), 0, 1)        (L_v: view v's own ratio at p)
+
+:func:`diffuse_targets` turns it into the shading stage's target ``I_v * (1 - max(0, share - tolerance))``:
+the image darkened only by what lies above the views' agreement beyond ``tolerance`` (16-sample
+Cycles noise alone spreads the views by several percent), never brightened. Views are (H, W, 3)
+linear images with (H, W) z-depths; pixels without depth, or seen by too few views, keep the image.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from backend.core import events
+from backend.core.imageio import luminance
+from backend.train.views import View
+
+ALBEDO_FLOOR = 0.02
+"""Albedo luminance under which the ratio image / albedo is taken at this value (noise over black)."""
+MIN_VIEWS = 3
+"""Views that must see a point for its share to count (fewer: the image is kept)."""
+FOOTPRINT = 5
+"""Pixels (square) around a sample whose depths must all agree with the point's: the 3x3 blur and the
+bilinear lookup reach that far."""
+MAX_VIEWS = 24
+"""Views every point is looked up in, spread evenly over the training views: the cost grows with them."""
+
+
+def _signal(view: View, albedo_key: str) -> torch.Tensor:
+    """(H, W): the view's luminance over its albedo's (``view.extras[albedo_key]`` where it has one; at
+    least :data:`ALBEDO_FLOOR`), averaged over 3x3 pixels (replicated at the border). Over the albedo, a
+    texture's edges cancel: a sample a fraction of a pixel off at an edge is no view-dependence."""
+    lum = luminance(view.image.clamp_min(0.0))
+    if albedo_key in view.extras:
+        lum = lum / luminance(view.extras[albedo_key].clamp_min(0.0)).clamp_min(ALBEDO_FLOOR)
+    return F.avg_pool2d(F.pad(lum[None, None], (1, 1, 1, 1), mode="replicate"), 3, stride=1)[0, 0]
+
+
+def _pixel_points(view: View, depth: torch.Tensor) -> torch.Tensor:
+    """(H*W, 3) world points of every pixel centre of ``view`` at z-depth ``depth`` (H, W)."""
+    cam = view.camera
+    h, w = depth.shape
+    y, x = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
+    z = depth.double()
+    pc = torch.stack([(x + 0.5 - cam.cx) / cam.fx * z, (y + 0.5 - cam.cy) / cam.fy * z, z], -1).reshape(-1, 3)
+    r, t = torch.from_numpy(cam.R), torch.from_numpy(cam.t)
+    return (pc - t) @ r  # R^T (x_cam - t), row-wise
+
+
+def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_tolerance: float = 0.03,
+                         min_views: int = MIN_VIEWS, max_views: int = MAX_VIEWS,
+                         albedo_key: str = "A") -> list[torch.Tensor | None]:
+    """Per view, the (H, W) share of each pixel's light above the ``quantile`` of the views that see
+    its surface point (module docstring), over at most ``max_views`` views spread evenly over the
+    list (and the view itself); None for a view without a depth prior. All views have the same size.
+    Where the views hold their albedo render (``extras[albedo_key]``), the light is compared as the
+    ratio image / albedo (:func:`_signal`)."""
+    depths = [v.depth for v in views]
+    lums = [_signal(v, albedo_key) for v in views]
+    out: list[torch.Tensor | None] = [None] * len(views)
+    with_depth = [i for i, d in enumerate(depths) if d is not None]
+    if not with_depth:
+        return out
+    h, w = lums[0].shape
+    panel = with_depth[:: max(1, -(-len(with_depth) // max_views))]  # the views every point is looked up in
+    rs = torch.stack([torch.from_numpy(views[i].camera.R) for i in panel]).float()  # (K, 3, 3)
+    ts = torch.stack([torch.from_numpy(views[i].camera.t) for i in panel]).float()  # (K, 3)
+    intr = torch.tensor([[views[i].camera.fx, views[i].camera.fy, views[i].camera.cx, views[i].camera.cy]
+                         for i in panel], dtype=torch.float32)
+    lum_stack = torch.stack([lums[i] for i in panel])[:, None].float()  # (K, 1, H, W)
+    depth_stack = torch.stack([depths[i].float() for i in panel])[:, None]  # (K, 1, H, W)
+    # the nearest and farthest depth around each pixel, over the blurred, bilinearly sampled luminance's
+    # footprint: a sample that mixes an occluder's silhouette with what lies behind it is not seen
+    near = -F.max_pool2d(-depth_stack, FOOTPRINT, stride=1, padding=FOOTPRINT // 2)
+    far = F.max_pool2d(depth_stack, FOOTPRINT, stride=1, padding=FOOTPRINT // 2)
+    bounds = torch.cat([near, far], 1)  # (K, 2, H, W)
+    for i in with_depth:
+        d = depths[i].float()
+        x = _pixel_points(views[i], d).float()  # (N, 3)
+        pc = torch.einsum("kab,nb->kna", rs, x) + ts[:, None]  # (K, N, 3) in each camera
+        z = pc[..., 2]
+        zs = z.clamp_min(1e-6)
+        u = intr[:, None, 0] * pc[..., 0] / zs + intr[:, None, 2]
+        v = intr[:, None, 1] * pc[..., 1] / zs + intr[:, None, 3]
+        inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], -1)[:, None]  # (K, 1, N, 2), align_corners=False
+        lo, hi = F.grid_sample(bounds, grid, mode="nearest", align_corners=False)[:, :, 0].unbind(1)  # (K, N) each
+        their_lum = F.grid_sample(lum_stack, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
+        visible = inside & (lo > 0) & ((lo - z).abs() <= depth_tolerance * z) & ((hi - z).abs() <= depth_tolerance * z)
+        own = lums[i].reshape(-1)
+        # the view itself is one of the views that see its pixels, whether or not it is on the panel
+        vals = torch.cat([torch.where(visible, their_lum, torch.full_like(z, float("inf"))), own[None]])
+        n = visible.sum(0) + 1
+        ranked = vals.sort(dim=0).values
+        q = ranked.gather(0, (quantile * (n - 1)).floor().long()[None])[0]  # the lower quantile, over the visible
+        ok = (n >= min_views) & (d.reshape(-1) > 0) & (own > 1e-6)
+        share = torch.where(ok, 1 - q / own.clamp_min(1e-6), torch.zeros_like(own))
+        out[i] = share.clamp(0.0, 1.0).reshape(h, w)
+    return out
+
+
+def diffuse_targets(views: Sequence[View], quantile: float, tolerance: float, key: str = "diffuse_target") -> float:
+    """Put each view's diffuse target ``I * (1 - max(0, share - tolerance))`` (H, W, 3) into
+    ``view.extras[key]`` (:func:`view_dependent_share`; a view without depth keeps its image); returns
+    the mean share of the light taken out, over the views' pixels."""
+    shares = view_dependent_share(views, quantile)
+    taken = []
+    for v, share in zip(views, shares):
+        image = v.image
+        if share is None:
+            v.extras[key] = image
+            continue
+        cut = (share - tolerance).clamp_min(0.0)
+        v.extras[key] = image * (1.0 - cut)[..., None]
+        lum = luminance(image.clamp_min(0.0))
+        taken.append(float((lum * cut).sum() / lum.sum().clamp_min(1e-12)))
+    mean = float(np.mean(taken)) if taken else 0.0
+    events.log(f"shading: the views' agreement takes {100 * mean:.1f} % of the training images' light out of the "
+               f"shading's target (quantile {quantile}, tolerance {tolerance})")
+    return mean
