@@ -10,6 +10,7 @@ import bpy
 
 from . import display, edits, layers, proxies, scene_objects
 from .errors import UserError
+from .modes import leave_mode, mode_set, view3d_override
 from .native import compositing
 
 
@@ -158,3 +159,17 @@ def show_loaded(props, ws: Path, loaded: list[str]) -> tuple[str, list[str]]:
     show_only(props, shown)
     props.edits_index = edits.find(props, shown)[0]
     return shown, baked
+
+
+def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) -> bool:
+    """Make ``image`` the Texture Paint canvas, select ``obj`` and switch to Texture Paint when a
+    3D viewport exists. Returns whether the mode was switched."""
+    paint = context.scene.tool_settings.image_paint
+    paint.mode = "IMAGE"  # strokes go to the canvas whatever the material's active node is
+    paint.canvas = image
+    leave_mode(context)  # another object may be in Edit Mode or a paint mode
+    select_only(context, obj)
+    if view3d_override(context) is None:
+        return False
+    mode_set(context, obj, "TEXTURE_PAINT")
+    return True

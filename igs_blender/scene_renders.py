@@ -8,10 +8,11 @@ import time
 from pathlib import Path
 
 import bpy
+from mathutils import Matrix
 
 from ..igs_contract import camera_json
 from . import compat, display, edits, images, layers, lights, scene_objects
-from .camera_objects import render_size, turntable_world_matrices
+from .camera_objects import render_size, sfm_view_from_object, turntable_world_matrices
 from .errors import UserError
 from .native import compositing
 from .native import turntable as native_turntable
@@ -167,3 +168,25 @@ def follow_render(scene: bpy.types.Scene, finish) -> None:
         return None
 
     bpy.app.timers.register(poll, first_interval=1.0)
+
+
+def sequence_views(context, mode: str) -> list:
+    """The cameras of Render Sequence: ``mode`` TURNTABLE circles the target, CAMERA follows the scene camera
+    frame by frame (the scene's current frame is put back)."""
+    scene = context.scene
+    cam = scene.camera
+    if mode == "TURNTABLE":
+        return [sfm_view_from_object(scene, cam, name=f"turntable_{i:04d}", matrix_world=Matrix(m.tolist()))
+                for i, m in enumerate(turntable_world_matrices(context))]
+    if cam is None:
+        raise UserError("the scene has no camera to follow")
+    out = []
+    current = scene.frame_current
+    try:
+        for i, f in enumerate(range(scene.frame_start, scene.frame_end + 1, scene.frame_step)):
+            scene.frame_set(f)
+            out.append(sfm_view_from_object(scene, scene.camera, name=f"frame_{i:04d}",
+                                            matrix_world=scene.camera.matrix_world.copy()))
+    finally:
+        scene.frame_set(current)
+    return out

@@ -30,7 +30,6 @@ from ..igs_blender.preferences import backend_job
 from ..igs_blender.props import MIN_SELECTED
 from ..igs_blender.workspace_files import capture_summary, check_edit_name, existing_workspace
 from .job import BackendOperator
-from .modes import leave_mode, mode_set, view3d_override
 from .reports import load_from_workspace, tell
 
 FIT_SETTINGS = "Edit panel > Fit Settings"
@@ -209,20 +208,6 @@ class IGS_OT_bake_edit(BackendOperator, bpy.types.Operator):
         return f"Baked edit '{self._name}': {len(obj.data.points)} albedo Gaussians shown"
 
 
-def enter_texture_paint(context, obj: bpy.types.Object, image: bpy.types.Image) -> bool:
-    """Make ``image`` the Texture Paint canvas, select ``obj`` and switch to Texture Paint when a
-    3D viewport exists. Returns whether the mode was switched."""
-    paint = context.scene.tool_settings.image_paint
-    paint.mode = "IMAGE"  # strokes go to the canvas whatever the material's active node is
-    paint.canvas = image
-    leave_mode(context)  # another object may be in Edit Mode or a paint mode
-    edit_objects.select_only(context, obj)
-    if view3d_override(context) is None:
-        return False
-    mode_set(context, obj, "TEXTURE_PAINT")
-    return True
-
-
 class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
     """Texture Paint the selected edit's proxy over the current albedo: the backend projects the albedo onto the proxy's UVs and that image becomes the paint canvas (Bake sends what you paint)"""
 
@@ -254,7 +239,7 @@ class IGS_OT_paint_proxy(BackendOperator, bpy.types.Operator):
         proxies.set_proxy_image(obj, image, "EXTEND")  # the projection covers UV [0, 1]^2 exactly
         props.texture_mode = "IMAGE"
         item.visible = True
-        where = "Texture Paint mode" if enter_texture_paint(context, obj, image) else \
+        where = "Texture Paint mode" if edit_objects.enter_texture_paint(context, obj, image) else \
             "the Texture Paint canvas (no 3D viewport: mode not switched)"
         return (f"'{image.name}' ({image.size[0]}x{image.size[1]}, the albedo projected onto the proxy) is "
                 f"{where}; paint, then Bake")

@@ -27,13 +27,13 @@ from ..igs_blender import jobs, preferences, scene_objects, splat_files
 from ..igs_blender.errors import UserError
 from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.modes import in_object_mode
 from ..igs_blender.ply_io import PLY_SUFFIXES, file_identity
 from ..igs_blender.preferences import backend_job
 from ..igs_blender.workspace_files import check_edit_name, existing_workspace
 from ..igs_contract import events
 from ..igs_contract.layer_ply import KINDS
 from .job import BackendOperator
-from .modes import in_object_mode
 from .reports import tell
 
 CONVERTED_SUFFIXES = (".splat", ".spz", ".sog")

@@ -14,8 +14,8 @@ import bpy
 
 from ..igs_blender import jobs, scene_objects
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.modes import in_object_mode
 from ..igs_blender.workspace_files import busy_line
-from .modes import in_object_mode
 
 
 class BackendOperator:

@@ -8,8 +8,8 @@ from bpy.props import EnumProperty
 from ..igs_blender import light_bake, lights
 from ..igs_blender.errors import UserError
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.modes import in_object_mode
 from .job import BackendOperator
-from .modes import in_object_mode
 from .reports import tell
 
 # A new light's power: enough to show on a room-sized capture from a metre or two (Blender's own defaults,

@@ -22,18 +22,17 @@ from pathlib import Path
 
 import bpy
 from bpy.props import EnumProperty
-from mathutils import Matrix
 
 from ..igs_blender import compat, display, images, scene_renders
-from ..igs_blender.camera_objects import render_size, sfm_view_from_object, turntable_world_matrices
+from ..igs_blender.camera_objects import render_size, sfm_view_from_object
 from ..igs_blender.errors import UserError
 from ..igs_blender.jobs import commands
 from ..igs_blender.jobs.client import BackendJob
+from ..igs_blender.modes import in_object_mode
 from ..igs_blender.native import compositing
 from ..igs_blender.preferences import backend_job
 from ..igs_blender.workspace_files import VIDEO_SUFFIXES, existing_workspace, output_files
 from .job import BackendOperator
-from .modes import in_object_mode
 from .reports import tell
 
 
@@ -117,25 +116,6 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
                                            ("CAMERA", "Camera Path", "The scene camera, frame by frame")],
                        default="TURNTABLE")
 
-    def views(self, context) -> list:
-        scene = context.scene
-        cam = scene.camera
-        if self.mode == "TURNTABLE":
-            return [sfm_view_from_object(scene, cam, name=f"turntable_{i:04d}", matrix_world=Matrix(m.tolist()))
-                    for i, m in enumerate(turntable_world_matrices(context))]
-        if cam is None:
-            raise UserError("the scene has no camera to follow")
-        out = []
-        current = scene.frame_current
-        try:
-            for i, f in enumerate(range(scene.frame_start, scene.frame_end + 1, scene.frame_step)):
-                scene.frame_set(f)
-                out.append(sfm_view_from_object(scene, scene.camera, name=f"frame_{i:04d}",
-                                                matrix_world=scene.camera.matrix_world.copy()))
-        finally:
-            scene.frame_set(current)
-        return out
-
     def make_job(self, context) -> BackendJob:
         props = context.scene.igs
         ws = existing_workspace(props.workspace)
@@ -146,7 +126,7 @@ class IGS_OT_render_sequence(_NativeOrBackend, bpy.types.Operator):
             w, h = render_size(context.scene)
             cams = (self._count, w, h)
         else:
-            views = self.views(context)
+            views = scene_renders.sequence_views(context, self.mode)
             self._count = len(views)
             cams = scene_renders.write_cameras(self._out / "cameras.json", views)
         label = ("Turntable" if self.mode == "TURNTABLE" else "Camera path") + (" (lit)" if light else "")

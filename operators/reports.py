@@ -9,8 +9,8 @@ from typing import TypeVar
 import bpy
 
 from ..igs_blender.errors import UserError
+from ..igs_blender.modes import in_object_mode
 from ..igs_blender.workspace_files import existing_workspace
-from .modes import in_object_mode
 
 T = TypeVar("T")
 

@@ -316,29 +316,29 @@ def test_paint_explains_a_missing_edit_and_a_proxy_without_uvs(scene, tmp_path):
     bpy.ops.mesh.primitive_grid_add(calc_uvs=True)
     obj = bpy.context.active_object
     image = bpy.data.images.new("canvas", 8, 8)
-    edit_ops = sys.modules[f"{MOD}.operators.edit"]
+    edit_objs = sys.modules[f"{MOD}.igs_blender.edit_objects"]
     view3d = next(a for a in bpy.context.window.screen.areas if a.type == "VIEW_3D")
     view3d.type = "IMAGE_EDITOR"
     try:
-        assert edit_ops.enter_texture_paint(bpy.context, obj, image) is False
+        assert edit_objs.enter_texture_paint(bpy.context, obj, image) is False
     finally:
         view3d.type = "VIEW_3D"
     paint = scene.tool_settings.image_paint
     assert paint.mode == "IMAGE" and paint.canvas == image and obj.mode == "OBJECT"
     assert bpy.context.active_object == obj and obj.select_get() and not grid.select_get()
-    assert edit_ops.enter_texture_paint(bpy.context, obj, image) is True and obj.mode == "TEXTURE_PAINT"
+    assert edit_objs.enter_texture_paint(bpy.context, obj, image) is True and obj.mode == "TEXTURE_PAINT"
     # Paint again while painting: the earlier canvas image of the edit is replaced by a fresh one.
     png = tmp_path / "projected.png"
     for value in (50, 200):
         cv2.imwrite(str(png), np.full((3, 5, 3), value, np.uint8))
         fresh = sub("edit_objects").new_paint_image("rug", png)
         sub("proxies").set_proxy_image(obj, fresh)
-        assert edit_ops.enter_texture_paint(bpy.context, obj, fresh) and paint.canvas == fresh
+        assert edit_objs.enter_texture_paint(bpy.context, obj, fresh) and paint.canvas == fresh
     assert [i.name for i in bpy.data.images if i.name.startswith("IGS Paint")] == ["IGS Paint rug"]
     assert fresh.pixels[0] == pytest.approx(200 / 255) and tuple(fresh.size) == (5, 3)
     bpy.ops.mesh.primitive_cube_add()  # another object, in Edit Mode, when Paint is pressed again
     bpy.ops.object.mode_set(mode="EDIT")
-    assert edit_ops.enter_texture_paint(bpy.context, obj, image) is True and obj.mode == "TEXTURE_PAINT"
+    assert edit_objs.enter_texture_paint(bpy.context, obj, image) is True and obj.mode == "TEXTURE_PAINT"
 
 
 def test_bake_sends_painted_pixels_of_packed_and_file_images(scene, tmp_path):
