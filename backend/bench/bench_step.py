@@ -156,7 +156,7 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
     try:
         if BASELINE in stages:
             _check_budget(BASELINE, vanilla.train.iterations, end)
-            stage, _, _ = baseline_stage(ws, vanilla)
+            stage, _, _ = baseline_stage(ws, vanilla, store_dir=scratch / "views")
             dev = resolve_device(vanilla.device)
             window = Window(warmup, steps, dev)
             try:
@@ -166,7 +166,7 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
             results[BASELINE] = _entry(window, len(result.gaussians), stage.train_views[0].camera, dev,
                                        result.peak_memory)
         if REFERENCE in stages:
-            results[REFERENCE] = _reference(ws, vanilla, warmup, steps)
+            results[REFERENCE] = _reference(ws, vanilla, warmup, steps, scratch)
         later = [s for s in STAGES if s in stages]
         if later:
             setup = prepare_setup(ws, dec, layers_dir=scratch / "layers", ckpt_root=scratch / "checkpoints")
@@ -197,9 +197,10 @@ def run(ws: str | Path, stages: list[str], warmup: int, steps: int, iterations: 
             "stages": results}
 
 
-def _reference(ws: Path, vanilla: Any, warmup: int, steps: int) -> dict[str, Any]:
-    """The reference row: gsplat's trainer from the 3DGS stage's initial Gaussians, on its views."""
-    stage, _, _ = baseline_stage(ws, vanilla)
+def _reference(ws: Path, vanilla: Any, warmup: int, steps: int, scratch: Path) -> dict[str, Any]:
+    """The reference row: gsplat's trainer from the 3DGS stage's initial Gaussians, on its views (their
+    pixels in a file of ``scratch``)."""
+    stage, _, _ = baseline_stage(ws, vanilla, store_dir=scratch / "reference_views")
     dev = resolve_device(vanilla.device)
     window = Window(warmup, steps, dev)
     peak = PeakMemory.start(dev)

@@ -92,11 +92,13 @@ def initial_gaussians(capture: Capture, frames, cfg: BaselineConfig, kind: str =
     return from_points(pts, cols, kind, sh_degree, cfg.init, seed), "random points in the camera bounding box"
 
 
-def baseline_stage(workspace: str | Path, cfg: BaselineConfig,
-                   initial: GaussianSet | None = None) -> tuple[Stage, Capture, str]:
+def baseline_stage(workspace: str | Path, cfg: BaselineConfig, initial: GaussianSet | None = None,
+                   store_dir: Path | None = None) -> tuple[Stage, Capture, str]:
     """The vanilla-3DGS stage of a workspace: its views split by ``cfg.hold_every``, at ``cfg.downscale``,
-    and ``initial`` Gaussians (default: :func:`initial_gaussians`). Returns (stage, capture, where the
-    initial Gaussians came from)."""
+    and ``initial`` Gaussians (default: :func:`initial_gaussians`). The views' pixels wait in a file of
+    ``store_dir`` (default the workspace's checkpoints folder; a benchmark passes its scratch folder so
+    that it writes nothing into the workspace). Returns (stage, capture, where the initial Gaussians came
+    from)."""
     check_space(cfg.color_space)
     if cfg.train.iterations < 1:
         raise IGSError(f"--iterations must be >= 1, got {cfg.train.iterations}")
@@ -107,7 +109,7 @@ def baseline_stage(workspace: str | Path, cfg: BaselineConfig,
     cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
     check_memory("train-3dgs", TRAIN_3DGS, len(capture.frames), cam.width, cam.height,
                  cfg.train.densify.max_gaussians, cfg.downscale)
-    ckpt = capture.workspace.checkpoints
+    ckpt = capture.workspace.checkpoints if store_dir is None else Path(store_dir)
     check_disk_room(ckpt, TRAIN_3DGS_DISK_PER_VIEW_PIXEL * len(capture.frames) * cam.width * cam.height, "train-3dgs")
     store = ViewStore(ckpt)  # the views' pixels in a file, read per use: none held in the process
     idx = {f.name: i for i, f in enumerate(capture.frames)}
