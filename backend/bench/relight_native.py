@@ -45,6 +45,7 @@ from backend.core.imageio import luminance, read_exr, read_image
 from backend.core.workspace import Workspace
 from backend.synth.gt_meshes import CAPTURE, MESHES_FILE
 from backend.synth.settings import read_saved
+from igs_contract import albedo_normals as normals_file
 
 MESH_METHODS = ("mesh", "no_shadow")
 MESH_REGIONS = ("shadow", "mesh", "image")
@@ -140,10 +141,11 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
 
 
 def job_key(ws: Workspace, job: dict[str, Any]) -> dict[str, Any]:
-    """What decides Blender's frames of a job: the samples, seed, lights and meshes, and the layers' sizes and
-    times."""
+    """What decides Blender's frames of a job: the samples, seed, lights and meshes, and the sizes and times of
+    the layers and of the albedo's normals file (the lit material's normals)."""
     key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
-    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(ws.layers.glob("*.ply"))}
+    files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE)])
+    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
     return key
 
 

@@ -17,6 +17,7 @@ from backend.core.run_record import run_record
 from backend.core.workspace import Workspace
 from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.metrics_file import read_metrics
+from backend.relight.albedo_normals import normals_current, write_albedo_normals
 from backend.train.intrinsic.config import STAGES, DecomposeConfig, split_iterations
 from backend.train.intrinsic.run import decompose
 from backend.train.single_set import SCHEDULES, decompose_single_set
@@ -129,7 +130,9 @@ def show(summary: dict[str, Any]) -> None:
                                    if fg else {}),
                                 **({"leakage": {k: leak.get(k) for k in ("shading", "gt_shading")}} if leak else {}),
                                 "gaussians": summary["gaussians"], "decompose_seconds": summary["decompose_seconds"],
-                                "report": summary["report"]}, indent=None)
+                                "report": summary["report"],
+                                **({"normals_seconds": summary["normals"]["seconds"]} if "normals" in summary else {})},
+                  indent=None)
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -151,5 +154,8 @@ def _run(args: argparse.Namespace, cfg: DecomposeConfig) -> dict:
             raise IGSError("--single-set-schedule applies only with --single-set")
         outcome = decompose(args.workspace, cfg, stages=args.stage or STAGES, resume=args.resume)
     summary = evaluate_decomposition(outcome)
+    # the add-on's native lighting reads the albedo's normals (docs/blender.md); made once per albedo
+    if not normals_current(args.workspace):
+        summary["normals"] = write_albedo_normals(args.workspace)
     show(summary)
     return summary
