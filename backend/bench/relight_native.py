@@ -64,6 +64,9 @@ class NativeRenders:
     samples: int | None = None
     reused: int = 0
     """Renders of an earlier run with the same layers and settings, read again."""
+    normals: str | None = None
+    """Where the lit material's normals came from (``depth``: layers/albedo_normals.npz; ``axes``: the shortest
+    axes), as the add-on recorded on the albedo splats; None when every frame was reused."""
 
     @staticmethod
     def file(stem: str, light: str, meshes: bool) -> str:
@@ -77,7 +80,7 @@ class NativeRenders:
     def summary(self) -> dict[str, Any]:
         s = sorted(self.seconds)
         return {"rendered": len(s), "reused": self.reused, "note": self.note or None,
-                "backend_jobs_started": self.jobs_ran,
+                "backend_jobs_started": self.jobs_ran, "normals": self.normals,
                 "samples": self.samples,
                 "seconds_per_frame_median": round(s[len(s) // 2], 3) if s else None}
 
@@ -128,6 +131,7 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
                     bar.update(1)
                 elif msg.get("done"):
                     out.jobs_ran = int(msg["jobs_ran"])
+                    out.normals = msg.get("normals")
             rc = proc.wait(TIMEOUT_S)
     finally:
         Path(f.name).unlink(missing_ok=True)
