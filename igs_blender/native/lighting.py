@@ -131,6 +131,18 @@ def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | No
     return normals[idx], ""
 
 
+def normals_line(scene: bpy.types.Scene) -> str:
+    """One line for the Lights panel when the workspace's albedo splats light with their shortest axes (no
+    normals file of theirs), naming the command that makes it; "" otherwise."""
+    ply = Path(scene.igs.workspace) / "layers" / "albedo.ply" if scene.igs.workspace else None
+    for obj in albedo_objects():
+        source = obj.get("igs_ply")
+        if ply is not None and source and Path(source).resolve() == ply.resolve() and obj.get("igs_normals") == "axes":
+            return (f"Normals: the Gaussians' shortest axes; `{normals_file.COMMAND} WORKSPACE` writes light-bake's "
+                    "depth normals (then Load Layers)")
+    return ""
+
+
 def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray, workspace: str = "") -> str:
     """Give the albedo splats of ``obj`` their :data:`NORMAL` attribute (kept when it already covers them): the
     backend's (:func:`file_normals`), else the shortest axes turned towards ``eyes`` (C, 3). Returns a note for

@@ -20,7 +20,7 @@ if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, flat_layer, render_outputs, sub  # noqa: E402
+from tests.support.blender import cycles, draw, flat_layer, render_outputs, shown_text, sub  # noqa: E402
 
 ALBEDO, SHADING = 0.5, 0.4
 CUBE = ((0.25, 0.0, 0.15), 0.3)
@@ -497,6 +497,7 @@ def test_the_lit_material_takes_the_backends_depth_normals_when_they_belong_to_t
     assert 0 < len(idx) < len(tilted)
     np.testing.assert_allclose(get(obj.data, "igs_normal", 3, "vector", "albedo"), tilted[idx], atol=1e-6)
     assert obj["igs_normals"] == "depth" and "igs normals" not in scene.igs.last_report
+    assert "igs normals" not in shown_text(draw("IGS_PT_lights"))
 
     from backend.splats.ply import write_ply
 
@@ -509,5 +510,6 @@ def test_the_lit_material_takes_the_backends_depth_normals_when_they_belong_to_t
     obj = bpy.data.objects["IGS albedo"]
     assert obj["igs_normals"] == "axes"
     assert f"`igs normals {ws}`" in scene.igs.last_report and "another albedo.ply" in scene.igs.last_report
+    assert "shortest axes; `igs normals WORKSPACE`" in shown_text(draw("IGS_PT_lights"))  # the Lights panel too
     np.testing.assert_allclose(get(obj.data, "igs_normal", 3, "vector", "albedo"),
                                np.tile([0.0, 0.0, 1.0], (len(obj.data.points), 1)), atol=1e-6)  # the discs' axes
