@@ -153,9 +153,14 @@ def _run(args: argparse.Namespace, cfg: DecomposeConfig) -> dict:
         if args.single_set_schedule is not None:
             raise IGSError("--single-set-schedule applies only with --single-set")
         outcome = decompose(args.workspace, cfg, stages=args.stage or STAGES, resume=args.resume)
-    summary = evaluate_decomposition(outcome)
-    # the add-on's native lighting reads the albedo's normals (docs/blender.md); made once per albedo
-    if not normals_current(args.workspace):
-        summary["normals"] = write_albedo_normals(args.workspace)
+    summary = with_normals(args.workspace, evaluate_decomposition(outcome))
     show(summary)
+    return summary
+
+
+def with_normals(workspace: str | Path, summary: dict[str, Any]) -> dict[str, Any]:
+    """Write the albedo's normals for the add-on's native lighting (docs/blender.md) unless the file there
+    already belongs to the albedo; ``summary`` with their summary added under ``normals``."""
+    if not normals_current(workspace):
+        summary["normals"] = write_albedo_normals(workspace)
     return summary
