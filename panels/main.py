@@ -16,6 +16,7 @@ from ..igs_blender.camera_objects import (
 )
 from ..igs_blender.errors import UserError
 from ..igs_blender.native import compositing
+from ..igs_blender.native import lighting as native_lighting
 from ..igs_blender.native import splats as native_splats
 from ..igs_blender.props import DECOMPOSE_DEFAULT, TRAIN_3DGS_DEFAULT, cpu_model_warning
 from ..igs_blender.viewport import overlay
@@ -258,8 +259,12 @@ class IGS_PT_lights(_SubPanel, bpy.types.Panel):
         layout.operator("igs.bake_lights", icon="RENDER_STILL")
         shading = light_bake.shading_object()
         if shading is not None and native_splats.is_native(shading) and not shading.get(light_bake.KEY):
-            _lines(layout.box(), "F12: Blender lights the capture itself (view layer IGS Lit, shadows both ways); "
+            box = layout.box()
+            _lines(box, "F12: Blender lights the capture itself (view layer IGS Lit, shadows both ways); "
                    "no bake runs", icon="SHADING_RENDERED", context=context)
+            normals = native_lighting.normals_line(scene)
+            if normals:
+                _lines(box, normals, icon="ERROR", context=context)
         elif shading is not None:
             shown = shading.get(light_bake.KEY)
             count = len(json.loads(shown)) if shown else 0

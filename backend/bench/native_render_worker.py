@@ -137,7 +137,8 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory(prefix="igs_native_") as tmp:
         install_addon(Path(tmp))
         started = render_all(job)
-    say(done=True, jobs_ran=started)
+        normals = sorted({str(o.get("igs_normals")) for o in bpy.data.objects if "igs_normals" in o})
+    say(done=True, jobs_ran=started, normals=",".join(normals))
     return 0
 
 

@@ -54,6 +54,7 @@ from backend.core.imageio import (
     write_image,
 )
 from backend.core.workspace import Workspace
+from backend.relight.albedo_normals import normals_current, write_albedo_normals
 from backend.relight.lights import Light, load_lights
 from backend.relight.relight import (
     LightRig,
@@ -191,6 +192,8 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
     if s.views is not None and s.views < len(views):
         views = [views[round(i * (len(views) - 1) / max(s.views - 1, 1))] for i in range(s.views)]
     meshes = meshes_of(ws)
+    if s.native and not normals_current(ws.root):  # the lit material's normals, as igs decompose leaves them
+        write_albedo_normals(ws.root)
     native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native",
                            samples=s.native_samples) if s.native \
         else NativeRenders(note="not asked for")

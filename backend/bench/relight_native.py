@@ -45,6 +45,7 @@ from backend.core.imageio import luminance, read_exr, read_image
 from backend.core.workspace import Workspace
 from backend.synth.gt_meshes import CAPTURE, MESHES_FILE
 from backend.synth.settings import read_saved
+from igs_contract import albedo_normals as normals_file
 
 MESH_METHODS = ("mesh", "no_shadow")
 MESH_REGIONS = ("shadow", "mesh", "image")
@@ -63,6 +64,9 @@ class NativeRenders:
     samples: int | None = None
     reused: int = 0
     """Renders of an earlier run with the same layers and settings, read again."""
+    normals: str | None = None
+    """Where the lit material's normals came from (``depth``: layers/albedo_normals.npz; ``axes``: the shortest
+    axes), as the add-on recorded on the albedo splats; None when every frame was reused."""
 
     @staticmethod
     def file(stem: str, light: str, meshes: bool) -> str:
@@ -76,7 +80,7 @@ class NativeRenders:
     def summary(self) -> dict[str, Any]:
         s = sorted(self.seconds)
         return {"rendered": len(s), "reused": self.reused, "note": self.note or None,
-                "backend_jobs_started": self.jobs_ran,
+                "backend_jobs_started": self.jobs_ran, "normals": self.normals,
                 "samples": self.samples,
                 "seconds_per_frame_median": round(s[len(s) // 2], 3) if s else None}
 
@@ -127,6 +131,7 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
                     bar.update(1)
                 elif msg.get("done"):
                     out.jobs_ran = int(msg["jobs_ran"])
+                    out.normals = msg.get("normals")
             rc = proc.wait(TIMEOUT_S)
     finally:
         Path(f.name).unlink(missing_ok=True)
@@ -140,10 +145,11 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
 
 
 def job_key(ws: Workspace, job: dict[str, Any]) -> dict[str, Any]:
-    """What decides Blender's frames of a job: the samples, seed, lights and meshes, and the layers' sizes and
-    times."""
+    """What decides Blender's frames of a job: the samples, seed, lights and meshes, and the sizes and times of
+    the layers and of the albedo's normals file (the lit material's normals)."""
     key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
-    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in sorted(ws.layers.glob("*.ply"))}
+    files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE)])
+    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
     return key
 
 

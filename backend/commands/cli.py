@@ -46,6 +46,7 @@ COMMAND_MODULES: list[str] = [
     "backend.commands.edit",
     "backend.commands.render",
     "backend.commands.light_bake",
+    "backend.commands.normals",
     "backend.commands.distil",
     "backend.commands.export",
     "backend.commands.convert",

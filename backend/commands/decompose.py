@@ -17,6 +17,7 @@ from backend.core.run_record import run_record
 from backend.core.workspace import Workspace
 from backend.eval.decomposition import evaluate_decomposition
 from backend.eval.metrics_file import read_metrics
+from backend.relight.albedo_normals import normals_current, write_albedo_normals
 from backend.train.intrinsic.config import STAGES, DecomposeConfig, split_iterations
 from backend.train.intrinsic.run import decompose
 from backend.train.single_set import SCHEDULES, decompose_single_set
@@ -138,7 +139,9 @@ def show(summary: dict[str, Any]) -> None:
                                    if fg else {}),
                                 **({"leakage": {k: leak.get(k) for k in ("shading", "gt_shading")}} if leak else {}),
                                 "gaussians": summary["gaussians"], "decompose_seconds": summary["decompose_seconds"],
-                                "report": summary["report"]}, indent=None)
+                                "report": summary["report"],
+                                **({"normals_seconds": summary["normals"]["seconds"]} if "normals" in summary else {})},
+                  indent=None)
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -159,6 +162,14 @@ def _run(args: argparse.Namespace, cfg: DecomposeConfig) -> dict:
         if args.single_set_schedule is not None:
             raise IGSError("--single-set-schedule applies only with --single-set")
         outcome = decompose(args.workspace, cfg, stages=args.stage or STAGES, resume=args.resume)
-    summary = evaluate_decomposition(outcome)
+    summary = with_normals(args.workspace, evaluate_decomposition(outcome))
     show(summary)
+    return summary
+
+
+def with_normals(workspace: str | Path, summary: dict[str, Any]) -> dict[str, Any]:
+    """Write the albedo's normals for the add-on's native lighting (docs/blender.md) unless the file there
+    already belongs to the albedo; ``summary`` with their summary added under ``normals``."""
+    if not normals_current(workspace):
+        summary["normals"] = write_albedo_normals(workspace)
     return summary

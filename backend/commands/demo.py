@@ -66,7 +66,7 @@ def turntable_orbit(capture) -> tuple[str, float, float]:
 def _decompose(ws: Path, iterations: int) -> None:
     """As ``igs decompose WS --iterations N``."""
     outcome = decompose(str(ws), decompose_command.config_with_iterations(iterations))
-    decompose_command.show(evaluate_decomposition(outcome))
+    decompose_command.show(decompose_command.with_normals(ws, evaluate_decomposition(outcome)))
 
 
 def _fit_plane(ws: Path, edit: dict) -> bool:

@@ -7,11 +7,14 @@ field with the override material :data:`MATERIAL`, a Diffuse BSDF of the albedo 
 attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``S_new = E / pi`` is what
 ``light-bake`` adds to the shading, so the composite ``A * S + Lit + R`` is ``A * (S + S_new) + R``.
 
-- **Normals** (:func:`gaussian_normals`): each Gaussian's shortest axis, turned towards the capture's
-  cameras, the ``--normals axes`` estimate of ``light-bake`` (without its per-view visibility test, which
-  needs the backend's renderer: every camera counts). Stored in capture coordinates; the material turns
-  them into world coordinates with the capture's matrix (:func:`update`), since Cycles' Vector Transform
-  node returns no usable vector on splats (measured on 5.3.0).
+- **Normals** (:func:`ensure_normals`): the backend's estimate, ``<ws>/layers/albedo_normals.npz``
+  (:mod:`igs_contract.albedo_normals`, written by ``igs decompose`` and ``igs normals``): the albedo field's
+  depth normals where the capture's views see each Gaussian, the ``light-bake`` estimate. Used when the file
+  belongs to the loaded ``layers/albedo.ply`` (its hash and row count); otherwise (a workspace decomposed
+  before, an edit's albedo) each Gaussian's shortest axis turned towards the capture's cameras
+  (:func:`gaussian_normals`), which trained Gaussians, far from flat, make a poor normal; the report says so.
+  Stored in capture coordinates; the material turns them into world coordinates with the capture's matrix
+  (:func:`update`), since Cycles' Vector Transform node returns no usable vector on splats (measured on 5.3.0).
 - **Shadows** (:func:`shadow_proxy`): splats lit by a point on their own surface shadow themselves, since
   a shadow ray leaving a splat crosses the overlapping neighbours at its start (a flat floor of splats
   renders at a third of a mesh floor's light). The albedo splats cast no shadow; a copy of them moved
@@ -41,6 +44,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from ...igs_contract import albedo_normals as normals_file
 from .. import compat, layers, lights, scene_objects
 from ..cameras import read_workspace_cameras
 from ..errors import UserError
@@ -111,16 +115,52 @@ def camera_centres(workspace: str) -> np.ndarray:
     return np.array([v.center for v in views], dtype=np.float64)
 
 
-def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray) -> None:
-    """Give the albedo splats of ``obj`` their :data:`NORMAL` attribute (kept when it already covers them)."""
+def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | None, str]:
+    """(N, 3) the backend's normals of the albedo splats ``obj`` (its rows of ``<ws>/layers/albedo_normals.npz``)
+    when ``obj`` shows the workspace's ``layers/albedo.ply`` and the file belongs to it; else None and a note
+    for the report ("" for an albedo of another PLY, an edit's: the file never covers it)."""
+    ply = Path(workspace) / "layers" / "albedo.ply" if workspace else None
+    source = obj.get("igs_ply")
+    if ply is None or not source or Path(source).resolve() != ply.resolve():
+        return None, ""
+    normals, why = normals_file.read(ply.parent / normals_file.FILE, ply, obj.get("igs_total"))
+    if normals is None:
+        return None, (f"'{obj.name}': normals from the Gaussians' shortest axes ({why}); `{normals_file.COMMAND} "
+                      f"{workspace}` writes the depth normals light-bake uses, then Load Layers again")
+    idx = get_point_attribute(obj.data, "igs_index", 1, "value", WHAT, dtype=np.int32).astype(np.int64)
+    return normals[idx], ""
+
+
+def normals_line(scene: bpy.types.Scene) -> str:
+    """One line for the Lights panel when the workspace's albedo splats light with their shortest axes (no
+    normals file of theirs), naming the command that makes it; "" otherwise."""
+    ply = Path(scene.igs.workspace) / "layers" / "albedo.ply" if scene.igs.workspace else None
+    for obj in albedo_objects():
+        source = obj.get("igs_ply")
+        if ply is not None and source and Path(source).resolve() == ply.resolve() and obj.get("igs_normals") == "axes":
+            return (f"Normals: the Gaussians' shortest axes; `{normals_file.COMMAND} WORKSPACE` writes light-bake's "
+                    "depth normals (then Load Layers)")
+    return ""
+
+
+def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray, workspace: str = "") -> str:
+    """Give the albedo splats of ``obj`` their :data:`NORMAL` attribute (kept when it already covers them): the
+    backend's (:func:`file_normals`), else the shortest axes turned towards ``eyes`` (C, 3). Returns a note for
+    the report ("" when none)."""
     pc = obj.data
     if pc.attributes.get(NORMAL) is not None and obj.get("igs_normals_points") == len(pc.points):
-        return
-    means = get_point_attribute(pc, "position", 3, "vector", WHAT)
-    scales = get_point_attribute(pc, "scale", 3, "vector", WHAT)
-    quats = get_point_attribute(pc, "rotation", 4, "value", WHAT)
-    set_point_attribute(pc, NORMAL, "FLOAT_VECTOR", gaussian_normals(means, scales, quats, eyes), "vector")
+        return ""
+    normals, note = file_normals(obj, workspace)
+    source = "depth" if normals is not None else "axes"
+    if normals is None:
+        means = get_point_attribute(pc, "position", 3, "vector", WHAT)
+        scales = get_point_attribute(pc, "scale", 3, "vector", WHAT)
+        quats = get_point_attribute(pc, "rotation", 4, "value", WHAT)
+        normals = gaussian_normals(means, scales, quats, eyes)
+    set_point_attribute(pc, NORMAL, "FLOAT_VECTOR", normals, "vector")
     obj["igs_normals_points"] = len(pc.points)
+    obj["igs_normals"] = source
+    return note
 
 
 def _material(name: str) -> tuple[bpy.types.Material, bool]:
@@ -262,7 +302,7 @@ def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
     proxy = bpy.data.objects.get(name)
     points = len(obj.data.points)
     if proxy is not None and proxy.get(PROXY_OF) == obj.name and proxy.get("igs_points") == points \
-            and proxy.get("igs_source") == obj.get("igs_ply"):
+            and proxy.get("igs_source") == obj.get("igs_ply") and proxy.get("igs_normals") == obj.get("igs_normals"):
         return proxy
     scene_objects.remove_object(proxy)
     data = obj.data.copy()
@@ -281,6 +321,7 @@ def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
         setattr(proxy, f"visible_{ray}", False)
     proxy.hide_select = True
     proxy[PROXY_OF], proxy["igs_points"], proxy["igs_source"] = obj.name, points, obj.get("igs_ply", "")
+    proxy["igs_normals"] = obj.get("igs_normals", "")
     return proxy
 
 
@@ -381,7 +422,8 @@ def update(scene: bpy.types.Scene) -> list[str]:
         eyes, note = _eyes(scene)
         notes += [note] if note else []
         for obj in albedos:
-            ensure_normals(obj, eyes)
+            note = ensure_normals(obj, eyes, scene.igs.workspace)
+            notes += [note] if note else []
     _sync_proxies(albedos)
     environment(albedos)
     set_normal_matrix(lit_material(), normal_matrix())

@@ -20,7 +20,7 @@ if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, flat_layer, render_outputs, sub  # noqa: E402
+from tests.support.blender import cycles, draw, flat_layer, render_outputs, shown_text, sub  # noqa: E402
 
 ALBEDO, SHADING = 0.5, 0.4
 CUBE = ((0.25, 0.0, 0.15), 0.3)
@@ -467,3 +467,49 @@ def test_without_the_capture_cameras_the_normals_face_the_scene_camera_and_load_
     normals = sub("point_attributes").get_point_attribute(bpy.data.objects["IGS albedo"].data, "igs_normal", 3,
                                                          "vector", "albedo")
     np.testing.assert_allclose(normals, np.tile([0.0, 0.0, 1.0], (len(normals), 1)), atol=1e-6)  # flat discs, up
+
+
+def test_the_lit_material_takes_the_backends_depth_normals_when_they_belong_to_the_albedo(scene, tmp_path):
+    """``layers/albedo_normals.npz`` (``igs normals``) gives ``igs_normal`` row by row (through ``igs_index``, so a
+    density-limited load keeps its rows); a file of another albedo falls back to the shortest axes, and Load
+    Layers says so naming the command."""
+    from backend.relight.albedo_normals import normals_path, write_albedo_normals
+    from backend.relight.relight import RelightConfig
+    from backend.relight.shading_bake import LightBakeConfig
+    from igs_contract import albedo_normals as contract
+
+    ws = tmp_path / "ws"
+    floor_workspace(ws)
+    write_albedo_normals(ws, LightBakeConfig(views=3, relight=RelightConfig(backend="cpu")))
+    real, why = contract.read(normals_path(ws), ws / "layers" / "albedo.ply")
+    assert why == "" and np.median(real[:, 2]) > 0.99  # a flat floor seen from above: up
+    # a tilted field of normals of the same albedo, to tell them from the discs' shortest axes (all up)
+    tilted = np.random.default_rng(1).normal(size=real.shape) * 0.3 + [0.0, 0.0, 1.0]
+    tilted = (tilted / np.linalg.norm(tilted, axis=1, keepdims=True)).astype(np.float32)
+    np.savez(normals_path(ws), **{contract.NORMALS: tilted, contract.ALBEDO_SHA: np.array(
+        contract.sha256_16(ws / "layers" / "albedo.ply")), contract.SOURCE: np.array("depth")})
+    scene.igs.workspace = str(ws)
+    scene.igs.max_points = len(tilted) // 2
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    obj = bpy.data.objects["IGS albedo"]
+    get = sub("point_attributes").get_point_attribute
+    idx = get(obj.data, "igs_index", 1, "value", "albedo", dtype=np.int32)
+    assert 0 < len(idx) < len(tilted)
+    np.testing.assert_allclose(get(obj.data, "igs_normal", 3, "vector", "albedo"), tilted[idx], atol=1e-6)
+    assert obj["igs_normals"] == "depth" and "igs normals" not in scene.igs.last_report
+    assert "igs normals" not in shown_text(draw("IGS_PT_lights"))
+
+    from backend.splats.ply import write_ply
+
+    g = np.arange(-1.0, 1.001, 0.05)
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
+    write_ply(ws / "layers" / "albedo.ply", flat_layer("albedo", floor, 0.035, 0.6))  # another albedo, same rows
+    scene.igs.max_points = 0
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    obj = bpy.data.objects["IGS albedo"]
+    assert obj["igs_normals"] == "axes"
+    assert f"`igs normals {ws}`" in scene.igs.last_report and "another albedo.ply" in scene.igs.last_report
+    assert "shortest axes; `igs normals WORKSPACE`" in shown_text(draw("IGS_PT_lights"))  # the Lights panel too
+    np.testing.assert_allclose(get(obj.data, "igs_normal", 3, "vector", "albedo"),
+                               np.tile([0.0, 0.0, 1.0], (len(obj.data.points), 1)), atol=1e-6)  # the discs' axes

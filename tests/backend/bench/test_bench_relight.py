@@ -55,6 +55,8 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     assert scene["meshes"] == ["cube", "sphere"] and "added meshes" in printed
     if native:  # Blender rendered every view and light without and with the meshes, and started no backend job
         assert scene["native"]["rendered"] == 2 * 3 * 2 and scene["native"]["backend_jobs_started"] == 0
+        # the lit material took the backend's depth normals, which the bench wrote for its workspace
+        assert scene["native"]["normals"] == "depth" and (tmp_path / "seed_room" / "layers" / "albedo_normals.npz").is_file()
         mesh = scene["mesh"]
         assert mesh["pixels"]["mesh"] > 20 and mesh["pixels"]["shadow"] > 0
         for m in ("mesh", "no_shadow"):

@@ -59,3 +59,22 @@ def test_without_blender_53_the_native_rows_say_why(tmp_path):
     got = render_native(ws, ["v.png"], [{"name": "key"}], [], tmp_path / "out", python=str(fake))
     assert got.folder is None and got.image("v", "key", False) is None
     assert got.summary()["note"] == "native splats need Blender 5.3; this bpy is 5.0.1"
+
+
+def test_blenders_frames_are_rendered_again_when_the_normals_file_changes(tmp_path):
+    """The lit material's normals come from ``layers/albedo_normals.npz``: frames cached for other normals are stale."""
+    import os
+
+    from backend.bench.relight_native import job_key
+
+    ws = Workspace(tmp_path / "ws")
+    ws.layers.mkdir(parents=True)
+    (ws.layers / "albedo.ply").write_bytes(b"ply")
+    job = {"samples": 4, "seed": 0, "lights": [], "meshes": []}
+    without = job_key(ws, job)
+    np.savez(ws.layers / "albedo_normals.npz", normals=np.zeros((1, 3), np.float32))
+    first = job_key(ws, job)
+    assert first != without and "albedo_normals.npz" in first["layers"]
+    np.savez(ws.layers / "albedo_normals.npz", normals=np.ones((2, 3), np.float32))
+    os.utime(ws.layers / "albedo_normals.npz", ns=(1, 1))
+    assert job_key(ws, job) != first

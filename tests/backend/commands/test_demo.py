@@ -22,6 +22,7 @@ def test_demo_runs_synth_decompose_fit_bake_and_turntable(tmp_path, capsys):
                                               "bake the decal into the albedo field", "turntable of the edited scene"]
     for layer in ("albedo", "shading", "residual"):
         assert (ws / "layers" / f"{layer}.ply").stat().st_size > 0
+    assert (ws / "layers" / "albedo_normals.npz").is_file()  # the add-on's native lighting reads them
     assert (ws / "report.png").exists()
     bake = json.loads((ws / "edits" / "wall_decal" / "bake.json").read_text())
     assert bake["spawned"] > 0 and bake["iterations"] == 1000

@@ -128,3 +128,12 @@ def test_the_single_set_baseline_writes_its_three_files_as_one_set(decomposed, t
     assert {k: v["sha256_16"] for k, v in record["layers"].items()} == \
         {k: layer_set.file_hash(folder / f"{k}.ply") for k in ("albedo", "shading", "residual")}
     assert not list((ws / "checkpoints" / "decompose" / "pending").rglob("*.ply"))
+
+
+def test_decompose_leaves_the_albedos_normals_for_blender(decomposed):
+    from igs_contract import albedo_normals
+
+    record = json.loads((decomposed / "layers" / "set.json").read_text())
+    normals, why = albedo_normals.read(decomposed / "layers" / albedo_normals.FILE, decomposed / "layers" / "albedo.ply",
+                                       record["layers"]["albedo"]["gaussians"])
+    assert why == "" and normals.shape == (record["layers"]["albedo"]["gaussians"], 3)

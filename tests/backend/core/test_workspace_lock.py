@@ -66,6 +66,7 @@ def test_a_second_writer_is_refused_with_one_line_naming_the_holder(layered, cap
                      ["edit", "bake", str(layered), "--plane", "x.json", "--color", "1,0,0"],
                      ["distil", str(layered), "--iterations", "1"], ["render", str(layered), "--turntable"],
                      ["export", str(layered), "--layer", "albedo"], ["light-bake", str(layered), "--light", "l.json"],
+                     ["normals", str(layered)],
                      ["convert", str(layered / "layers" / "albedo.ply"), str(layered / "exports" / "a.ply")]):
             assert main(argv) == EXIT_BUSY, argv
             (line,) = errors(capsys.readouterr().err)
