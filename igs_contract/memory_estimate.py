@@ -49,8 +49,12 @@ class MemoryModel:
 # Fitted on the CPU by bench_memory (docs/benchmarks.md has the runs and the largest residuals). Both
 # commands keep their views in a file (backend/train/view_store.py): the fitted slopes per view-pixel
 # (-1.3 B and 2.0 B) are zero within the runs' noise, so the models are fitted without that term.
-DECOMPOSE = MemoryModel(base=0.98 * GIB, per_view_pixel=0.0, per_pixel=1270.0, per_gaussian=600.0)
-TRAIN_3DGS = MemoryModel(base=0.98 * GIB, per_view_pixel=0.0, per_pixel=262.0, per_gaussian=1200.0)
+# The base carries FIRST_RUN above the fitted 0.98 GiB: the same small decompose peaked at 1.06 GiB
+# with numba's kernels cached, 1.16 GiB when they compile first (the first run after an install), and
+# 1.39 GiB inside a fresh-clone CI run (cause not found). A limit errs on the safe side.
+FIRST_RUN = 0.2 * GIB
+DECOMPOSE = MemoryModel(base=0.98 * GIB + FIRST_RUN, per_view_pixel=0.0, per_pixel=1270.0, per_gaussian=600.0)
+TRAIN_3DGS = MemoryModel(base=0.98 * GIB + FIRST_RUN, per_view_pixel=0.0, per_pixel=262.0, per_gaussian=1200.0)
 # edit bake: the views are the painted ones (the edit view, the virtual and the capture views), each held
 # at full size as a float32 image and its mask (13 B) until the bake ends; its Gaussians' term is taken
 # as decompose's (the albedo, its copy and the trained part's moments), not fitted.

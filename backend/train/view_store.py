@@ -117,5 +117,13 @@ def check_disk_room(folder: Path, need: float, command: str) -> None:
     except OSError:
         return  # unknown: the writes themselves report a full disk
     if free < need:
-        raise IGSError(f"{command}: the views' file needs {need / 2**30:.1f} GiB free in {folder}, and "
-                       f"{free / 2**30:.1f} GiB are free; free disk space or use --downscale")
+        raise IGSError(f"{command}: no space left for the views' file in {folder}: it needs {_size(need)} and "
+                       f"{_size(free)} are free; free disk space or use --downscale")
+
+
+def _size(n: float) -> str:
+    """``n`` bytes in the largest unit that keeps a digit before the point (a small disk's KiB stay legible)."""
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{int(n)} B"

@@ -131,7 +131,7 @@ def test_no_command_module_prints_to_stdout_behind_the_events_back():
     """Command output goes through events.result/log; bench scripts (not igs commands) may print."""
     offenders = []
     for path in sorted((REPO / "backend").rglob("*.py")):
-        if path.name.startswith(("bench_", "edit_scales", "blur_ceiling")) or path.name == "events.py":
+        if path.parent.name == "bench" or path.name == "events.py":  # the benchmarks stand above the commands
             continue
         for n, line in enumerate(path.read_text().splitlines(), 1):
             code = line.split("#")[0]

@@ -80,7 +80,7 @@ def test_a_stage_trains_on_stored_views_as_on_views_in_memory(capture, tmp_path)
 
 
 def test_too_little_disk_is_one_line(tmp_path):
-    with pytest.raises(IGSError, match=r"decompose: the views' file needs [0-9.]+ GiB free in .*, and [0-9.]+ GiB "
-                                       r"are free; free disk space or use --downscale"):
+    with pytest.raises(IGSError, match=r"decompose: no space left for the views' file in .*: it needs [0-9.]+ GiB "
+                                       r"and [0-9.]+ [KMG]iB are free; free disk space or use --downscale"):
         check_disk_room(tmp_path / "not" / "made", 1 << 60, "decompose")
     check_disk_room(Path(tmp_path), 1, "decompose")
