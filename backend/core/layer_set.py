@@ -10,7 +10,6 @@ or the new one, never new albedo beside old shading. ``set.json`` names the run 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import secrets
@@ -23,20 +22,10 @@ from typing import Any
 from backend.core.atomic_io import atomic_paths
 from backend.core.errors import IGSError
 from backend.core.small_reads import read_json
+from igs_contract.albedo_normals import sha256_16 as file_hash  # the one hash of a layer file, both sides
 
 SET_JSON = "set.json"
 """The set's record in the layers folder."""
-
-
-def file_hash(path: Path) -> str | None:
-    """First 16 hex digits of the file's SHA-256, None when there is no file."""
-    if not path.is_file():
-        return None
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()[:16]
 
 
 def new_run_id() -> str:
