@@ -456,13 +456,15 @@ def environment(albedos: list[bpy.types.Object]) -> bpy.types.Object | None:
 
 
 def not_lit_collection(albedos: list[bpy.types.Object]) -> bpy.types.Collection:
-    """The light-linking receiver collection that excludes the albedo splats (kept out of the scene)."""
+    """The light-linking receiver collection that excludes the albedo splats and their lit copies (kept out of
+    the scene)."""
     coll = bpy.data.collections.get(NOT_LIT) or bpy.data.collections.new(NOT_LIT)
-    for obj in albedos:
+    members = [*albedos, *filter(None, (bpy.data.objects.get(lit_name(o)) for o in albedos))]
+    for obj in members:
         if obj.name not in coll.objects:
             coll.objects.link(obj)
     for obj in list(coll.objects):
-        if obj not in albedos:
+        if obj not in members:
             coll.objects.unlink(obj)
     for entry in coll.collection_objects:
         if entry.light_linking.link_state != "EXCLUDE":
