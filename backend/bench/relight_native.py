@@ -23,6 +23,7 @@ truth). Without the bpy 5.3 module the rows are empty and the JSON says why.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import json
 import math
@@ -51,6 +52,8 @@ MESH_METHODS = ("mesh", "no_shadow")
 MESH_REGIONS = ("shadow", "mesh", "image")
 WORKER = "backend.bench.native_render_worker"
 TIMEOUT_S = 3600
+ADDON = Path(__file__).resolve().parents[2] / "igs_blender"
+"""The add-on's Blender side, whose code is part of a job's key."""
 
 
 @dataclass
@@ -144,12 +147,17 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     return out
 
 
-def job_key(ws: Workspace, job: dict[str, Any]) -> dict[str, Any]:
-    """What decides Blender's frames of a job: the samples, seed, lights and meshes, and the sizes and times of
-    the layers and of the albedo's normals file (the lit material's normals)."""
+def job_key(ws: Workspace, job: dict[str, Any], addon: Path = ADDON) -> dict[str, Any]:
+    """What decides Blender's frames of a job: the samples, seed, lights and meshes, the sizes and times of
+    the layers and of the albedo's normals file (the lit material's normals), and the add-on's code that
+    renders them (a hash of the Python files under ``addon``: a changed material renders again)."""
     key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
     files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE)])
     key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
+    code = hashlib.sha256()
+    for path in sorted(addon.rglob("*.py")):
+        code.update(path.relative_to(addon).as_posix().encode() + b"\0" + path.read_bytes())
+    key["addon"] = code.hexdigest()[:16]
     return key
 
 

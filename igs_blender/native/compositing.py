@@ -12,7 +12,8 @@ resolution and output settings) the composite of the native splat fields (:mod:`
 - "IGS Edit Preview" (only while the selected edit is not baked yet): its proxy, unlit, showing its
   texture or colour (an override material), the scene's objects as holdouts;
 - "IGS Lit" (only while the lights collection holds a visible light): the albedo splats lit by those
-  lights, ``A x S_new`` (:mod:`.lighting`), the scene's objects as holdouts that cast shadows;
+  lights, ``A x S_new`` (:mod:`.lighting`; their lit copy, flattened onto the normals), the scene's objects
+  as holdouts that cast shadows;
 - "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the albedo splats'
   ambient occlusion with and without the meshes; their ratio O scales the captured shading.
 
@@ -64,7 +65,7 @@ ROLES = {
     "scene": {"field:albedo": "hold", "field:shadow": "in", "field:environment": "in", "fields": "out", "edits": "out",
               "scene": "in"},
     "edit": {"fields": "out", "edits": "in", "scene": "hold"},
-    "lit": {"field:albedo": "in", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "hold"},
+    "lit": {"field:lit": "in", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "occluded": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "open": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "out"},
 }
@@ -78,7 +79,8 @@ def _own_collections() -> dict[str, str]:
     """Collection name -> what it is for the view layers: ``field:<f>``, ``edits``, or ``add-on`` (a folder of
     the add-on's whose children decide)."""
     kinds = {native_splats.field_collection_name(f): f"field:{f}"
-             for f in (*native_splats.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.ENVIRONMENT_FIELD)}
+             for f in (*native_splats.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.LIT_FIELD,
+                       native_lighting.ENVIRONMENT_FIELD)}
     kinds.update({proxies.COLLECTION: "edits", scene_objects.COLLECTION_NAME: "add-on", layers.COLLECTION: "add-on",
                   camera_objects.COLLECTION: "add-on"})
     return kinds

@@ -15,6 +15,13 @@ attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``
   (:func:`gaussian_normals`), which trained Gaussians, far from flat, make a poor normal; the report says so.
   Stored in capture coordinates; the material turns them into world coordinates with the capture's matrix
   (:func:`update`), since Cycles' Vector Transform node returns no usable vector on splats (measured on 5.3.0).
+- **The lit copy** (:func:`lit_copy`): Cycles takes a splat hit's geometric normal from the splat itself
+  (its shortest axis, turned towards the ray) and a Diffuse BSDF returns nothing for a light on the far
+  side of it, whatever its shading normal (measured on 5.3.0: a floor of discs tilted 60 deg with normals
+  up gets none of a light from the far side 30 deg up, 0.52 of one overhead). Trained Gaussians are not
+  aligned with their normals, so the lit view layer renders a copy of the albedo splats, each Gaussian
+  flattened onto the plane of its normal (:func:`flat_gaussians`: the same spread in that plane, so the
+  same footprint seen along the normal; its thickness the shortest axis), whose own axis is the normal.
 - **Shadows** (:func:`shadow_proxy`): splats lit by a point on their own surface shadow themselves, since
   a shadow ray leaving a splat crosses the overlapping neighbours at its start (a flat floor of splats
   renders at a third of a mesh floor's light). The albedo splats cast no shadow; a copy of them moved
@@ -59,6 +66,10 @@ NORMAL = "igs_normal"
 """FLOAT_VECTOR attribute of the albedo splats: each Gaussian's unit normal, in capture coordinates."""
 SHADOW_FIELD = "shadow"
 """The shadow proxies' field collection ("IGS Field shadow")."""
+LIT_FIELD = "lit"
+"""The lit copies' field collection ("IGS Field lit"), which the lit view layer renders instead of the albedo."""
+LIT_OF = "igs_lit_of"
+"""Custom property of a lit copy: the name of the albedo object it follows."""
 ENVIRONMENT_FIELD = "environment"
 """The capture's light for meshes: "IGS Field environment"."""
 ENVIRONMENT = "IGS composite light"
@@ -105,6 +116,46 @@ def gaussian_normals(means: np.ndarray, scales: np.ndarray, quats: np.ndarray, e
     flip = (axis * towards).sum(1) < 0
     axis[flip] *= -1
     return axis.astype(np.float32)
+
+
+def flat_gaussians(scales: np.ndarray, quats: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each Gaussian (``scales`` (N, 3) standard deviations, ``quats`` (N, 4) wxyz) flattened onto the plane of
+    its normal (``normals`` (N, 3)): the covariance's marginal in that plane (so the footprint seen along the
+    normal is the same) and the shortest standard deviation along the normal. Returns (N, 3) scales and
+    (N, 4) wxyz quaternions whose third axis is the unit normal."""
+    n = normals.astype(np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    rot = quat_matrices(quats)
+    cov = rot @ (scales.astype(np.float64)[:, :, None] ** 2 * np.swapaxes(rot, 1, 2))
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    tangent = np.stack([t1, np.cross(n, t1)], 2)  # (N, 3, 2)
+    spread, axes = np.linalg.eigh(np.swapaxes(tangent, 1, 2) @ cov @ tangent)  # ascending
+    a1 = (tangent @ axes[:, :, 1:])[..., 0]
+    frame = np.stack([a1, np.cross(n, a1), n], 2)  # columns: long, short, normal (right-handed)
+    out_scales = np.stack([np.sqrt(np.maximum(spread[:, 1], 0.0)), np.sqrt(np.maximum(spread[:, 0], 0.0)),
+                           scales.min(axis=1)], 1)
+    return out_scales.astype(np.float32), matrix_quats(frame).astype(np.float32)
+
+
+def matrix_quats(m: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices -> (N, 4) unit wxyz quaternions (the inverse of :func:`quat_matrices`)."""
+    tr = np.trace(m, axis1=1, axis2=2)
+    cand = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], 1)
+    k = np.argmax(cand, axis=1)  # the largest component, computed from the diagonal for stability
+    q = np.empty((len(m), 4))
+    w, x, y, z = k == 0, k == 1, k == 2, k == 3
+    s = np.sqrt(np.maximum(1.0 + 2.0 * cand[np.arange(len(m)), k] - tr, 1e-30)) * 2  # 4 * the component
+    q[w] = np.stack([s[w] / 4, (m[w, 2, 1] - m[w, 1, 2]) / s[w], (m[w, 0, 2] - m[w, 2, 0]) / s[w],
+                     (m[w, 1, 0] - m[w, 0, 1]) / s[w]], 1)
+    q[x] = np.stack([(m[x, 2, 1] - m[x, 1, 2]) / s[x], s[x] / 4, (m[x, 0, 1] + m[x, 1, 0]) / s[x],
+                     (m[x, 0, 2] + m[x, 2, 0]) / s[x]], 1)
+    q[y] = np.stack([(m[y, 0, 2] - m[y, 2, 0]) / s[y], (m[y, 0, 1] + m[y, 1, 0]) / s[y], s[y] / 4,
+                     (m[y, 1, 2] + m[y, 2, 1]) / s[y]], 1)
+    q[z] = np.stack([(m[z, 1, 0] - m[z, 0, 1]) / s[z], (m[z, 0, 2] + m[z, 2, 0]) / s[z],
+                     (m[z, 1, 2] + m[z, 2, 1]) / s[z], s[z] / 4], 1)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def camera_centres(workspace: str) -> np.ndarray:
@@ -325,19 +376,55 @@ def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
     return proxy
 
 
+def lit_name(obj: bpy.types.Object) -> str:
+    return f"{obj.name} lit"
+
+
+def lit_copy(obj: bpy.types.Object) -> bpy.types.Object:
+    """The lit copy of the albedo splats ``obj`` (module docstring), made or brought up to date: seen by camera
+    rays only (the proxy casts the shadows), in :data:`LIT_FIELD`."""
+    name = lit_name(obj)
+    copy = bpy.data.objects.get(name)
+    points = len(obj.data.points)
+    if copy is not None and copy.get(LIT_OF) == obj.name and copy.get("igs_points") == points \
+            and copy.get("igs_source") == obj.get("igs_ply") and copy.get("igs_normals") == obj.get("igs_normals"):
+        return copy
+    scene_objects.remove_object(copy)
+    data = obj.data.copy()
+    data.name = name
+    scales, quats = flat_gaussians(get_point_attribute(data, "scale", 3, "vector", WHAT),
+                                   get_point_attribute(data, "rotation", 4, "value", WHAT),
+                                   get_point_attribute(data, NORMAL, 3, "vector", WHAT))
+    set_point_attribute(data, "scale", "FLOAT_VECTOR", scales, "vector")
+    set_point_attribute(data, "rotation", "QUATERNION", quats, "value")
+    copy = bpy.data.objects.new(name, data)
+    native_splats.field_collection(LIT_FIELD).objects.link(copy)
+    copy.parent = obj.parent
+    copy.matrix_parent_inverse = obj.matrix_parent_inverse.copy()
+    copy.matrix_basis = obj.matrix_basis.copy()
+    for ray in ("shadow", *INDIRECT):
+        setattr(copy, f"visible_{ray}", False)
+    copy.hide_select = True
+    copy[LIT_OF], copy["igs_points"], copy["igs_source"] = obj.name, points, obj.get("igs_ply", "")
+    copy["igs_normals"] = obj.get("igs_normals", "")
+    return copy
+
+
 def _sync_proxies(albedos: list[bpy.types.Object]) -> None:
-    """One proxy per albedo object, rendering when it renders; proxies of albedos that went are removed."""
+    """One shadow proxy and one lit copy per albedo object, rendering when it renders; those of albedos that
+    went are removed."""
     names = set()
     for obj in albedos:
         obj.visible_shadow = False  # the proxy casts its shadows
-        proxy = shadow_proxy(obj)
-        proxy.hide_render = obj.hide_render
-        proxy.hide_viewport = True
-        names.add(proxy.name)
-    coll = bpy.data.collections.get(native_splats.field_collection_name(SHADOW_FIELD))
-    for other in list(coll.objects) if coll is not None else []:
-        if other.name not in names:
-            scene_objects.remove_object(other)
+        for made in (shadow_proxy(obj), lit_copy(obj)):
+            made.hide_render = obj.hide_render
+            made.hide_viewport = True
+            names.add(made.name)
+    for field in (SHADOW_FIELD, LIT_FIELD):
+        coll = bpy.data.collections.get(native_splats.field_collection_name(field))
+        for other in list(coll.objects) if coll is not None else []:
+            if other.name not in names:
+                scene_objects.remove_object(other)
 
 
 def environment(albedos: list[bpy.types.Object]) -> bpy.types.Object | None:
@@ -369,13 +456,15 @@ def environment(albedos: list[bpy.types.Object]) -> bpy.types.Object | None:
 
 
 def not_lit_collection(albedos: list[bpy.types.Object]) -> bpy.types.Collection:
-    """The light-linking receiver collection that excludes the albedo splats (kept out of the scene)."""
+    """The light-linking receiver collection that excludes the albedo splats and their lit copies (kept out of
+    the scene)."""
     coll = bpy.data.collections.get(NOT_LIT) or bpy.data.collections.new(NOT_LIT)
-    for obj in albedos:
+    members = [*albedos, *filter(None, (bpy.data.objects.get(lit_name(o)) for o in albedos))]
+    for obj in members:
         if obj.name not in coll.objects:
             coll.objects.link(obj)
     for obj in list(coll.objects):
-        if obj not in albedos:
+        if obj not in members:
             coll.objects.unlink(obj)
     for entry in coll.collection_objects:
         if entry.light_linking.link_state != "EXCLUDE":
@@ -446,7 +535,7 @@ def _eyes(scene: bpy.types.Scene) -> tuple[np.ndarray, str]:
 
 def release(scene: bpy.types.Scene) -> None:
     """Undo :func:`update` (Remove Render Setup): the other lights lose the receiver collection it gave them,
-    the albedo splats cast their own shadows again, the proxies and the collection go."""
+    the albedo splats cast their own shadows again, the proxies, the lit copies and the collection go."""
     coll = bpy.data.collections.get(NOT_LIT)
     for obj in scene.objects:
         if obj.type == "LIGHT" and coll is not None and obj.light_linking.receiver_collection == coll:
@@ -457,7 +546,7 @@ def release(scene: bpy.types.Scene) -> None:
         obj.visible_shadow = True
         for ray in INDIRECT:
             setattr(obj, f"visible_{ray}", True)
-    for field in (SHADOW_FIELD, ENVIRONMENT_FIELD):
+    for field in (SHADOW_FIELD, LIT_FIELD, ENVIRONMENT_FIELD):
         coll = bpy.data.collections.get(native_splats.field_collection_name(field))
         for obj in list(coll.objects) if coll is not None else []:
             scene_objects.remove_object(obj)

@@ -155,6 +155,14 @@ def test_normals_are_the_shortest_axes_turned_towards_the_cameras():
     np.testing.assert_allclose(rot, Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix(), atol=1e-9)
     to_eyes = (eyes[None] - means[:, None]) / np.linalg.norm(eyes[None] - means[:, None], axis=-1, keepdims=True)
     assert ((got[:, None] * to_eyes).sum(-1).sum(1) >= 0).all()  # turned towards the cameras
+    # flattened onto the normals' planes: the third axis is the normal, the spread in the plane is kept
+    s2, q2 = nl.flat_gaussians(scales, q, got)
+    r2 = nl.quat_matrices(q2.astype(np.float64))
+    np.testing.assert_allclose(r2[:, :, 2], got, atol=1e-5)
+    cov, cov2 = (r @ (s[:, :, None] ** 2 * np.swapaxes(r, 1, 2)) for r, s in ((rot, scales), (r2, s2.astype(float))))
+    plane = np.eye(3)[None] - got[:, :, None] * got[:, None, :]
+    np.testing.assert_allclose(plane @ cov @ plane, plane @ cov2 @ plane, atol=1e-5)
+    np.testing.assert_allclose(s2[:, 2], scales.min(axis=1), atol=1e-6)
 
 
 def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(scene, tmp_path):
@@ -232,6 +240,48 @@ def test_f12_lights_the_capture_with_the_cubes_shadow_and_starts_no_backend_job(
     print(f"\nnative light: floor near the light +{added[near].mean():.3f} (truth {lit_truth[near].mean():.3f}); "
           f"cube's shadow -{darker[shadow].mean():.3f} (truth {dark_truth[shadow].mean():.3f}); "
           f"around it -{darker[around].mean():.3f} (truth {dark_truth[around].mean():.3f})")
+
+
+def test_splats_tilted_off_their_normals_take_the_light_from_beyond_their_own_plane(scene, tmp_path):
+    """Cycles gives a splat hit the splat's own axis as geometric normal, and a Diffuse BSDF nothing from a light
+    beyond that plane, whatever the normal: discs tilted 35 deg towards the camera, their normals up (the normals
+    file), under a sun from the other side 20 deg up, get the Lambert light ``A * E * sin 20 deg / pi`` (the lit
+    view layer renders their copy flattened onto the normals)."""
+    import torch
+
+    from backend.splats.ply import read_ply, write_ply
+    from igs_contract import albedo_normals as contract
+
+    ws, tilt, up = tmp_path / "ws", np.radians(35.0), np.radians(20.0)
+    floor_workspace(ws)
+    g = read_ply(ws / "layers" / "albedo.ply", kind="albedo")[0]
+    g.params["quats"].data[:] = torch.tensor([np.cos(tilt / 2), 0.0, np.sin(tilt / 2), 0.0])  # local z towards +x
+    ply = write_ply(ws / "layers" / "albedo.ply", g)
+    np.savez(ws / "layers" / contract.FILE, **{contract.NORMALS: np.tile(np.float32([0, 0, 1]), (len(g.params["means"]), 1)),
+                                               contract.ALBEDO_SHA: np.array(contract.sha256_16(ply)),
+                                               contract.SOURCE: np.array("depth")})
+    scene.igs.workspace = str(ws)
+    assert bpy.ops.igs.load_cameras() == {"FINISHED"}
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    assert bpy.data.objects["IGS albedo"]["igs_normals"] == "depth"
+    sub("camera_objects").use_frame_camera(scene, bpy.data.objects["IGS frame_0000"])  # at (1.6, 0, 1.6)
+    cycles(scene, 32)
+    scene.cycles.max_bounces = 0
+    bpy.ops.igs.add_light(kind="SUN")
+    sun = bpy.context.active_object
+    sun.data.energy, sun.data.angle = 3.0, 0.0
+    sun.rotation_euler = (0.0, -(np.pi / 2 - up), 0.0)  # its +z towards (-cos 20, 0, sin 20): the light's side
+    sun.hide_render = True
+    bpy.context.view_layer.update()
+    dark = render_outputs(scene, tmp_path / "dark", ("Image",))["Image"]
+    sun.hide_render = False
+    bpy.context.view_layer.update()
+    added = (render_outputs(scene, tmp_path / "lit", ("Image",))["Image"] - dark).mean(axis=2)
+    floor = dark.max(axis=2) > 0.02
+    assert floor.sum() > 200, floor.sum()
+    ratio = float(np.median(added[floor])) / (ALBEDO * 3.0 * np.sin(up) / np.pi)
+    print(f"\ndiscs tilted off their normals, light from beyond their plane: {ratio:.3f} of Lambert's")
+    assert 0.85 < ratio < 1.15, ratio
 
 
 PLATES = {"splat floor, opaque": (-0.7, 0.99), "splat floor, faint": (-0.3, 0.3),

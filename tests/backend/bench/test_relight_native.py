@@ -78,3 +78,20 @@ def test_blenders_frames_are_rendered_again_when_the_normals_file_changes(tmp_pa
     np.savez(ws.layers / "albedo_normals.npz", normals=np.ones((2, 3), np.float32))
     os.utime(ws.layers / "albedo_normals.npz", ns=(1, 1))
     assert job_key(ws, job) != first
+
+
+def test_blenders_frames_are_rendered_again_when_the_addons_code_changes(tmp_path):
+    """A changed lit material (any file of the add-on's Blender side) makes the cached frames stale."""
+    from backend.bench.relight_native import ADDON, job_key
+
+    ws = Workspace(tmp_path / "ws")
+    ws.layers.mkdir(parents=True)
+    job = {"samples": 4, "seed": 0, "lights": [], "meshes": []}
+    addon = tmp_path / "igs_blender"
+    (addon / "native").mkdir(parents=True)
+    (addon / "native" / "lighting.py").write_text("DIFFUSE = 1\n")
+    first = job_key(ws, job, addon)
+    assert job_key(ws, job, addon) == first
+    (addon / "native" / "lighting.py").write_text("DIFFUSE = 2\n")
+    assert job_key(ws, job, addon) != first
+    assert (ADDON / "native" / "lighting.py").exists()  # the real key hashes the add-on's own files
