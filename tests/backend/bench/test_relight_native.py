@@ -78,3 +78,26 @@ def test_blenders_frames_are_rendered_again_when_the_normals_file_changes(tmp_pa
     np.savez(ws.layers / "albedo_normals.npz", normals=np.ones((2, 3), np.float32))
     os.utime(ws.layers / "albedo_normals.npz", ns=(1, 1))
     assert job_key(ws, job) != first
+
+
+def test_blenders_frames_are_rendered_again_when_the_addon_changes(tmp_path):
+    """The add-on decides what Blender renders of the same layers (its estimated lights, its materials): frames
+    cached by another version of it are stale."""
+    from backend.bench.relight_native import job_key
+
+    ws = Workspace(tmp_path / "ws")
+    ws.layers.mkdir(parents=True)
+    (ws.layers / "albedo.ply").write_bytes(b"ply")
+    root = tmp_path / "checkout"
+    (root / "igs_blender" / "native").mkdir(parents=True)
+    (root / "igs_contract").mkdir()
+    (root / "__init__.py").write_text("")
+    (root / "igs_blender" / "native" / "lighting.py").write_text("A = 1\n")
+    job = {"samples": 4, "seed": 0, "lights": [], "meshes": []}
+    first = job_key(ws, job, root)
+    assert job_key(ws, job, root) == first
+    (root / "igs_blender" / "native" / "lighting.py").write_text("A = 2\n")
+    assert job_key(ws, job, root) != first
+    (root / "igs_blender" / "native" / "lighting.py").write_text("A = 1\n")
+    (root / "igs_blender" / "native" / "captured_lights.py").write_text("")
+    assert job_key(ws, job, root) != first
