@@ -15,13 +15,13 @@ resolution and output settings) the composite of the native splat fields (:mod:`
   lights, ``A x S_new`` (:mod:`.lighting`), the scene's objects as holdouts that cast shadows;
 - "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the captured shading's
   ambient occlusion with and without the meshes; their ratio O scales the captured shading;
-- "IGS Direct" and "IGS Direct Open" (the same while): the albedo splats lit by the capture's estimated
+- "IGS Direct" and "IGS Direct Open" (the same while, when the lamps agree with S): the albedo splats lit by the capture's estimated
   lamps (:mod:`.captured_lights`, which light the artist's meshes in "IGS Scene") with and without the
-  meshes; the part of S the lamps explain, ``d = min(S, Direct Open)``, takes their ratio D instead of O.
+  meshes; the part of S the lamps explain, ``d = min(S, Direct Open)``, takes their ratio D where it is below O.
 
 The compositor effect "IGS Render" feeds the view layers into the node group "IGS Composite"
 (editable, like any node group) which computes, per pixel,
-``Image = A' * (S * O + d * (D - O)) + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
+``Image = A' * (S * O + d * min(D - O, 0)) + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
 proxy is in front of (or within ``Depth Tolerance`` of) the albedo's depth, as the viewport engine
 does. The fields are rendered over black, so the Scene layer (held out by the albedo) adds to the
 composite; A and R, held out by the meshes, are zero where a mesh covers them. The group's outputs
@@ -265,12 +265,13 @@ def composite_group() -> bpy.types.NodeTree:
                  math("SUBTRACT", 1.0, seen, -300, -800), 50, -700)
     shading = vmath("SCALE", gin.outputs["Shading"], None, 150, -300, scale=share)
     # the part of S the capture's estimated lamps give, d = min(S, Direct Open), takes their shadows' ratio D
-    # instead of O: S * O + d * (D - O) (d = 0 without lamps, where Direct Open is 0)
+    # instead of O where darker: S * O + d * min(D - O, 0) (d = 0 without lamps, where Direct Open is 0)
     d = vmath("MINIMUM", gin.outputs["Shading"], gin.outputs["Direct Open"], -100, -1000)
     ratio = vmath("DIVIDE", gin.outputs["Direct"], vmath("MAXIMUM", gin.outputs["Direct Open"], 1e-4, -300, -1100),
                   -100, -1100)
     lamps = vmath("SUBTRACT", vmath("MINIMUM", ratio, 1.0, 50, -1100), vmath("SCALE", (1.0, 1.0, 1.0), None, 50, -950,
                                                                              scale=share), 200, -1000)
+    lamps = vmath("MINIMUM", lamps, 0.0, 275, -1000)  # a lamp's shadow only darkens beyond O, never undoes it
     shading = vmath("ADD", shading, vmath("MULTIPLY", d, lamps, 350, -1000), 450, -700)
     product = vmath("MULTIPLY", albedo.outputs[1], shading, 250, 0)
     # A * (S + S_new) = A * S + Lit, Lit the albedo splats lit by the lights collection (native_lighting)
@@ -324,7 +325,7 @@ def _wire(scene: bpy.types.Scene, previewing: bool, lighting: bool, occluding: b
         wires.append(("lit", "Image", "Lit"))
     if occluding:
         wires += [("occluded", "Image", "Occluded"), ("open", "Image", "Open")]
-    if occluding and captured_lights.has_lights():
+    if occluding and captured_lights.shadows_on():
         wires += [("direct", "Image", "Direct"), ("direct_open", "Image", "Direct Open")]
     wanted = {(VIEW_LAYERS[role], out, into) for role, out, into in wires}
     for link in list(group.inputs[i] for i in range(len(group.inputs))):
@@ -434,7 +435,7 @@ def sync_lighting(scene: bpy.types.Scene) -> None:
         return
     on = lighting(scene)
     occluding = _occluding(scene)
-    lamps = occluding and captured_lights.has_lights()
+    lamps = occluding and captured_lights.shadows_on()
     rewire = vl.use != on or _wired(scene, "Lit") != on or _wired(scene, "Open") != occluding \
         or _wired(scene, "Direct Open") != lamps
     if vl.use != on:

@@ -74,6 +74,8 @@ class Estimate:
     lights: tuple[Light, ...] = ()
     ambient: tuple[float, float, float] = (0.0, 0.0, 0.0)
     direct_share: float = 0.0
+    agreement: float = 0.0
+    """Correlation, over the fitted points, of the model's luminance with S's: how well the lights explain S."""
     extent: float = 1.0
     """The largest extent of the fitted points' bounding box."""
     near2: float = field(default=0.0, repr=False)
@@ -265,7 +267,9 @@ def fit(points: np.ndarray, normals: np.ndarray, shading: np.ndarray, settings: 
     coef = np.stack([nnls_gram(gram, wd.T @ shading[:, c]) for c in range(3)], 1)  # (k + 1, 3)
     lights = tuple(Light(k, tuple(float(v) for v in p), tuple(float(v) for v in coef[i]))
                    for i, (k, p) in enumerate(zip(lk, where)) if coef[i].max() > 0)
-    est = Estimate(lights, tuple(float(v) for v in coef[-1]), 0.0, extent, near2)
+    est = Estimate(lights, tuple(float(v) for v in coef[-1]), extent=extent, near2=near2)
     direct, full = predict(est, points, normals)
     share = float((direct @ LUMA).mean() / max((full @ LUMA).mean(), 1e-12))
-    return Estimate(lights, est.ambient, share, extent, near2)
+    model = full @ LUMA
+    agree = float(np.corrcoef(model, y)[0, 1]) if model.std() > 0 and y.std() > 0 else 0.0
+    return Estimate(lights, est.ambient, share, agree, extent, near2)

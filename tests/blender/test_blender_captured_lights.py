@@ -142,6 +142,7 @@ def test_the_captured_lamp_lights_the_cube_and_its_shadow_falls_on_the_capture(s
     assert bpy.ops.igs.load_cameras() == {"FINISHED"}
     assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
     assert "1 lamp(s) estimated from the shading" in scene.igs.last_report, scene.igs.last_report
+    assert "their shadows darken the capture" in scene.igs.last_report, scene.igs.last_report  # the fit agrees with S
     lamps = [o for o in bpy.data.collections["IGS Field captured"].objects if o.type == "LIGHT"]
     assert len(lamps) == 1 and lamps[0].data.type == "POINT"
     lamp = lamps[0].parent.matrix_world @ lamps[0].matrix_parent_inverse @ lamps[0].matrix_basis  # hidden in viewports

@@ -58,6 +58,7 @@ def test_the_fit_finds_the_lamp_and_the_sun_through_shadows():
     assert np.median(err[~shadow]) < 0.05, np.median(err[~shadow])
     assert np.median(err[shadow]) < 0.1, np.median(err[shadow])  # the shadow did not pull the lamp down
     assert 0.6 < est.direct_share < 1.0, est.direct_share
+    assert est.agreement > 0.9, est.agreement  # the lights explain S (the shadowed patch aside)
 
 
 def test_an_evenly_lit_capture_has_no_lamp_only_ambient_light():
