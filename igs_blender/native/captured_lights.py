@@ -158,7 +158,7 @@ def update(scene: bpy.types.Scene, normal_attr: str) -> str:
     coll[KEY] = key
     if not est.lights:
         return "the capture's light: no lamp found in the shading (ambient only)"
-    shadows = (f"their shadows darken the capture" if est.agreement >= TRUST else
+    shadows = ("their shadows darken the capture" if est.agreement >= TRUST else
                f"they agree with it too loosely (correlation {est.agreement:.2f} < {TRUST}) to shadow the capture")
     return (f"the capture's light: {len(est.lights)} lamp(s) estimated from the shading ({est.direct_share:.0%} of it), "
             f"lighting your meshes; {shadows}")

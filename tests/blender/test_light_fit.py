@@ -4,7 +4,6 @@ walls lit by a lamp, a sun and an ambient term, part of them in shadow."""
 from __future__ import annotations
 
 import numpy as np
-
 from intrinsic_splats.igs_blender.native import light_fit as lf
 
 LAMP, LAMP_RGB = np.array([0.8, -0.5, 2.2]), np.array([0.9, 0.8, 0.6])
