@@ -52,8 +52,8 @@ MESH_METHODS = ("mesh", "no_shadow")
 MESH_REGIONS = ("shadow", "mesh", "image")
 WORKER = "backend.bench.native_render_worker"
 TIMEOUT_S = 3600
-ADDON = Path(__file__).resolve().parents[2] / "igs_blender"
-"""The add-on's Blender side, whose code is part of a job's key."""
+ROOT = Path(__file__).resolve().parents[2]
+"""The checkout whose add-on renders the frames."""
 
 
 @dataclass
@@ -63,6 +63,8 @@ class NativeRenders:
     folder: Path | None = None
     note: str = ""
     seconds: list[float] = field(default_factory=list)
+    seconds_meshes: list[float] = field(default_factory=list)
+    """The seconds of the frames with the meshes (their light and shadows: two more view layers)."""
     jobs_ran: int | None = None
     samples: int | None = None
     reused: int = 0
@@ -81,11 +83,12 @@ class NativeRenders:
         return read_exr(self.folder / self.file(stem, light, meshes))[..., :3]
 
     def summary(self) -> dict[str, Any]:
-        s = sorted(self.seconds)
+        s, m = sorted(self.seconds), sorted(self.seconds_meshes)
         return {"rendered": len(s), "reused": self.reused, "note": self.note or None,
                 "backend_jobs_started": self.jobs_ran, "normals": self.normals,
                 "samples": self.samples,
-                "seconds_per_frame_median": round(s[len(s) // 2], 3) if s else None}
+                "seconds_per_frame_median": round(s[len(s) // 2], 3) if s else None,
+                "seconds_per_frame_median_meshes": round(m[len(m) // 2], 3) if m else None}
 
 
 def meshes_of(ws: Workspace) -> list[dict[str, Any]]:
@@ -117,7 +120,7 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     if not job["renders"]:
         out.jobs_ran = 0
         return out
-    root = Path(__file__).resolve().parents[2]
+    root = ROOT
     with tempfile.NamedTemporaryFile("w", suffix=".json", prefix="igs_native_jobs_", delete=False) as f:
         json.dump(job, f)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), *filter(None, [os.environ.get("PYTHONPATH")])])}
@@ -131,6 +134,8 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
                 msg = _json(line)
                 if "rendered" in msg:
                     out.seconds.append(float(msg["seconds"]))
+                    if str(msg["rendered"]).endswith("__meshes.exr"):
+                        out.seconds_meshes.append(float(msg["seconds"]))
                     bar.update(1)
                 elif msg.get("done"):
                     out.jobs_ran = int(msg["jobs_ran"])
@@ -147,17 +152,24 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     return out
 
 
-def job_key(ws: Workspace, job: dict[str, Any], addon: Path = ADDON) -> dict[str, Any]:
-    """What decides Blender's frames of a job: the samples, seed, lights and meshes, the sizes and times of
-    the layers and of the albedo's normals file (the lit material's normals), and the add-on's code that
-    renders them (a hash of the Python files under ``addon``: a changed material renders again)."""
+def addon_hash(root: Path = ROOT) -> str:
+    """First 16 hex digits of the SHA-256 of the add-on's Python files under ``root`` (the extension's root
+    module, ``igs_blender/`` and ``igs_contract/``): what the add-on makes of the layers."""
+    h = hashlib.sha256()
+    files = [root / "__init__.py", *(root / "igs_blender").rglob("*.py"), *(root / "igs_contract").rglob("*.py")]
+    for p in sorted(f for f in files if f.is_file()):
+        h.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def job_key(ws: Workspace, job: dict[str, Any], root: Path = ROOT) -> dict[str, Any]:
+    """What decides Blender's frames of a job: the samples, seed, lights and meshes, the sizes and times of the
+    layers and of the albedo's normals file (the lit material's normals), and the add-on's code
+    (:func:`addon_hash` of ``root``: the lights it estimates, its materials and compositing)."""
     key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
     files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE)])
     key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
-    code = hashlib.sha256()
-    for path in sorted(addon.rglob("*.py")):
-        code.update(path.relative_to(addon).as_posix().encode() + b"\0" + path.read_bytes())
-    key["addon"] = code.hexdigest()[:16]
+    key["addon"] = addon_hash(root)
     return key
 
 

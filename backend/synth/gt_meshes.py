@@ -43,6 +43,8 @@ CAPTURE = "capture"
 """The folder of the capture's own light with the meshes (a light may not take this name)."""
 IN_FRONT = 0.99
 """A pixel is a mesh's where the depth with the meshes is below this fraction of the depth without."""
+BACKGROUND = 1e9
+"""Cycles writes 1e10 as the depth where a ray hits nothing (``gt/depth`` stores 0 there): no mesh's pixel."""
 
 
 def mesh_files(ws: Workspace, part: str, name: str) -> list[Path]:
@@ -115,6 +117,7 @@ def _write_view(ws: Workspace, part: str, cam: Camera, P: dict[str, np.ndarray])
     if part == CAPTURE:
         before = read_depth(ws.gt_pass("depth") / f"{Path(cam.name).stem}.npy")
         depth = P["Depth"][..., 0]
-        front = (depth > 0) & ((before <= 0) | (depth < IN_FRONT * before))
+        hit = np.isfinite(depth) & (depth > 0) & (depth < BACKGROUND)  # Cycles' background (the sky) is 1e10
+        front = hit & ((before <= 0) | (depth < IN_FRONT * before))
         write_image(files[1], np.repeat(front[..., None], 3, axis=2).astype(np.float32))
     write_exr(files[0], P["Combined"][..., :3])

@@ -14,12 +14,16 @@ resolution and output settings) the composite of the native splat fields (:mod:`
 - "IGS Lit" (only while the lights collection holds a visible light): the albedo splats lit by those
   lights, ``A x S_new`` (:mod:`.lighting`; their lit copy, flattened onto the normals), the scene's objects
   as holdouts that cast shadows;
-- "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the albedo splats'
-  ambient occlusion with and without the meshes; their ratio O scales the captured shading.
+- "IGS Occlusion" and "IGS Occlusion Open" (only while a mesh of the artist's renders): the captured shading's
+  ambient occlusion with and without the meshes; their ratio O scales the captured shading;
+- "IGS Direct" and "IGS Direct Open" (the same while, when the lamps agree with S): the albedo splats' lit copy lit
+  by the capture's estimated lamps (:mod:`.captured_lights`, which light the artist's meshes in "IGS Scene") with
+  and without the meshes; the part of S the lamps explain, ``d = min(S, Direct Open)``, takes their ratio D where
+  it is below O.
 
 The compositor effect "IGS Render" feeds the view layers into the node group "IGS Composite"
 (editable, like any node group) which computes, per pixel,
-``Image = A' * S * O + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
+``Image = A' * (S * O + d * min(D - O, 0)) + Lit + R + Scene`` with ``A'`` the albedo with the edit preview laid over it where the
 proxy is in front of (or within ``Depth Tolerance`` of) the albedo's depth, as the viewport engine
 does. The fields are rendered over black, so the Scene layer (held out by the albedo) adds to the
 composite; A and R, held out by the meshes, are zero where a mesh covers them. The group's outputs
@@ -37,14 +41,15 @@ import json
 
 import bpy
 
-from .. import camera_objects, compat, layers, proxies, scene_objects
+from .. import camera_objects, compat, layers, lights, proxies, scene_objects
 from ..app_handlers import add_depsgraph_handler, remove_depsgraph_handler
+from . import captured_lights
 from . import lighting as native_lighting
 from . import splats as native_splats
 
 VIEW_LAYERS = {"albedo": "IGS Albedo", "shading": "IGS Shading", "residual": "IGS Residual", "scene": "IGS Scene",
                "edit": "IGS Edit Preview", "lit": "IGS Lit", "occluded": "IGS Occlusion",
-               "open": "IGS Occlusion Open"}
+               "open": "IGS Occlusion Open", "direct": "IGS Direct", "direct_open": "IGS Direct Open"}
 TREE = "IGS Render"
 GROUP = "IGS Composite"
 OVERRIDE = "IGS Edit Preview"
@@ -57,17 +62,22 @@ FAR = 1e10
 """Depth of an empty pixel (Blender's)."""
 
 # What each view layer does with a collection: include, exclude or hold out. "field:<f>" is a field's
-# collection, "edits" the proxies', "scene" every collection that is not the add-on's.
+# collection, "edits" the proxies', "scene" every collection that is not the add-on's, "lights" the lights
+# collection (as "scene" unless a role says otherwise: the direct layers leave the added lights out).
 ROLES = {
     "albedo": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "shading": {"field:shading": "in", "fields": "out", "edits": "out", "scene": "out"},
     "residual": {"field:residual": "in", "fields": "out", "edits": "out", "scene": "hold"},
-    "scene": {"field:albedo": "hold", "field:shadow": "in", "field:environment": "in", "fields": "out", "edits": "out",
-              "scene": "in"},
+    "scene": {"field:albedo": "hold", "field:shadow": "in", "field:environment": "in", "field:captured": "in",
+              "fields": "out", "edits": "out", "scene": "in"},
     "edit": {"fields": "out", "edits": "in", "scene": "hold"},
     "lit": {"field:lit": "in", "field:shadow": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "occluded": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "hold"},
     "open": {"field:albedo": "in", "fields": "out", "edits": "out", "scene": "out"},
+    "direct": {"field:lit": "in", "field:captured": "in", "field:shadow": "in", "fields": "out", "edits": "out",
+               "scene": "hold", "lights": "out"},
+    "direct_open": {"field:lit": "in", "field:captured": "in", "field:shadow": "in", "fields": "out",
+                    "edits": "out", "scene": "out", "lights": "out"},
 }
 
 
@@ -75,14 +85,17 @@ def is_set_up(scene: bpy.types.Scene) -> bool:
     return scene.view_layers.get(VIEW_LAYERS["albedo"]) is not None
 
 
-def _own_collections() -> dict[str, str]:
-    """Collection name -> what it is for the view layers: ``field:<f>``, ``edits``, or ``add-on`` (a folder of
-    the add-on's whose children decide)."""
+def _own_collections(scene: bpy.types.Scene | None = None) -> dict[str, str]:
+    """Collection name -> what it is for the view layers: ``field:<f>``, ``edits``, ``add-on`` (a folder of
+    the add-on's whose children decide), or ``lights`` (``scene``'s lights collection)."""
     kinds = {native_splats.field_collection_name(f): f"field:{f}"
              for f in (*native_splats.FIELDS, native_lighting.SHADOW_FIELD, native_lighting.LIT_FIELD,
-                       native_lighting.ENVIRONMENT_FIELD)}
+                       native_lighting.ENVIRONMENT_FIELD, captured_lights.FIELD)}
     kinds.update({proxies.COLLECTION: "edits", scene_objects.COLLECTION_NAME: "add-on", layers.COLLECTION: "add-on",
                   camera_objects.COLLECTION: "add-on"})
+    mine = lights.collection(scene.igs) if scene is not None else None
+    if mine is not None and mine.name not in kinds:
+        kinds[mine.name] = "lights"
     return kinds
 
 
@@ -90,6 +103,8 @@ def _state(role: str, kind: str) -> str:
     rules = ROLES[role]
     if kind.startswith("field:"):
         return rules.get(kind, rules["fields"])
+    if kind == "lights":
+        return rules.get(kind, rules.get("scene", "in"))
     return rules.get(kind, "in")
 
 
@@ -173,7 +188,7 @@ def composite_group() -> bpy.types.NodeTree:
     """The node group "IGS Composite" (made once; an artist's changes to it are kept)."""
     group = bpy.data.node_groups.get(GROUP)
     if group is not None and group.bl_idname == "CompositorNodeTree":
-        if any(i.in_out == "INPUT" and i.name == "Occluded" for i in group.interface.items_tree):
+        if any(i.in_out == "INPUT" and i.name == "Direct Open" for i in group.interface.items_tree):
             return group
         group.name = f"{GROUP} (older)"  # made by an earlier version: kept beside the new one
     group = bpy.data.node_groups.new(GROUP, "CompositorNodeTree")
@@ -183,6 +198,8 @@ def composite_group() -> bpy.types.NodeTree:
                                 ("Scene", "NodeSocketColor", (0, 0, 0, 0)), ("Edit", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Lit", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Occluded", "NodeSocketColor", (1, 1, 1, 1)), ("Open", "NodeSocketColor", (1, 1, 1, 1)),
+                                ("Direct", "NodeSocketColor", (0, 0, 0, 0)),
+                                ("Direct Open", "NodeSocketColor", (0, 0, 0, 0)),
                                 ("Edit Depth", "NodeSocketFloat", FAR),
                                 ("Depth Tolerance", "NodeSocketFloat", DEPTH_TOLERANCE)):
         _socket(group, name, "INPUT", kind, default)
@@ -213,6 +230,8 @@ def composite_group() -> bpy.types.NodeTree:
         for i, v in enumerate((a, b)):
             if isinstance(v, bpy.types.NodeSocket):
                 links.new(v, n.inputs[i])
+            elif isinstance(v, tuple):
+                n.inputs[i].default_value = v
             elif v is not None:
                 n.inputs[i].default_value = (v,) * 3
         if scale is not None:
@@ -247,6 +266,15 @@ def composite_group() -> bpy.types.NodeTree:
     share = math("ADD", math("MULTIPLY", math("MINIMUM", share, 1.0, -300, -650), seen, -100, -650),
                  math("SUBTRACT", 1.0, seen, -300, -800), 50, -700)
     shading = vmath("SCALE", gin.outputs["Shading"], None, 150, -300, scale=share)
+    # the part of S the capture's estimated lamps give, d = min(S, Direct Open), takes their shadows' ratio D
+    # instead of O where darker: S * O + d * min(D - O, 0) (d = 0 without lamps, where Direct Open is 0)
+    d = vmath("MINIMUM", gin.outputs["Shading"], gin.outputs["Direct Open"], -100, -1000)
+    ratio = vmath("DIVIDE", gin.outputs["Direct"], vmath("MAXIMUM", gin.outputs["Direct Open"], 1e-4, -300, -1100),
+                  -100, -1100)
+    lamps = vmath("SUBTRACT", vmath("MINIMUM", ratio, 1.0, 50, -1100), vmath("SCALE", (1.0, 1.0, 1.0), None, 50, -950,
+                                                                             scale=share), 200, -1000)
+    lamps = vmath("MINIMUM", lamps, 0.0, 275, -1000)  # a lamp's shadow only darkens beyond O, never undoes it
+    shading = vmath("ADD", shading, vmath("MULTIPLY", d, lamps, 350, -1000), 450, -700)
     product = vmath("MULTIPLY", albedo.outputs[1], shading, 250, 0)
     # A * (S + S_new) = A * S + Lit, Lit the albedo splats lit by the lights collection (native_lighting)
     lit = vmath("ADD", product, gin.outputs["Lit"], 350, 100)
@@ -299,6 +327,8 @@ def _wire(scene: bpy.types.Scene, previewing: bool, lighting: bool, occluding: b
         wires.append(("lit", "Image", "Lit"))
     if occluding:
         wires += [("occluded", "Image", "Occluded"), ("open", "Image", "Open")]
+    if occluding and captured_lights.shadows_on():
+        wires += [("direct", "Image", "Direct"), ("direct_open", "Image", "Direct Open")]
     wanted = {(VIEW_LAYERS[role], out, into) for role, out, into in wires}
     for link in list(group.inputs[i] for i in range(len(group.inputs))):
         for lk in list(link.links):
@@ -348,6 +378,8 @@ def setup(scene: bpy.types.Scene) -> list[str]:
         vl.use_pass_combined = True
         vl.use_pass_z = role in ("albedo", "edit")
     notes += native_lighting.update(scene)
+    note = captured_lights.update(scene, native_lighting.NORMAL)
+    notes += [note] if note else []
     r = scene.render
     r.film_transparent = True
     r.use_single_layer = False
@@ -365,7 +397,7 @@ def sync(scene: bpy.types.Scene) -> None:
     if not is_set_up(scene):
         return
     props = scene.igs
-    own = _own_collections()
+    own = _own_collections(scene)
     proxy = preview_proxy(props)
     for role, name in VIEW_LAYERS.items():
         vl = scene.view_layers.get(name)
@@ -380,12 +412,13 @@ def sync(scene: bpy.types.Scene) -> None:
     _gather_proxies(props)
     _albedo_visibility(props, proxy)
     native_lighting.update(scene)
+    captured_lights.update(scene, native_lighting.NORMAL)
     sync_lighting(scene)
     _wire(scene, proxy is not None, lighting(scene), _occluding(scene))
 
 
 def _occluding(scene: bpy.types.Scene) -> bool:
-    return native_lighting.occluders(scene, set(_own_collections()) | set(VIEW_LAYERS.values()))
+    return native_lighting.occluders(scene, set(_own_collections(scene)) | set(VIEW_LAYERS.values()))
 
 
 def lighting(scene: bpy.types.Scene) -> bool:
@@ -404,26 +437,33 @@ def sync_lighting(scene: bpy.types.Scene) -> None:
         return
     on = lighting(scene)
     occluding = _occluding(scene)
-    rewire = vl.use != on or _wired(scene, "Lit") != on or _wired(scene, "Open") != occluding
+    lamps = occluding and captured_lights.shadows_on()
+    rewire = vl.use != on or _wired(scene, "Lit") != on or _wired(scene, "Open") != occluding \
+        or _wired(scene, "Direct Open") != lamps
     if vl.use != on:
         vl.use = on
-    for role in ("occluded", "open"):
+    world = native_lighting.dark_world()
+    direct = captured_lights.direct_material()
+    for role in ("occluded", "open", "direct", "direct_open"):
         layer = scene.view_layers.get(VIEW_LAYERS[role])
         if layer is None:
             continue
-        if layer.use != occluding:
-            layer.use = occluding
-        if layer.material_override != native_lighting.occlusion_material():
-            layer.material_override = native_lighting.occlusion_material()
+        use = occluding if role in ("occluded", "open") else lamps
+        if layer.use != use:
+            layer.use = use
+        mat = native_lighting.occlusion_material() if role in ("occluded", "open") else direct
+        if layer.material_override != mat:
+            layer.material_override = mat
+        if role in ("direct", "direct_open") and layer.world_override != world:  # only the lamps light there
+            layer.world_override = world
     mat = native_lighting.lit_material()
     if vl.material_override != mat:
         vl.material_override = mat
-    world = native_lighting.dark_world()
     if vl.world_override != world:
         vl.world_override = world
     albedos = native_lighting.albedo_objects()
     if albedos:
-        for material in (mat, native_lighting.occlusion_material()):
+        for material in (mat, native_lighting.occlusion_material(), direct):
             native_lighting.set_normal_matrix(material, native_lighting.normal_matrix())
         native_lighting.exclude_other_lights(scene, albedos)
     if rewire:  # only on a change: this runs on depsgraph updates, and every write triggers another
@@ -497,6 +537,7 @@ def teardown(scene: bpy.types.Scene) -> None:
             del vl["igs_use_before"]
     compat.remove_compositor_tree(scene, TREE)
     native_lighting.release(scene)
+    captured_lights.release()
 
 
 _SIGNATURE: dict[str, tuple] = {}
@@ -521,7 +562,7 @@ def _on_depsgraph(scene, depsgraph=None) -> None:
     sig = _signature(scene)
     if _SIGNATURE.get(scene.name) != sig:
         _SIGNATURE[scene.name] = sig
-        own = _own_collections()
+        own = _own_collections(scene)
         for role, name in VIEW_LAYERS.items():
             vl = scene.view_layers.get(name)
             if vl is not None:

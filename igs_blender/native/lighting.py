@@ -37,7 +37,8 @@ attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``
   override material :data:`OCCLUSION` (Cycles' Ambient Occlusion of the scene around each splat, as an
   emission), one with the meshes (holdouts that occlude), one without; the composite multiplies S by
   their ratio, the share of the surroundings the meshes leave open (the captured light taken as the
-  same from every direction: ambient occlusion, contact shadows included).
+  same from every direction: ambient occlusion, contact shadows included). The share of S that the
+  capture's estimated lamps explain is darkened by their shadows instead (:mod:`.captured_lights`).
 - **Other lights** (:func:`exclude_other_lights`): a light outside the collection must leave the capture
   untouched, so it gets the light-linking receiver collection :data:`NOT_LIT`, which excludes the albedo
   splats (a light with a receiver collection of the artist's own is left alone and named in the report).
@@ -85,6 +86,8 @@ by 0, 1/3 and 2/3 of the middle deviation along the normal, the splats themselve
 a proxy at 3 + 0.25 keeps 1.00 / 0.95 / 0.83, at 3 + 1 1.00 / 1.00 / 0.96. The price: a shadow starts that
 far from where an occluder touches the surface."""
 NOT_LIT = "IGS Not Lit By Scene Lights"
+CAPTURED_LIGHT = "igs_captured_light"
+"""Custom property of the capture's estimated lights (:mod:`.captured_lights`)."""
 DARK_WORLD = "IGS No World Light"
 ROWS = ("IGS normal row x", "IGS normal row y", "IGS normal row z")
 WHAT = "an albedo splat layer"
@@ -481,8 +484,8 @@ def exclude_other_lights(scene: bpy.types.Scene, albedos: list[bpy.types.Object]
     inside = {o.name for o in mine.all_objects} if mine is not None else set()
     skipped = []
     for obj in scene.objects:
-        if obj.type != "LIGHT":
-            continue
+        if obj.type != "LIGHT" or obj.get(CAPTURED_LIGHT):  # the capture's estimated lights light the albedo
+            continue  # splats only in their own view layers, where they must (.captured_lights)
         link = obj.light_linking
         if obj.name in ours or obj.name in inside:
             if link.receiver_collection == coll:

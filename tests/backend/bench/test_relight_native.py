@@ -80,18 +80,24 @@ def test_blenders_frames_are_rendered_again_when_the_normals_file_changes(tmp_pa
     assert job_key(ws, job) != first
 
 
-def test_blenders_frames_are_rendered_again_when_the_addons_code_changes(tmp_path):
-    """A changed lit material (any file of the add-on's Blender side) makes the cached frames stale."""
-    from backend.bench.relight_native import ADDON, job_key
+def test_blenders_frames_are_rendered_again_when_the_addon_changes(tmp_path):
+    """The add-on decides what Blender renders of the same layers (its estimated lights, its materials): frames
+    cached by another version of it are stale."""
+    from backend.bench.relight_native import job_key
 
     ws = Workspace(tmp_path / "ws")
     ws.layers.mkdir(parents=True)
+    (ws.layers / "albedo.ply").write_bytes(b"ply")
+    root = tmp_path / "checkout"
+    (root / "igs_blender" / "native").mkdir(parents=True)
+    (root / "igs_contract").mkdir()
+    (root / "__init__.py").write_text("")
+    (root / "igs_blender" / "native" / "lighting.py").write_text("A = 1\n")
     job = {"samples": 4, "seed": 0, "lights": [], "meshes": []}
-    addon = tmp_path / "igs_blender"
-    (addon / "native").mkdir(parents=True)
-    (addon / "native" / "lighting.py").write_text("DIFFUSE = 1\n")
-    first = job_key(ws, job, addon)
-    assert job_key(ws, job, addon) == first
-    (addon / "native" / "lighting.py").write_text("DIFFUSE = 2\n")
-    assert job_key(ws, job, addon) != first
-    assert (ADDON / "native" / "lighting.py").exists()  # the real key hashes the add-on's own files
+    first = job_key(ws, job, root)
+    assert job_key(ws, job, root) == first
+    (root / "igs_blender" / "native" / "lighting.py").write_text("A = 2\n")
+    assert job_key(ws, job, root) != first
+    (root / "igs_blender" / "native" / "lighting.py").write_text("A = 1\n")
+    (root / "igs_blender" / "native" / "captured_lights.py").write_text("")
+    assert job_key(ws, job, root) != first

@@ -135,3 +135,23 @@ def test_a_blender_binary_stands_the_same_meshes(standing, tmp_path):
         np.testing.assert_allclose(a, b, rtol=0, atol=0.02, err_msg=part)
     mask = tmp_path / "binary" / "gt_mesh" / "capture" / "mask" / "frame_0008.png"
     np.testing.assert_array_equal(read_image(mask), read_image(ws / "gt_mesh" / "capture" / "mask" / "frame_0008.png"))
+
+
+def test_the_mesh_mask_leaves_the_sky_out(tmp_path):
+    """Where a view sees the sky, ``gt/depth`` holds 0 and Cycles' depth with the meshes 1e10: not a mesh's pixel
+    (scenes with an open wall marked their sky as the meshes'); a mesh in front of the scene, or against the
+    sky, is."""
+    from backend.core.cameras import Camera
+    from backend.core.imageio import write_depth
+    from backend.core.workspace import Workspace
+    from backend.synth.gt_meshes import CAPTURE, _write_view
+
+    ws = Workspace(tmp_path / "ws")
+    cam = Camera.look_at("frame_0000.png", [0, 0, 2], [0, 0, 0], [0, 1, 0], 4, 1, 60)
+    before = np.array([[0.0, 0.0, 3.0, 3.0]], np.float32)  # sky, sky, a wall, a wall
+    ws.gt_pass("depth").mkdir(parents=True)
+    write_depth(ws.gt_pass("depth") / "frame_0000.npy", before)
+    depth = np.array([[1e10, 2.0, 2.0, 3.0]], np.float32)[..., None]  # sky, a mesh, a mesh, the wall
+    _write_view(ws, CAPTURE, cam, {"Depth": depth, "Combined": np.zeros((1, 4, 4), np.float32)})
+    mask = read_image(ws.gt_mesh / CAPTURE / "mask" / "frame_0000.png")[..., 0] > 0.5
+    assert mask.tolist() == [[False, True, True, False]]
