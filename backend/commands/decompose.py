@@ -86,7 +86,7 @@ OPTIONS = (
            f"(default {_D.envelope_margin})", type=opt.number(0, 1)),
     Option("--envelope-quantile", "envelope_quantile",
            f"with --shading-envelope irradiance: the quantile of the envelope's fit to the image "
-           f"(default {_D.envelope_quantile}, the median)", type=opt.number(0, 1, lo_open=True, hi_open=True)),
+           f"(default {_D.envelope_quantile})", type=opt.number(0, 1, lo_open=True, hi_open=True)),
     Option("--shading-geometry", "shading_geometry",
            "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
            "default) or 'points' (the SfM points, as in the paper)"),

@@ -55,8 +55,8 @@ class ShadingTerms:
     """The envelope's grid cells per axis of the scene's box."""
     envelope_margin: float = 0.1
     """The share by which S may exceed the envelope without charge."""
-    envelope_quantile: float = 0.5
-    """Quantile of the envelope's L1 fit of ``A * E`` to the image (0.5: the median)."""
+    envelope_quantile: float = 0.95
+    """Quantile of the envelope's fit of ``A * E`` to the image (a pinball loss; 0.5: the median)."""
 
 
 def push_pull_fill(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
