@@ -72,6 +72,21 @@ OPTIONS = (
     Option("--joint-residual-weight", "joint_residual_weight",
            "weight of the L1 on the residual where the albedo is lit while it trains with the shading "
            f"(default {_D.joint_residual_weight})", type=opt.WEIGHT),
+    Option("--shading-envelope", "shading_envelope",
+           "'irradiance': a smooth irradiance model E(x, n) is fitted beside the shading, and the shading is "
+           "charged for rising above it (the light above goes to the residual); 'none' (default): off"),
+    Option("--envelope-weight", "envelope_weight",
+           f"with --shading-envelope irradiance: weight of the shading's excess over the envelope "
+           f"(default {_D.envelope_weight})", type=opt.WEIGHT),
+    Option("--envelope-cells", "envelope_cells",
+           f"with --shading-envelope irradiance: the envelope's grid cells per axis (default {_D.envelope_cells})",
+           type=opt.integer(2, 32)),
+    Option("--envelope-margin", "envelope_margin",
+           f"with --shading-envelope irradiance: the share by which the shading may exceed the envelope "
+           f"(default {_D.envelope_margin})", type=opt.number(0, 1)),
+    Option("--envelope-quantile", "envelope_quantile",
+           f"with --shading-envelope irradiance: the quantile of the envelope's fit to the image "
+           f"(default {_D.envelope_quantile})", type=opt.number(0, 1, lo_open=True, hi_open=True)),
     Option("--shading-geometry", "shading_geometry",
            "where the shading Gaussians start: 'albedo' (a subset of the trained albedo field's Gaussians, "
            "default) or 'points' (the SfM points, as in the paper)"),

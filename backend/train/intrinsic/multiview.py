@@ -32,6 +32,7 @@ import torch.nn.functional as F
 
 from backend.core import events
 from backend.core.imageio import luminance
+from backend.train.intrinsic.envelope import pixel_points
 from backend.train.views import View
 
 ALBEDO_FLOOR = 0.02
@@ -53,17 +54,6 @@ def _signal(view: View, albedo_key: str) -> torch.Tensor:
     if albedo_key in view.extras:
         lum = lum / luminance(view.extras[albedo_key].clamp_min(0.0)).clamp_min(ALBEDO_FLOOR)
     return F.avg_pool2d(F.pad(lum[None, None], (1, 1, 1, 1), mode="replicate"), 3, stride=1)[0, 0]
-
-
-def _pixel_points(view: View, depth: torch.Tensor) -> torch.Tensor:
-    """(H*W, 3) world points of every pixel centre of ``view`` at z-depth ``depth`` (H, W)."""
-    cam = view.camera
-    h, w = depth.shape
-    y, x = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
-    z = depth.double()
-    pc = torch.stack([(x + 0.5 - cam.cx) / cam.fx * z, (y + 0.5 - cam.cy) / cam.fy * z, z], -1).reshape(-1, 3)
-    r, t = torch.from_numpy(cam.R), torch.from_numpy(cam.t)
-    return (pc - t) @ r  # R^T (x_cam - t), row-wise
 
 
 def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_tolerance: float = 0.03,
@@ -95,7 +85,7 @@ def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_to
     bounds = torch.cat([near, far], 1)  # (K, 2, H, W)
     for i in with_depth:
         d = depths[i].float()
-        x = _pixel_points(views[i], d).float()  # (N, 3)
+        x = pixel_points(views[i].camera, d).reshape(-1, 3)  # (N, 3)
         pc = torch.einsum("kab,nb->kna", rs, x) + ts[:, None]  # (K, N, 3) in each camera
         z = pc[..., 2]
         zs = z.clamp_min(1e-6)

@@ -8,6 +8,7 @@ held-out evaluation.
 
 from __future__ import annotations
 
+import math
 import shutil
 import time
 from collections.abc import Callable, Sequence
@@ -23,6 +24,7 @@ from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyStrategy
 from backend.train.intrinsic.config import (
+    SHADING_ENVELOPES,
     SHADING_GEOMETRIES,
     SHADING_TARGETS,
     STAGES,
@@ -113,13 +115,26 @@ def _stage_with_init(name: StageName, setup: Setup, cfg: DecomposeConfig, layers
 
 
 def check_shading_target(cfg: DecomposeConfig) -> None:
-    """One :class:`IGSError` for a bad shading target or multi-view setting, named by its option."""
+    """One :class:`IGSError` for a bad shading target, multi-view or envelope setting, named by its option."""
     if cfg.shading_target not in SHADING_TARGETS:
         raise IGSError(f"--shading-target: must be one of {', '.join(SHADING_TARGETS)}, got {cfg.shading_target!r}")
     if not 0 < cfg.multiview_quantile <= 0.5:
         raise IGSError(f"--multiview-quantile: must be in (0, 0.5], got {cfg.multiview_quantile}")
     if not 0 <= cfg.multiview_tolerance < 1:
         raise IGSError(f"--multiview-tolerance: must be in [0, 1), got {cfg.multiview_tolerance}")
+    if cfg.shading_envelope not in SHADING_ENVELOPES:
+        raise IGSError(f"--shading-envelope: must be one of {', '.join(SHADING_ENVELOPES)}, "
+                       f"got {cfg.shading_envelope!r}")
+    if not (isinstance(cfg.envelope_weight, (int, float)) and math.isfinite(cfg.envelope_weight)
+            and cfg.envelope_weight >= 0):
+        raise IGSError(f"--envelope-weight: must be a finite number >= 0, got {cfg.envelope_weight!r}")
+    if isinstance(cfg.envelope_cells, bool) or not isinstance(cfg.envelope_cells, int) \
+            or not 2 <= cfg.envelope_cells <= 32:
+        raise IGSError(f"--envelope-cells: must be an integer in [2, 32], got {cfg.envelope_cells!r}")
+    if not 0 <= cfg.envelope_margin <= 1:
+        raise IGSError(f"--envelope-margin: must be in [0, 1], got {cfg.envelope_margin}")
+    if not 0 < cfg.envelope_quantile < 1:
+        raise IGSError(f"--envelope-quantile: must be in (0, 1), got {cfg.envelope_quantile}")
 
 
 def joint_residual_path(setup: Setup) -> Path:
@@ -218,6 +233,7 @@ def decompose(workspace: str | Path, config: DecomposeConfig | None = None, *, s
         raise IGSError(f"unknown stage {unknown[0]!r} (one of {', '.join(STAGES)})")
     stages = [s for s in STAGES if s in stages]
     t_start = time.perf_counter()
+    check_shading_target(cfg)  # before any stage trains
     setup = prepare_setup(workspace, cfg)
     ws = setup.capture.workspace
     state = DecomposeState(setup.ckpt_root / STATE_DIR, restart=not resume)

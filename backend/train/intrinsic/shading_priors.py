@@ -46,6 +46,17 @@ class ShadingTerms:
     """With target 'multiview': the quantile of the views' radiance that counts as their agreement."""
     target_tolerance: float = 0.1
     """With target 'multiview': the share of a pixel's light above the agreement that is kept (noise)."""
+    envelope: str = "none"
+    """'irradiance': S is charged for rising above a smooth irradiance model fitted beside it
+    (:mod:`backend.train.intrinsic.envelope`); 'none': off."""
+    envelope_weight: float = 1.0
+    """Weight of the mean relative excess of S over ``(1 + envelope_margin) * E`` on lit pixels."""
+    envelope_cells: int = 8
+    """The envelope's grid cells per axis of the scene's box."""
+    envelope_margin: float = 0.1
+    """The share by which S may exceed the envelope without charge."""
+    envelope_quantile: float = 0.95
+    """Quantile of the envelope's fit of ``A * E`` to the image (a pinball loss; 0.5: the median)."""
 
 
 def push_pull_fill(values: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

@@ -18,6 +18,7 @@ from backend.core import events
 from backend.core.imageio import luminance
 from backend.render import Backend, RenderOutput, Splats, render_layers
 from backend.splats.gaussians import GaussianSet
+from backend.train.intrinsic import envelope as env
 from backend.train.intrinsic.composite import compose
 from backend.train.intrinsic.multiview import diffuse_targets
 from backend.train.intrinsic.shading_priors import (
@@ -167,7 +168,10 @@ class JointResidual:
 class ShadingStage(Stage):
     """G_S with G_A frozen: ``I = A * S``, loss on the inverse domain + gray + dark + texture + depth + scale.
 
-    With ``joint`` the residual G_R joins for the stage's last part: ``I = A * S + R``, both updated."""
+    With ``joint`` the residual G_R joins for the stage's last part: ``I = A * S + R``, both updated.
+    With ``terms.envelope`` 'irradiance' an irradiance envelope E is fitted beside S, and S is charged
+    for rising above it after a warm-up (:mod:`backend.train.intrinsic.envelope`): the residual, joint
+    or not, is spawned where S left the light above E, and the joint residual's L1 spares that light."""
 
     def __init__(self, *args, albedo: GaussianSet, terms: ShadingTerms, joint: JointResidual | None = None, **kw):
         super().__init__(*args, **kw)
@@ -179,6 +183,15 @@ class ShadingStage(Stage):
         """G_R once it has joined."""
         self._residual_optimizer: torch.optim.Optimizer | None = None
         self._residual_out: RenderOutput | None = None
+        self.envelope: env.IrradianceEnvelope | None = None
+        """E, built by :meth:`prepare` when ``terms.envelope`` is 'irradiance'."""
+        self._envelope_state: dict[str, Any] | None = None  # from a checkpoint, loaded once E is built
+
+    def to(self, device: torch.device | str) -> ShadingStage:
+        super().to(device)
+        if self.envelope is not None:
+            self.envelope.to(self.device)
+        return self
 
     def frozen_sets(self) -> list[GaussianSet]:
         return [self.albedo] + ([self.residual] if self.residual is not None else [])
@@ -222,6 +235,8 @@ class ShadingStage(Stage):
         return super().wants_depth(view) or joint
 
     def after_step(self, step: int) -> None:
+        if self.envelope is not None:
+            self.envelope.step()
         if self._residual_optimizer is None or self._residual_out is None:
             return
         t = step - self.joint.start  # the residual's own iterations done
@@ -234,17 +249,25 @@ class ShadingStage(Stage):
         self._residual_optimizer.zero_grad(set_to_none=True)
 
     def extra_state(self) -> dict[str, Any] | None:
-        if self.residual is None:
-            return None
-        r = self.residual
-        return {"kind": r.kind, "sh_degree": r.sh_degree, "active_sh_degree": r.active_sh_degree,
-                "params": r.tensors(), "optimizer": self._residual_optimizer.state_dict()}
+        state: dict[str, Any] = {}
+        if (r := self.residual) is not None:
+            state.update({"kind": r.kind, "sh_degree": r.sh_degree, "active_sh_degree": r.active_sh_degree,
+                          "params": r.tensors(), "optimizer": self._residual_optimizer.state_dict()})
+        if self.envelope is not None:
+            state["envelope"] = self.envelope.state()
+        return state or None
 
     def load_extra_state(self, state: dict[str, Any] | None) -> None:
-        if state is None or self.joint is None:
+        if state is None:
             return
-        self._set_residual(GaussianSet(state["kind"], state["params"], state["sh_degree"], state["active_sh_degree"]))
-        self._residual_optimizer.load_state_dict(state["optimizer"])
+        if self.joint is not None and "params" in state:
+            self._set_residual(GaussianSet(state["kind"], state["params"], state["sh_degree"],
+                                           state["active_sh_degree"]))
+            self._residual_optimizer.load_state_dict(state["optimizer"])
+        if self.terms.envelope != "none" and "envelope" in state:
+            self._envelope_state = state["envelope"]
+            if self.envelope is not None:
+                self.envelope.load(self._envelope_state)
 
     def prepare(self) -> None:
         self.cache_seconds += cache_frozen(self.train_views + self.test_views, [self.albedo],
@@ -253,6 +276,38 @@ class ShadingStage(Stage):
             t0 = time.perf_counter()
             diffuse_targets(self.train_views, self.terms.target_quantile, self.terms.target_tolerance, DIFFUSE_TARGET)
             self.cache_seconds += time.perf_counter() - t0
+        if self.terms.envelope == "irradiance" and self.envelope is None:
+            t0 = time.perf_counter()
+            self._build_envelope()
+            self.cache_seconds += time.perf_counter() - t0
+
+    def _build_envelope(self) -> None:
+        """Each training view's pixel points and normals (from its depth prior, else the albedo's rendered
+        depth) into its extras, and E over their box at the median image / albedo luminance ratio."""
+        points, valid, ratios = [], [], []
+        for v in self.train_views:
+            depth = v.depth if v.depth is not None else (v.extras["depth_A"] if "depth_A" in v.extras else None)
+            if depth is None:
+                continue
+            p, n = env.depth_geometry(v.camera, depth)
+            v.extras[env.POINTS] = p.to(v.image.device)
+            v.extras[env.NORMALS] = n.to(v.image.device)
+            has = n.abs().sum(-1) > 0
+            points.append(p)
+            valid.append(has)
+            a = luminance(v.extras["A"].float()).cpu()
+            lit = has & (a > self.terms.dark_level)
+            ratios.append((luminance(v.image.clamp_min(0)).cpu()[lit] / a[lit])[::7])
+        lo, hi = env.scene_box(points, valid)
+        r = torch.cat(ratios) if ratios else torch.empty(0)
+        level = float(r.median()) if len(r) else 1.0
+        self.envelope = env.IrradianceEnvelope(lo, hi, self.terms.envelope_cells, level, self.device)
+        if self._envelope_state is not None:
+            self.envelope.load(self._envelope_state)
+        events.log(f"shading: irradiance envelope on a {self.terms.envelope_cells}^3 grid over "
+                   f"{[round(x, 2) for x in lo.tolist()]}..{[round(x, 2) for x in hi.tolist()]}, "
+                   f"{sum(int(h.sum()) for h in valid)} pixels with a normal in {len(points)} views, "
+                   f"starting at {level:.3f}")
 
     def target(self, view: View) -> torch.Tensor:
         """The image less its light above the views' agreement (shading target 'multiview') while the
@@ -265,18 +320,44 @@ class ShadingStage(Stage):
         diffuse = compose(view.extras["A"], out.color)
         return diffuse if self._residual_out is None else diffuse + self._residual_out.color
 
+    def _envelope_terms(self, view: View, out: RenderOutput, lit: torch.Tensor,
+                        terms: dict[str, torch.Tensor]) -> torch.Tensor | None:
+        """Add E's fit to the target and the charge on S above it to ``terms``; returns the (H, W, 3) light of
+        the view above ``A * (1 + margin) * E`` (0 where E has no normal), or None without E."""
+        if self.envelope is None or env.NORMALS not in view.extras:
+            return None
+        w = self.terms
+        normals = view.extras[env.NORMALS]
+        has = normals.abs().sum(-1) > 0  # (H, W)
+        e = self.envelope(view.extras[env.POINTS], normals)  # (H, W, 3)
+        a = view.extras["A"]
+        target = self.target(view).detach()
+        # E's own fit: pixels without a normal are given the target, no loss and no gradient
+        terms["envelope_fit"] = inverse_photometric(torch.where(has[..., None], compose(a, e), target), target,
+                                                    0.0, w.envelope_quantile)
+        cap = (1.0 + w.envelope_margin) * e.detach().clamp_min(0.0)
+        if w.envelope_weight > 0 and self.iteration >= env.WARMUP * self.config.iterations:
+            # before a joint residual joins, so it is spawned where S left the light above E.
+            # Relative: a bright highlight on a dark wall weighs as much as one in full light
+            excess = (out.color - cap).clamp_min(0.0) / (cap + env.FLOOR)
+            terms["envelope"] = w.envelope_weight * ((lit * has)[..., None] * excess).mean()
+        return ((view.image - compose(a, cap)).clamp_min(0.0) * has[..., None]).detach()
+
     def loss(self, view: View, out: RenderOutput, pred: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         cfg = self.config
         w = self.terms
         terms = {"photo": inverse_photometric(pred, self.target(view), cfg.lambda_dssim, w.quantile)}
         r = self._residual_out
-        weights = None  # the lit/dark/absent split, for the free-shading term and the residual's L1
-        if w.dark > 0 or (r is not None and self.joint.weight > 0):
+        weights = None  # the lit/dark/absent split, for the free-shading term, the envelope and the residual's L1
+        if w.dark > 0 or self.envelope is not None or (r is not None and self.joint.weight > 0):
             weights = free_shading_weights(view.extras["A"], view.extras["alpha_A"], w.dark_level)
+        above = self._envelope_terms(view, out, weights[0], terms) if weights is not None else None
         if r is not None:
             if self.joint.weight > 0:  # where the albedo is lit: elsewhere (the environment) only R can draw
                 held = weights[0] if DIFFUSE_TARGET not in view.extras else weights[0] * _agreement(view)
-                terms["residual_l1"] = self.joint.weight * (held * r.color.abs().mean(-1)).mean()
+                # the light above the envelope is the residual's: only R beyond it is charged
+                drawn = r.color.abs() if above is None else (r.color.abs() - above).clamp_min(0.0)
+                terms["residual_l1"] = self.joint.weight * (held * drawn.mean(-1)).mean()
             if (d := depth_term(self.joint.config, view, r)) is not None:
                 terms["residual_depth"] = d
             if self.joint.config.lambda_scale > 0:

@@ -37,6 +37,16 @@ def _joint_settings(cfg: DecomposeConfig) -> dict[str, Any]:
             "residual_train": asdict(cfg.residual), "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn)}
 
 
+def _envelope_settings(cfg: DecomposeConfig) -> dict[str, Any]:
+    """What the shading stage's result depends on when the irradiance envelope bounds it (nothing when
+    off, so that a workspace decomposed before the option resumes as it was)."""
+    if cfg.shading_envelope == "none":
+        return {}
+    return {"shading_envelope": cfg.shading_envelope, "envelope_weight": cfg.envelope_weight,
+            "envelope_cells": cfg.envelope_cells, "envelope_margin": cfg.envelope_margin,
+            "envelope_quantile": cfg.envelope_quantile}
+
+
 def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
     """Settings outside a stage's TrainConfig that change its result (resume must match them)."""
     common = {"downscale": cfg.downscale, "hold_every": cfg.hold_every, "init": asdict(cfg.init)}
@@ -48,7 +58,7 @@ def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
                          "multiview_tolerance": cfg.multiview_tolerance,
                          "shading_init": cfg.shading_init,
                          "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo,
-                         **_joint_settings(cfg)})
+                         **_joint_settings(cfg), **_envelope_settings(cfg)})
     if name == "residual":
         return jsonable({**common, "sh_degree": cfg.residual_sh_degree, "spawn": asdict(cfg.spawn),
                          "joint_residual": cfg.joint_residual})
