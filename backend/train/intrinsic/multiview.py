@@ -44,6 +44,9 @@ FOOTPRINT = 5
 bilinear lookup reach that far."""
 MAX_VIEWS = 24
 """Views every point is looked up in, spread evenly over the training views: the cost grows with them."""
+DISK_PER_VIEW_PIXEL = 6
+"""Bytes per view-pixel the multi-view target (an (H, W, 3) extra, 2 bytes a value) adds to the shading
+stage's views' file."""
 
 
 def _signal(view: View, albedo_key: str) -> torch.Tensor:

@@ -15,7 +15,7 @@ from backend.core.errors import IGSError
 from backend.core.workspace import Capture, Frame, split_frames
 from backend.splats.strategy import scene_extent
 from backend.train.device import resolve_device
-from backend.train.intrinsic import envelope
+from backend.train.intrinsic import envelope, multiview
 from backend.train.intrinsic.config import STAGES, DecomposeConfig
 from backend.train.memory_limit import DECOMPOSE, check_memory
 from backend.train.view_store import DECOMPOSE_DISK_PER_VIEW_PIXEL, ViewStore, check_disk_room
@@ -72,7 +72,8 @@ def prepare_setup(workspace: str | Path, cfg: DecomposeConfig, layers_dir: Path 
     cam = view_camera(capture.frames[0].camera, cfg.downscale)  # over the memory limit: stop before loading
     check_memory("decompose", DECOMPOSE, len(capture.frames), cam.width, cam.height,
                  cfg.albedo.densify.max_gaussians, cfg.downscale)  # the largest set a stage trains
-    per_pixel = DECOMPOSE_DISK_PER_VIEW_PIXEL + (envelope.DISK_PER_VIEW_PIXEL if cfg.shading_envelope != "none" else 0)
+    per_pixel = DECOMPOSE_DISK_PER_VIEW_PIXEL + (envelope.DISK_PER_VIEW_PIXEL if cfg.shading_envelope != "none" else 0) \
+        + (multiview.DISK_PER_VIEW_PIXEL if cfg.shading_target == "multiview" else 0)
     check_disk_room(ckpt_root or ws.checkpoints, per_pixel * len(capture.frames) * cam.width * cam.height, "decompose")
     summary = capture_summary(capture)["priors"]
     priors = {"albedo": summary["albedo"], "depth": summary["depth"] if summary["depth_views"] == len(capture.frames)

@@ -84,3 +84,25 @@ def test_too_little_disk_is_one_line(tmp_path):
                                        r"and [0-9.]+ [KMG]iB are free; free disk space or use --downscale"):
         check_disk_room(tmp_path / "not" / "made", 1 << 60, "decompose")
     check_disk_room(Path(tmp_path), 1, "decompose")
+
+
+
+@pytest.mark.parametrize("change, extra", [({"shading_target": "multiview"}, 6), ({"shading_envelope": "irradiance"}, 12)])
+def test_decompose_asks_for_the_disk_its_shading_options_add(capture, monkeypatch, change, extra):
+    """The views' file grows by the multi-view target's (6 B) and the envelope's extras (12 B) per view-pixel:
+    the disk check before any training asks for them."""
+    from backend.train.intrinsic import setup as decompose_setup
+    from backend.train.intrinsic.config import DecomposeConfig
+
+    asked = []
+
+    def record(folder, need, command):
+        asked.append(need)
+        raise IGSError("stop here")  # nothing after the checks is under test
+
+    monkeypatch.setattr(decompose_setup, "check_disk_room", record)
+    for cfg in (DecomposeConfig(), DecomposeConfig(**change)):
+        with pytest.raises(IGSError, match="stop here"):
+            decompose_setup.prepare_setup(capture.workspace.root, cfg)
+    cam = capture.frames[0].camera
+    assert asked[1] - asked[0] == extra * len(capture.frames) * cam.width * cam.height
