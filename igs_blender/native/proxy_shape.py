@@ -72,8 +72,8 @@ def proxy_gaussians(pos: np.ndarray, scales: np.ndarray, rot: np.ndarray, normal
     s = scales.astype(np.float64)
     mid = np.sort(s, axis=1)[:, 1]
     w = np.clip(opacity.astype(np.float64), 0.0, 1.0)
-    around = neighbour_sums(pos.astype(np.float64), np.concatenate([n * w[:, None], (w * mid)[:, None], w[:, None]], 1),
-                            CELL * max(float(np.median(mid)), 1e-9))
+    summed = np.concatenate([n * w[:, None], (w * mid)[:, None], w[:, None]], 1)  # normals, middle sigmas, weights
+    around = neighbour_sums(pos.astype(np.float64), summed, CELL * max(float(np.median(mid)), 1e-9))
     weight = around[:, 4]
     alone = weight <= 1e-6  # nothing around: the Gaussian as it is
     cap = np.where(alone, np.inf, CAP * around[:, 3] / np.maximum(weight, 1e-12))
