@@ -85,4 +85,4 @@ def proxy_gaussians(pos: np.ndarray, scales: np.ndarray, rot: np.ndarray, normal
     local = np.einsum("nji,nj->ni", rot.astype(np.float64), d)  # the direction in each Gaussian's own axes
     reach = np.sqrt(((local * capped) ** 2).sum(axis=1))
     back = OFFSET_SHORT * reach + OFFSET_MID * np.sort(capped, axis=1)[:, 1]
-    return pos - d * back[:, None], capped, int(off.sum()), int((capped < s).any(axis=1).sum())
+    return pos - d * back[:, None], capped, int(off.sum()), int((capped < s * (1 - 1e-6)).any(axis=1).sum())
