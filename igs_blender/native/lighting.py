@@ -25,9 +25,9 @@ attribute :data:`NORMAL`. Blender's diffuse BSDF reflects ``A * E / pi``, and ``
 - **Shadows** (:func:`shadow_proxy`): splats lit by a point on their own surface shadow themselves, since
   a shadow ray leaving a splat crosses the overlapping neighbours at its start (a flat floor of splats
   renders at a third of a mesh floor's light). The albedo splats cast no shadow; a copy of them moved
-  back along each normal by :data:`OFFSET_SHORT` shortest and :data:`OFFSET_MID` middle standard
-  deviations, seen by shadow rays only, casts them instead: onto meshes, onto the capture itself, with the
-  splats' own opacity (a faint Gaussian tail casts a faint shadow).
+  back along each normal (:mod:`.proxy_shape`: its neighbourhood's where its own disagrees, its standard
+  deviations capped at the neighbourhood's), seen by shadow rays only, casts them instead: onto meshes,
+  onto the capture itself, with the splats' own opacity (a faint Gaussian tail casts a faint shadow).
 - **The capture's light on meshes** (:func:`environment`): in the view layer "IGS Scene" the artist's
   meshes are lit by a copy of the composite preview (``A x S + R`` on the albedo's splats), seen by
   indirect rays only (*IGS composite light*, collection "IGS Field environment"); the albedo splats,
@@ -57,6 +57,7 @@ from .. import compat, layers, lights, scene_objects
 from ..cameras import read_workspace_cameras
 from ..errors import UserError
 from ..point_attributes import get_point_attribute, set_point_attribute
+from . import proxy_shape
 from . import splats as native_splats
 
 MATERIAL = "IGS Splat Lit"
@@ -77,14 +78,6 @@ ENVIRONMENT = "IGS composite light"
 INDIRECT = ("diffuse", "glossy", "transmission", "volume_scatter")
 PROXY_OF = "igs_shadow_of"
 """Custom property of a shadow proxy: the name of the albedo object it follows."""
-OFFSET_SHORT = 3.0
-OFFSET_MID = 1.0
-"""The proxy lies behind each Gaussian by 3 shortest standard deviations (its own thickness) plus one middle
-one (the neighbours' scatter about the surface). Measured on a floor of tilted splats under a sun (Cycles,
-the light reaching it against a floor that casts no shadow; docs/blender.md): with the centres scattered
-by 0, 1/3 and 2/3 of the middle deviation along the normal, the splats themselves keep 0.61-0.65 of it,
-a proxy at 3 + 0.25 keeps 1.00 / 0.95 / 0.83, at 3 + 1 1.00 / 1.00 / 0.96. The price: a shadow starts that
-far from where an occluder touches the surface."""
 NOT_LIT = "IGS Not Lit By Scene Lights"
 CAPTURED_LIGHT = "igs_captured_light"
 """Custom property of the capture's estimated lights (:mod:`.captured_lights`)."""
@@ -356,16 +349,20 @@ def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
     proxy = bpy.data.objects.get(name)
     points = len(obj.data.points)
     if proxy is not None and proxy.get(PROXY_OF) == obj.name and proxy.get("igs_points") == points \
-            and proxy.get("igs_source") == obj.get("igs_ply") and proxy.get("igs_normals") == obj.get("igs_normals"):
+            and proxy.get("igs_source") == obj.get("igs_ply") and proxy.get("igs_normals") == obj.get("igs_normals") \
+            and proxy.get("igs_shape") == proxy_shape.VERSION:
         return proxy
     scene_objects.remove_object(proxy)
     data = obj.data.copy()
     data.name = name
-    pos = get_point_attribute(data, "position", 3, "vector", WHAT).astype(np.float64)
-    scales = np.sort(get_point_attribute(data, "scale", 3, "vector", WHAT).astype(np.float64), axis=1)
-    normals = get_point_attribute(data, NORMAL, 3, "vector", WHAT).astype(np.float64)
-    back = OFFSET_SHORT * scales[:, 0] + OFFSET_MID * scales[:, 1]
-    set_point_attribute(data, "position", "FLOAT_VECTOR", pos - normals * back[:, None], "vector")
+    pos, scales, _, _ = proxy_shape.proxy_gaussians(
+        get_point_attribute(data, "position", 3, "vector", WHAT),
+        get_point_attribute(data, "scale", 3, "vector", WHAT),
+        quat_matrices(get_point_attribute(data, "rotation", 4, "value", WHAT)),
+        get_point_attribute(data, NORMAL, 3, "vector", WHAT),
+        get_point_attribute(data, native_splats.BASE, 4, "vector", WHAT)[:, 3])
+    set_point_attribute(data, "position", "FLOAT_VECTOR", pos.astype(np.float32), "vector")
+    set_point_attribute(data, "scale", "FLOAT_VECTOR", scales.astype(np.float32), "vector")
     proxy = bpy.data.objects.new(name, data)
     native_splats.field_collection(SHADOW_FIELD).objects.link(proxy)
     proxy.parent = obj.parent
@@ -375,7 +372,7 @@ def shadow_proxy(obj: bpy.types.Object) -> bpy.types.Object:
         setattr(proxy, f"visible_{ray}", False)
     proxy.hide_select = True
     proxy[PROXY_OF], proxy["igs_points"], proxy["igs_source"] = obj.name, points, obj.get("igs_ply", "")
-    proxy["igs_normals"] = obj.get("igs_normals", "")
+    proxy["igs_normals"], proxy["igs_shape"] = obj.get("igs_normals", ""), proxy_shape.VERSION
     return proxy
 
 
