@@ -20,9 +20,20 @@ if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, draw, flat_layer, render_outputs, shown_text, sub  # noqa: E402
+from tests.support.blender import (  # noqa: E402
+    FLOOR_ALBEDO,
+    FLOOR_SHADING,
+    cycles,
+    draw,
+    flat_layer,
+    floor_workspace,
+    patch,
+    render_outputs,
+    shown_text,
+    sub,
+)
 
-ALBEDO, SHADING = 0.5, 0.4
+ALBEDO, SHADING = FLOOR_ALBEDO, FLOOR_SHADING
 CUBE = ((0.25, 0.0, 0.15), 0.3)
 """The cube the artist adds: its centre and edge (it stands on the floor)."""
 LIGHT = (-0.3, 0.0, 0.8)
@@ -32,37 +43,6 @@ LIGHT = (-0.3, 0.0, 0.8)
 def scene(native_scene):
     """Native splats on (the conftest's ``native_scene``)."""
     return native_scene
-
-
-def floor_workspace(ws: Path) -> None:
-    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), albedo 0.5 and shading 0.4, seen by three
-    cameras from above."""
-    import json
-
-    import cv2
-
-    from backend.capture.colmap_io import write_model
-    from backend.capture.transforms_io import write_transforms
-    from backend.core.cameras import Camera
-    from backend.splats.ply import write_ply
-
-    w, h = 48, 36
-    cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
-                           [0, 0, 1], w, h, 60) for i in range(3)]
-    write_model(ws / "sparse" / "0", cams, np.random.default_rng(0).uniform(-0.5, 0.5, (20, 3)) * [1, 1, 0],
-                np.full((20, 3), 128))
-    write_transforms(ws / "transforms.json", cams)
-    (ws / "images").mkdir(parents=True, exist_ok=True)
-    for cam in cams:
-        cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
-    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
-                                                 "frames": [c.name for c in cams], "size": [w, h]}))
-    g = np.arange(-1.0, 1.001, 0.05)
-    gx, gy = np.meshgrid(g, g, indexing="ij")
-    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
-    write_ply(ws / "layers" / "albedo.ply", flat_layer("albedo", floor, 0.035, ALBEDO))
-    write_ply(ws / "layers" / "shading.ply", flat_layer("shading", floor, 0.035, SHADING))
-    write_ply(ws / "layers" / "residual.ply", flat_layer("residual", floor[::4], 0.035, 0.0))
 
 
 def diffuse(name: str, value: float) -> bpy.types.Material:
@@ -341,17 +321,6 @@ def seen_through(scene, tmp_path: Path, ys: list[float]) -> list[float]:
         bpy.ops.render.render(write_still=True, scene=ts.name)
         out.append(1.0 - float(images.pixels(bpy.data.images.load(ts.render.filepath))[..., 3].mean()))
     return out
-
-
-def patch(img: np.ndarray, scene, point, r: int = 1) -> float:
-    """Mean of the (2r+1)^2 pixels around the pixel that ``point`` (world) falls in."""
-    from bpy_extras.object_utils import world_to_camera_view
-    from mathutils import Vector
-
-    h, w = img.shape[:2]
-    p = world_to_camera_view(scene, scene.camera, Vector(point))
-    col, row = int(p.x * w), int((1 - p.y) * h)
-    return float(img[row - r:row + r + 1, col - r:col + r + 1].mean())
 
 
 def test_shadows_both_ways_in_cycles_a_faint_plate_casts_a_faint_shadow(scene, tmp_path):

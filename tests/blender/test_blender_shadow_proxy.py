@@ -14,9 +14,9 @@ bpy = pytest.importorskip("bpy")
 if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
-from tests.blender.test_blender_native_light import ALBEDO, floor_workspace, patch  # noqa: E402
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, flat_layer, render_outputs, sub  # noqa: E402
+from tests.support.blender import FLOOR_ALBEDO as ALBEDO  # noqa: E402
+from tests.support.blender import cycles, flat_layer, floor_workspace, patch, render_outputs, sub  # noqa: E402
 
 WALL_X, WALL_SIGMA = -0.4, (0.01, 0.15, 0.08)
 """The mis-oriented Gaussians: on the floor at x = -0.4, every 0.3 along y, standard deviations 0.01 along x

@@ -368,3 +368,46 @@ def flat_layer(kind: str, means: np.ndarray, scale, color: float):
     else:  # albedo stores the logit of its colour, shading the colour itself (igs_contract.layer_ply)
         t["colors"] = torch.full((n, 3), float(np.log(color / (1 - color)) if kind == "albedo" else color))
     return GaussianSet(kind, t, sh_degree=0)
+
+
+FLOOR_ALBEDO, FLOOR_SHADING = 0.5, 0.4
+"""The albedo and shading of :func:`floor_workspace`'s floor."""
+
+
+def floor_workspace(ws: Path) -> None:
+    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), albedo 0.5 and shading 0.4, seen by three
+    cameras from above."""
+    import json
+
+    import cv2
+
+    from backend.capture.colmap_io import write_model
+    from backend.capture.transforms_io import write_transforms
+    from backend.core.cameras import Camera
+    from backend.splats.ply import write_ply
+
+    w, h = 48, 36
+    cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
+                           [0, 0, 1], w, h, 60) for i in range(3)]
+    write_model(ws / "sparse" / "0", cams, np.random.default_rng(0).uniform(-0.5, 0.5, (20, 3)) * [1, 1, 0],
+                np.full((20, 3), 128))
+    write_transforms(ws / "transforms.json", cams)
+    (ws / "images").mkdir(parents=True, exist_ok=True)
+    for cam in cams:
+        cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
+    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
+                                                 "frames": [c.name for c in cams], "size": [w, h]}))
+    g = np.arange(-1.0, 1.001, 0.05)
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
+    write_ply(ws / "layers" / "albedo.ply", flat_layer("albedo", floor, 0.035, FLOOR_ALBEDO))
+    write_ply(ws / "layers" / "shading.ply", flat_layer("shading", floor, 0.035, FLOOR_SHADING))
+    write_ply(ws / "layers" / "residual.ply", flat_layer("residual", floor[::4], 0.035, 0.0))
+
+
+def patch(img: np.ndarray, scene, point, r: int = 1) -> float:
+    """Mean of the (2r+1)^2 pixels around the pixel that ``point`` (world) falls in."""
+    h, w = img.shape[:2]
+    p = world_to_camera_view(scene, scene.camera, Vector(point))
+    col, row = int(p.x * w), int((1 - p.y) * h)
+    return float(img[row - r:row + r + 1, col - r:col + r + 1].mean())
