@@ -36,7 +36,7 @@ from ..ply_io import read_splat_ply
 from ..point_attributes import get_point_attribute
 from . import light_fit
 from . import splats as native_splats
-from .lighting import CAPTURED_LIGHT, _material, set_normal_matrix, world_normal
+from .lighting import CAPTURED_LIGHT, _material, normal_diffuse
 
 FIELD = "captured"
 """The lights' collection: "IGS Field captured"."""
@@ -183,15 +183,7 @@ def direct_material() -> bpy.types.Material:
     mat, built = _material(DIRECT)
     if built:
         return mat
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.location = (250, -200)
-    diffuse.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    links.new(world_normal(nodes, links), diffuse.inputs["Normal"])
-    out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (450, -200)
-    links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
-    set_normal_matrix(mat, np.eye(3))
+    normal_diffuse(mat).inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     return mat
 
 

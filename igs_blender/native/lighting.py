@@ -231,17 +231,25 @@ def lit_material() -> bpy.types.Material:
     mat, built = _material(MATERIAL)
     if built:
         return mat
+    diffuse = normal_diffuse(mat)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    color = native_splats.decoded_color(nodes, links)
+    links.new(native_splats.decoded_color(nodes, links), diffuse.inputs["Color"])
+    return mat
+
+
+def normal_diffuse(mat: bpy.types.Material) -> bpy.types.Node:
+    """Build into the empty ``mat`` a Diffuse BSDF of the splats' :data:`NORMAL` in world coordinates
+    (:func:`world_normal`, identity rows until :func:`update` sets them) as its surface; returns the BSDF node,
+    whose colour the caller sets."""
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
     diffuse = nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.location = (250, -200)
-    links.new(color, diffuse.inputs["Color"])
     links.new(world_normal(nodes, links), diffuse.inputs["Normal"])
     out = nodes.new("ShaderNodeOutputMaterial")
     out.location = (450, -200)
     links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
     set_normal_matrix(mat, np.eye(3))
-    return mat
+    return diffuse
 
 
 def world_normal(nodes, links) -> bpy.types.NodeSocket:

@@ -10,7 +10,6 @@ the albedo's colour under that lamp and sky, with the same cube and camera. Rend
 # ruff: noqa: F811  (test functions take the imported fixtures by name)
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -22,7 +21,7 @@ if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, flat_layer, render_outputs, sub  # noqa: E402
+from tests.support.blender import cycles, floor_workspace, render_outputs, sub  # noqa: E402
 
 ALBEDO, SKY = 0.5, 0.05
 LAMP, INTENSITY = (0.25, -0.6, 0.8), 0.3
@@ -37,38 +36,13 @@ def scene(native_scene):
 
 
 def lamp_floor_workspace(ws: Path) -> None:
-    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), albedo 0.5, shading the lamp's and the sky's,
-    seen by three cameras from above."""
-    import cv2
-    import torch
+    """The support's floor of flat discs, albedo 0.5, its shading the lamp's and the sky's."""
 
-    from backend.capture.colmap_io import write_model
-    from backend.capture.transforms_io import write_transforms
-    from backend.core.cameras import Camera
-    from backend.splats.ply import write_ply
+    def lamp_and_sky(floor: np.ndarray) -> np.ndarray:
+        d = np.asarray(LAMP) - floor
+        return INTENSITY * d[:, 2] / (d * d).sum(1) ** 1.5 + SKY
 
-    w, h = 48, 36
-    cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
-                           [0, 0, 1], w, h, 60) for i in range(3)]
-    write_model(ws / "sparse" / "0", cams, np.random.default_rng(0).uniform(-0.5, 0.5, (20, 3)) * [1, 1, 0],
-                np.full((20, 3), 128))
-    write_transforms(ws / "transforms.json", cams)
-    (ws / "images").mkdir(parents=True, exist_ok=True)
-    for cam in cams:
-        cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
-    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
-                                                 "frames": [c.name for c in cams], "size": [w, h]}))
-    g = np.arange(-1.0, 1.001, 0.05)
-    gx, gy = np.meshgrid(g, g, indexing="ij")
-    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
-    d = np.asarray(LAMP) - floor
-    r2 = (d * d).sum(1)
-    s = INTENSITY * d[:, 2] / r2 ** 1.5 + SKY
-    shading = flat_layer("shading", floor, 0.035, 0.5)
-    shading.params["colors"].data[:] = torch.tensor(np.repeat(s[:, None], 3, 1), dtype=torch.float32)
-    write_ply(ws / "layers" / "albedo.ply", flat_layer("albedo", floor, 0.035, ALBEDO))
-    write_ply(ws / "layers" / "shading.ply", shading)
-    write_ply(ws / "layers" / "residual.ply", flat_layer("residual", floor[::4], 0.035, 0.0))
+    floor_workspace(ws, ALBEDO, lamp_and_sky)
 
 
 def diffuse(name: str, value: float) -> bpy.types.Material:

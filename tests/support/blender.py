@@ -374,12 +374,13 @@ FLOOR_ALBEDO, FLOOR_SHADING = 0.5, 0.4
 """The albedo and shading of :func:`floor_workspace`'s floor."""
 
 
-def floor_workspace(ws: Path) -> None:
-    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), albedo 0.5 and shading 0.4, seen by three
-    cameras from above."""
+def floor_workspace(ws: Path, albedo: float = FLOOR_ALBEDO, shading=None) -> None:
+    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), seen by three cameras from above: albedo
+    ``albedo``, shading :data:`FLOOR_SHADING` or ``shading(points)`` ((N, 3) disc centres -> (N,) grey values)."""
     import json
 
     import cv2
+    import torch
 
     from backend.capture.colmap_io import write_model
     from backend.capture.transforms_io import write_transforms
@@ -400,8 +401,12 @@ def floor_workspace(ws: Path) -> None:
     g = np.arange(-1.0, 1.001, 0.05)
     gx, gy = np.meshgrid(g, g, indexing="ij")
     floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
-    write_ply(ws / "layers" / "albedo.ply", flat_layer("albedo", floor, 0.035, FLOOR_ALBEDO))
-    write_ply(ws / "layers" / "shading.ply", flat_layer("shading", floor, 0.035, FLOOR_SHADING))
+    layer = flat_layer("shading", floor, 0.035, FLOOR_SHADING)
+    if shading is not None:
+        grey = np.asarray(shading(floor), np.float32)
+        layer.params["colors"].data[:] = torch.from_numpy(np.repeat(grey[:, None], 3, 1))
+    write_ply(ws / "layers" / "albedo.ply", flat_layer("albedo", floor, 0.035, albedo))
+    write_ply(ws / "layers" / "shading.ply", layer)
     write_ply(ws / "layers" / "residual.ply", flat_layer("residual", floor[::4], 0.035, 0.0))
 
 
