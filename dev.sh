@@ -55,12 +55,24 @@ setup() {
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x "$VENV/bin/python" ]; then
     return 0
   fi
+  # One line before a first install that cannot fit, instead of pip's "No space left on device" minutes in:
+  # a new .venv holds about 7 GB (torch's CUDA build and its libraries, bpy) and pip unpacks the
+  # wheels beside it. Set IGS_SETUP_MIN_FREE_GB=0 to skip the check.
+  local need_gb=${IGS_SETUP_MIN_FREE_GB:-10} free_gb
+  mkdir -p "$(dirname "$VENV")"
+  free_gb=$(df -Pk "$(dirname "$VENV")" | awk 'NR==2 {printf "%d", $4 / 1048576}')
+  if [ ! -x "$VENV/bin/python" ] && [ -n "$free_gb" ] && [ "$free_gb" -lt "$need_gb" ]; then
+    echo "dev.sh: setting up $VENV needs about $need_gb GB free on its disk; $free_gb GB are (free some, or set IGS_SETUP_MIN_FREE_GB)" >&2
+    exit 2
+  fi
   if [ ! -x "$VENV/bin/python" ]; then
     # One line saying which Pythons requires-python allows, instead of a pip resolver error later.
     "$PY" igs_blender/env/check_env.py --pyproject pyproject.toml --python-only || exit 2
     "$PY" -m venv "$VENV"
   fi
   echo "== setting up $VENV with Python $("$VENV/bin/python" -c 'import sys; print(sys.version.split()[0])') (first run downloads 1-5 GB: torch, bpy, pycolmap, opencv, numba) =="
+  # No pip cache: it would keep a second copy of the ~3 GB of wheels on the same disk.
+  export PIP_NO_CACHE_DIR=1
   "$VENV/bin/python" -m pip install -q --upgrade pip
   # torch first and on its own (its pin as it applies to this Python), so that the rest cannot
   # pull another build; then the project with the pins pip picks by their python_version markers.
