@@ -1,8 +1,9 @@
 """The albedo layer's normals file, ``<ws>/layers/albedo_normals.npz``, written by the backend and read by the add-on.
 
 Row ``i`` of ``normals`` is the unit normal (capture coordinates, float32) of row ``i`` of ``layers/albedo.ply``:
-the estimate ``igs light-bake --normals depth`` uses (the albedo field's depth normals where the capture's views
-see each centre). ``albedo_sha256_16`` ties the file to the albedo PLY it was made for: a reader uses the normals
+``source`` says how it was estimated, :data:`CURRENT_SOURCE` by today's ``igs normals`` and ``igs decompose``
+(``blended``: the albedo field's depth normals at the pixels each Gaussian colours in the capture's views;
+``depth``, written before: those at its centre's pixel only). ``albedo_sha256_16`` ties the file to the albedo PLY it was made for: a reader uses the normals
 only when that PLY's hash and row count are the ones recorded.
 """
 
@@ -20,7 +21,9 @@ NORMALS = "normals"
 ALBEDO_SHA = "albedo_sha256_16"
 """0-d unicode array: the first 16 hex digits of the albedo PLY's SHA-256."""
 SOURCE = "source"
-"""0-d unicode array: how the normals were estimated (``depth``)."""
+"""0-d unicode array: how the normals were estimated (``blended``, ``depth`` or ``axes``)."""
+CURRENT_SOURCE = "blended"
+"""What ``igs normals`` writes now; a file of another source is used, and a reader may say it is older."""
 COMMAND = "igs normals"
 """The command that (re)writes the file for a workspace."""
 
@@ -34,6 +37,15 @@ def sha256_16(path: Path) -> str | None:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()[:16]
+
+
+def source_of(path: Path) -> str | None:
+    """The file's ``source`` (how its normals were estimated), None when it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return str(data[SOURCE][()])
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
+        return None
 
 
 def read(path: Path, albedo_ply: Path, rows: int | None = None) -> tuple[np.ndarray | None, str]:

@@ -16,7 +16,8 @@ from backend.relight.shading_bake import LightBakeConfig
 _DEFAULTS = LightBakeConfig()
 OPTIONS = (
     Option("--normals", "normals", "each Gaussian's normal: the depth normals of the albedo field where the "
-           "capture's views see its centre, or its shortest axis turned towards those views (default %(default)s)"),
+           "capture's views see its centre (depth), at the pixels it colours (blended), or its shortest axis "
+           "turned towards those views (axes) (default %(default)s)"),
     Option("--views", "views", f"capture views rendered to find which views see each Gaussian "
            f"(default {_DEFAULTS.views})", type=opt.integer(1, 100_000)),
     Option("--shadow-size", "relight.shadow_size", f"texels on a side of each shadow map face "

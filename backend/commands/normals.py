@@ -10,11 +10,14 @@ from backend.commands import options as opt
 from backend.commands import shared_options as shared
 from backend.commands.config_args import Option, add_config_arguments, config_from_args
 from backend.core import events
-from backend.relight.albedo_normals import write_albedo_normals
+from backend.relight.albedo_normals import DEFAULT_NORMALS, write_albedo_normals
 from backend.relight.shading_bake import LightBakeConfig
 
-_DEFAULTS = LightBakeConfig()
+_DEFAULTS = LightBakeConfig(normals=DEFAULT_NORMALS)
 OPTIONS = (
+    Option("--normals", "normals", "each Gaussian's normal: the albedo field's depth normals at the pixels it "
+           "colours (blended), at its centre's pixel where the views see the centre (depth), or its shortest "
+           "axis (axes) (default %(default)s)"),
     Option("--views", "views", f"capture views rendered to find which views see each Gaussian "
            f"(default {_DEFAULTS.views})", type=opt.integer(1, 100_000)),
     shared.backend("relight.backend"),
@@ -24,8 +27,8 @@ OPTIONS = (
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "normals", help="write the albedo Gaussians' normals (layers/albedo_normals.npz) for Blender's native lighting",
-        description="Estimate each albedo Gaussian's normal as `igs light-bake` does (the albedo field's depth "
-        "normals where the capture's views see its centre) and write <ws>/layers/albedo_normals.npz, tied to "
+        description="Estimate each albedo Gaussian's normal (the albedo field's depth normals at the pixels it "
+        "colours in the capture's views, each weighted by its share of the pixel) and write <ws>/layers/albedo_normals.npz, tied to "
         "layers/albedo.ply by its hash. `igs decompose` writes the file itself; this command makes it for a "
         "workspace decomposed before. The add-on's native lighting reads it (docs/blender.md).")
     p.add_argument("workspace", help="workspace folder")

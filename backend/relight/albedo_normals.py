@@ -1,8 +1,9 @@
-"""``<ws>/layers/albedo_normals.npz``: the albedo Gaussians' normals, estimated as ``light-bake`` does, for the add-on.
+"""``<ws>/layers/albedo_normals.npz``: the albedo Gaussians' normals, for the add-on.
 
 Blender lights the albedo splats itself (the add-on's native lighting) with a normal per Gaussian; the
 estimate worth having needs the backend's renderer (the albedo field's depth seen from the capture's views:
-:func:`backend.relight.shading_bake.gaussian_normals` with ``normals = "depth"``), so the backend writes it
+:func:`backend.relight.shading_bake.gaussian_normals` with ``normals = "blended"``, the depth normals at the
+pixels each Gaussian colours, since each splat is lit on its own there), so the backend writes it
 next to the layers once, at the end of ``igs decompose`` and with ``igs normals``. The file's layout and its
 tie to the albedo PLY are the contract's (:mod:`igs_contract.albedo_normals`).
 """
@@ -27,23 +28,30 @@ from backend.splats.ply import read_ply
 from igs_contract import albedo_normals as contract
 
 
+DEFAULT_NORMALS = contract.CURRENT_SOURCE
+"""The albedo splats are lit one by one, each over the pixels it colours: the depth normals there."""
+
+
 def normals_path(ws_root: str | Path) -> Path:
     return Path(ws_root) / "layers" / contract.FILE
 
 
 def normals_current(ws_root: str | Path) -> bool:
-    """Whether ``<ws>/layers/albedo_normals.npz`` holds the normals of the albedo PLY there now (or there is none)."""
+    """Whether ``<ws>/layers/albedo_normals.npz`` holds today's normals (:data:`DEFAULT_NORMALS`) of the albedo PLY
+    there now (or there is no PLY)."""
     ply = Path(ws_root) / "layers" / "albedo.ply"
     if not ply.is_file():
         return True
-    return contract.read(normals_path(ws_root), ply)[0] is not None
+    path = normals_path(ws_root)
+    return contract.read(path, ply)[0] is not None and contract.source_of(path) == DEFAULT_NORMALS
 
 
 def write_albedo_normals(workspace: str | Path, cfg: LightBakeConfig | None = None) -> dict[str, Any]:
-    """Estimate the normals of ``<ws>/layers/albedo.ply`` (``cfg.normals``, default ``depth``, from ``cfg.views``
-    capture views) and write them atomically to ``<ws>/layers/albedo_normals.npz``; returns a summary."""
+    """Estimate the normals of ``<ws>/layers/albedo.ply`` (``cfg.normals``, default :data:`DEFAULT_NORMALS`, from
+    ``cfg.views`` capture views) and write them atomically to ``<ws>/layers/albedo_normals.npz``; returns a
+    summary."""
     t0 = time.perf_counter()
-    cfg = cfg or LightBakeConfig()
+    cfg = cfg or LightBakeConfig(normals=DEFAULT_NORMALS)
     cfg.check()
     capture = load_capture(workspace)
     root = capture.workspace.root

@@ -170,11 +170,17 @@ def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | No
     source = obj.get("igs_ply")
     if ply is None or not source or Path(source).resolve() != ply.resolve():
         return None, ""
-    normals, why = normals_file.read(ply.parent / normals_file.FILE, ply, obj.get("igs_total"))
+    path = ply.parent / normals_file.FILE
+    normals, why = normals_file.read(path, ply, obj.get("igs_total"))
     if normals is None:
         return None, (f"'{obj.name}': normals from the Gaussians' shortest axes ({why}); `{normals_file.COMMAND} "
-                      f"{workspace}` writes the depth normals light-bake uses, then Load Layers again")
+                      f"{workspace}` writes the depth normals at the pixels each Gaussian colours, then Load Layers "
+                      "again")
     idx = get_point_attribute(obj.data, "igs_index", 1, "value", WHAT, dtype=np.int32).astype(np.int64)
+    if normals_file.source_of(path) != normals_file.CURRENT_SOURCE:
+        return normals[idx], (f"'{obj.name}': normals from an older {normals_file.FILE} (the depth normals at each "
+                              f"Gaussian's centre, which light a floor less than it should); `{normals_file.COMMAND} "
+                              f"{workspace}` writes those at the pixels each Gaussian colours, then Load Layers again")
     return normals[idx], ""
 
 
@@ -198,7 +204,8 @@ def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray, workspace: str = "")
     if pc.attributes.get(NORMAL) is not None and obj.get("igs_normals_points") == len(pc.points):
         return ""
     normals, note = file_normals(obj, workspace)
-    source = "depth" if normals is not None else "axes"
+    source = (normals_file.source_of(Path(workspace) / "layers" / normals_file.FILE) or "depth") \
+        if normals is not None else "axes"
     if normals is None:
         means = get_point_attribute(pc, "position", 3, "vector", WHAT)
         scales = get_point_attribute(pc, "scale", 3, "vector", WHAT)

@@ -505,8 +505,11 @@ def test_the_lit_material_takes_the_backends_depth_normals_when_they_belong_to_t
     # a tilted field of normals of the same albedo, to tell them from the discs' shortest axes (all up)
     tilted = np.random.default_rng(1).normal(size=real.shape) * 0.3 + [0.0, 0.0, 1.0]
     tilted = (tilted / np.linalg.norm(tilted, axis=1, keepdims=True)).astype(np.float32)
-    np.savez(normals_path(ws), **{contract.NORMALS: tilted, contract.ALBEDO_SHA: np.array(
-        contract.sha256_16(ws / "layers" / "albedo.ply")), contract.SOURCE: np.array("depth")})
+    def save(source: str) -> None:
+        np.savez(normals_path(ws), **{contract.NORMALS: tilted, contract.ALBEDO_SHA: np.array(
+            contract.sha256_16(ws / "layers" / "albedo.ply")), contract.SOURCE: np.array(source)})
+
+    save(contract.CURRENT_SOURCE)
     scene.igs.workspace = str(ws)
     scene.igs.max_points = len(tilted) // 2
     assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
@@ -515,8 +518,16 @@ def test_the_lit_material_takes_the_backends_depth_normals_when_they_belong_to_t
     idx = get(obj.data, "igs_index", 1, "value", "albedo", dtype=np.int32)
     assert 0 < len(idx) < len(tilted)
     np.testing.assert_allclose(get(obj.data, "igs_normal", 3, "vector", "albedo"), tilted[idx], atol=1e-6)
-    assert obj["igs_normals"] == "depth" and "igs normals" not in scene.igs.last_report
+    assert obj["igs_normals"] == "blended" and "igs normals" not in scene.igs.last_report
     assert "igs normals" not in shown_text(draw("IGS_PT_lights"))
+    # a file written before the normals were blended over each Gaussian's pixels: used, and Load Layers says so
+    save("depth")
+    scene.igs.max_points = 0
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}, scene.igs.last_report
+    obj = bpy.data.objects["IGS albedo"]
+    np.testing.assert_allclose(get(obj.data, "igs_normal", 3, "vector", "albedo"), tilted, atol=1e-6)
+    assert obj["igs_normals"] == "depth"
+    assert "older albedo_normals.npz" in scene.igs.last_report and f"`igs normals {ws}`" in scene.igs.last_report
 
     from backend.splats.ply import write_ply
 

@@ -31,7 +31,7 @@ def box(tmp_path_factory):
     return make_layered_workspace(tmp_path_factory.mktemp("normals") / "ws", n_per_face=120)
 
 
-def test_the_file_holds_light_bakes_depth_normals_tied_to_the_albedo_ply(box, capsys):
+def test_the_file_holds_the_blended_depth_normals_tied_to_the_albedo_ply(box, capsys):
     assert not normals_current(box)  # decomposed before the file existed
     assert main(["normals", str(box), "--backend", "cpu", "--views", "8"]) == 0
     out = capsys.readouterr().out
@@ -41,17 +41,21 @@ def test_the_file_holds_light_bakes_depth_normals_tied_to_the_albedo_ply(box, ca
     got, why = contract.read(normals_path(box), ply, len(g))
     assert why == "" and got.shape == (len(g), 3) and got.dtype == np.float32
     assert normals_current(box)
-    # the same estimate light-bake makes for a Gaussian of this field (--normals depth)
+    # the estimate light-bake makes with --normals blended (the depth normals where each Gaussian colours)
     capture = load_capture(box)
     cams = [f.camera for f in capture.frames]
     splats = Splats(**g.render_args())
-    cfg = LightBakeConfig(views=8, relight=RelightConfig(backend="cpu"))
+    cfg = LightBakeConfig(normals="blended", views=8, relight=RelightConfig(backend="cpu"))
     with torch.no_grad():
         want, seen = gaussian_normals(splats, splats, spread_views(cams, 8), cfg, cams)
     np.testing.assert_allclose(got, want.numpy(), atol=1e-5)
     assert seen.float().mean() > 0.3
     # unit normals; the box's Gaussians seen by a view face that view (depth normals, not an axis sign)
     np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-4)
+    # a file of the centres' normals (written before the blended ones) is read, but igs decompose writes it again
+    assert main(["normals", str(box), "--backend", "cpu", "--views", "8", "--normals", "depth"]) == 0
+    assert contract.source_of(normals_path(box)) == "depth" and contract.read(normals_path(box), ply)[0] is not None
+    assert not normals_current(box)
 
 
 def test_a_changed_albedo_or_count_is_refused_by_the_reader(box, tmp_path):

@@ -60,7 +60,7 @@ def _cameras_above() -> list[Camera]:
             for i, a in enumerate(np.linspace(0, 2 * np.pi, 6, endpoint=False))]
 
 
-@pytest.mark.parametrize("normals", ["depth", "axes"])
+@pytest.mark.parametrize("normals", ["depth", "blended", "axes"])
 def test_a_gaussian_facing_a_point_light_gets_e_over_pi_and_one_behind_an_occluder_none(normals):
     scene, n_floor = _floor_and_block()
     power, height = 40.0, 1.5
@@ -86,6 +86,27 @@ def test_a_gaussian_facing_a_point_light_gets_e_over_pi_and_one_behind_an_occlud
     assert np.all(np.abs(ratio - 1) < (1e-6 if normals == "axes" else 0.05)), (ratio.min(), ratio.max())
     assert np.median(np.abs(ratio - 1)) < (1e-6 if normals == "axes" else 0.01)
     assert float(s[under].max()) < 0.02 * float(closed[under].min())
+
+
+def test_a_gaussian_centred_off_the_surface_it_colours_takes_that_surfaces_normal_when_blended():
+    """A trained Gaussian is seldom centred on its surface: this one is centred 0.2 m under a half-transparent
+    floor, standing (its shortest axis along x), and reaches through it. Its centre is off the rendered depth,
+    so no view sees it there (``depth``: its axis); the pixels it colours are the floor's (``blended``: up)."""
+    floor = _slab(0.0, 1.5, 0.05)
+    floor.opacities[:] = 0.5
+    post = Splats(torch.tensor([[0.3, 0.2, -0.2]]), torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+                  torch.tensor([[0.03, 0.25, 0.25]]), torch.tensor([0.99]), torch.zeros(1, 3))
+    scene = Splats(*(torch.cat([getattr(floor, k), getattr(post, k)]) for k in ("means", "quats", "scales",
+                                                                              "opacities", "colors")))
+    got = {}
+    for normals in ("depth", "blended"):
+        cfg = LightBakeConfig(normals=normals, relight=RelightConfig(backend="cpu"))
+        n, seen = gaussian_normals(scene, scene, _cameras_above(), cfg)
+        got[normals] = n[-1]
+        assert not bool(seen[-1])
+        assert (n[:-1, 2] > 0.99).float().mean() > 0.98  # the floor's own: up either way
+    assert abs(float(got["depth"][0])) > 0.99  # its shortest axis (x), turned towards the cameras
+    assert float(got["blended"][2]) > 0.97, got["blended"]
 
 
 def test_a_gaussian_that_faces_away_from_the_light_gets_nothing():
