@@ -27,7 +27,6 @@ from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply
 from igs_contract import albedo_normals as contract
 
-
 DEFAULT_NORMALS = contract.CURRENT_SOURCE
 """The albedo splats are lit one by one, each over the pixels it colours: the depth normals there."""
 
