@@ -6,9 +6,10 @@ with added lights (``igs synth --lights``: ``gt_light/``; ``layers/`` from ``igs
 ``bench_decompose``). For each held-out view of ``gt_light/lights.json`` and each light L, the target is
 ``I_orig + I_L`` (:mod:`backend.bench.relight_eval`) and the methods are:
 
-- ``gauss_depth`` / ``gauss_axes``: ``A * (S + S_new) + R`` with S_new baked on the shading Gaussians'
-  centres (normals from the views' depth normals / the Gaussians' shortest axes) and rendered through
-  the shading field, as a splat viewer draws the lit layer;
+- ``gauss_depth`` / ``gauss_blended`` / ``gauss_axes``: ``A * (S + S_new) + R`` with S_new baked on the
+  shading Gaussians' centres (normals from the views' depth normals at each centre / at the pixels each
+  Gaussian colours / the Gaussians' shortest axes) and rendered through the shading field, as a splat
+  viewer draws the lit layer;
 - ``per_pixel``: ``A * (S + S_new) + R`` with S_new per pixel (``igs render --light``);
 - ``unlit``: ``A * S + R``; ``none``: ``I_orig``.
 
@@ -56,7 +57,7 @@ from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply
 from backend.synth.gt_lights import LIGHTS_FILE
 
-METHODS = ("gauss_depth", "gauss_axes", "per_pixel", "unlit", "none")
+METHODS = (*(f"gauss_{n}" for n in BAKE_NORMALS), "per_pixel", "unlit", "none")
 REGIONS = ("lit", "image")
 
 

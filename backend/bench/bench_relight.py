@@ -34,7 +34,7 @@ from typing import Any
 from backend.bench import bench_decompose
 from backend.bench.bench_cli import error, timed_step
 from backend.bench.bench_seeds import ROOM, SeedSettings, label, machine, parse_scene_seeds
-from backend.bench.relight_eval import LEAD_OVER, METHODS, REGIONS, EvalSettings, evaluate_scene
+from backend.bench.relight_eval import LEAD_OVER, LIGHT_METHODS, METHODS, REGIONS, EvalSettings, evaluate_scene
 from backend.bench.relight_native import MESH_METHODS, MESH_REGIONS
 from backend.bench.seed_stats import aggregate_metrics, cell, markdown, spread_cells
 from backend.core.atomic_io import write_json
@@ -90,7 +90,9 @@ def run_scene(root: Path, scene_seed: int | None, s: SeedSettings, ev: EvalSetti
 
 def flat(entry: dict[str, Any]) -> dict[str, float | None]:
     """{"<method>_<region>": PSNR, lead and gap keys} of one scene, the numbers aggregated over scenes."""
-    out: dict[str, float | None] = {f"{m}_{r}": entry["psnr"][m][r] for m in METHODS for r in REGIONS}
+    out: dict[str, float | None] = {f"{m}_{r}": entry["psnr"].get(m, {}).get(r) for m in METHODS for r in REGIONS}
+    alone = entry.get("light_alone_psnr") or {}
+    out.update({f"light_alone_{m}_{r}": alone.get(m, {}).get(r) for m in LIGHT_METHODS for r in REGIONS})
     angles = {f"normal_error_{m}_median_deg": v["median"] for m, v in entry.get("normal_error_deg", {}).items()}
     mesh = entry.get("mesh") or {"psnr": {}}
     out.update({f"mesh_{m}_{r}": mesh["psnr"].get(m, {}).get(r) for m in MESH_METHODS for r in MESH_REGIONS})
@@ -107,12 +109,24 @@ def document(scenes: dict[str, Any], requested: list[str], settings: dict[str, A
             "metric_space": "PSNR (dB) of sRGB-encoded images clipped to [0, 1], squared errors pooled over the "
                             "region's pixels of every held-out view and added light",
             "tables": {"per_scene": per_scene_table(done), "aggregate": aggregate_table(agg, list(done)),
-                       "mesh": mesh_table(done, agg)}}
+                       "light_alone": light_alone_table(done, agg), "mesh": mesh_table(done, agg)}}
 
 
 def per_scene_table(scenes: dict[str, Any]) -> str:
-    rows = [[k, m, *(cell(e["psnr"][m][r]) for r in REGIONS)] for k, e in scenes.items() for m in METHODS]
+    rows = [[k, m, *(cell(e["psnr"].get(m, {}).get(r)) for r in REGIONS)] for k, e in scenes.items() for m in METHODS]
     return markdown(["scene", "method", *(f"{r} PSNR" for r in REGIONS)], rows)
+
+
+def light_alone_table(scenes: dict[str, Any], agg: dict[str, Any]) -> str:
+    """The added light alone against the truth's light-only image, in the lit region (module docstring of
+    :mod:`backend.bench.relight_eval`): per scene, then the mean ± std over the scenes."""
+    rows = [[k, *(cell((e.get("light_alone_psnr") or {}).get(m, {}).get("lit")) for m in LIGHT_METHODS),
+             cell(e["leads"].get("native_minus_ours_light_alone_lit_db"))] for k, e in scenes.items()]
+    rows.append(["mean ± std", *(spread_cells(agg[f"light_alone_{m}_lit"])[1] if f"light_alone_{m}_lit" in agg else "-"
+                                 for m in LIGHT_METHODS),
+                 spread_cells(agg["native_minus_ours_light_alone_lit_db"])[1]
+                 if "native_minus_ours_light_alone_lit_db" in agg else "-"])
+    return markdown(["scene (the light alone, lit PSNR)", *LIGHT_METHODS, "native minus ours"], rows)
 
 
 def mesh_table(scenes: dict[str, Any], agg: dict[str, Any]) -> str:
@@ -223,8 +237,9 @@ def main(argv: list[str] | None = None) -> int:
         return error("bench_relight", e)
     result = document(scenes, requested, settings)
     write_json(out, result)
-    print(result["tables"]["per_scene"] + "\n\n" + result["tables"]["aggregate"] + "\n\nadded meshes (PSNR, dB):\n\n"
-          + result["tables"]["mesh"])
+    print(result["tables"]["per_scene"] + "\n\n" + result["tables"]["aggregate"]
+          + "\n\nthe added light alone (PSNR, dB):\n\n" + result["tables"]["light_alone"]
+          + "\n\nadded meshes (PSNR, dB):\n\n" + result["tables"]["mesh"])
     print(f"wrote {out}", file=sys.stderr)
     return 0
 

@@ -12,6 +12,9 @@ geometry's rendered depth and shadows from its own geometry's depth maps (:mod:`
   which also scores the added meshes' rows);
 - ``unlit``: the decomposition without the light, ``A * S + R``: what ``ours`` owes to the decomposition's
   own error rather than to the light;
+- ``native_unlit``: Blender's render of the same without the light: what ``native`` owes to Blender's
+  rendering of the splats (ray-traced, with Monte Carlo noise at the native samples) rather than to the
+  light;
 - ``none``: no relighting, ``I_orig`` itself;
 - ``sh_strip``: the add-ons' approach: vanilla 3DGS (``layers/radiance.ply``) as the image and its
   colours' DC term as the "albedo", ``I_3dgs + DC * S_new``, its geometry the 3DGS field;
@@ -24,6 +27,12 @@ and light: ``lit`` (``I_L``'s luminance above ``lit_threshold``), ``image`` (eve
 (pixels within ``edge_band`` of the boundary of the light's visibility on the true geometry, where the
 unshadowed light is above the threshold). PSNR pools the squared errors over the region's pixels of
 every held-out view and light.
+
+**The light alone** (:data:`LIGHT_METHODS`): each method's added light against ``I_L``, in the same
+regions: ``ours`` ``A * S_new``, ``native`` Blender's render with the light minus its render without it,
+``sh_strip`` ``DC * S_new``, ``ceiling`` ``gt/albedo * S_new``. Here the decompositions' error and
+Blender's rendering of the composite cancel out, so ``native`` against ``ours`` compares the two ways of
+lighting the same layers.
 """
 
 from __future__ import annotations
@@ -70,7 +79,9 @@ from backend.synth.gt_lights import LIGHTS_FILE
 from backend.train.intrinsic.stages import layer_splats
 from igs_contract.light_json import read_lights
 
-METHODS = ("ours", "native", "unlit", "none", "sh_strip", "ceiling")
+METHODS = ("ours", "native", "unlit", "native_unlit", "none", "sh_strip", "ceiling")
+LIGHT_METHODS = ("ours", "native", "sh_strip", "ceiling")
+"""The methods whose added light alone is scored (module docstring)."""
 REGIONS = ("lit", "image", "edges")
 LEAD_OVER = ("unlit", "none", "sh_strip")
 
@@ -209,22 +220,26 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
         rig_sh = LightRig(lights, radiance, cfg, "shadow maps: 3DGS")
         truth = truth_field(ws, [f.camera for f in capture.frames], s.truth_voxel)
         rig_truth = LightRig(lights, truth, cfg, "shadow maps: true depth")
-        scores = Scores()
+        scores, light_scores = Scores(), Scores(LIGHT_METHODS)
         no_light = {"se": 0.0, "n": 0}
         angles: dict[str, list] = {"ours": [], "sh_strip": []}
         with events.stage("relight views", len(views), unit="view") as bar:
             for name in views:
                 _score_view(ws, frames[name].camera, lights, s, (albedo, shading_l, residual), (radiance, dc),
-                            radiance_file.space, (rig_ours, rig_sh, rig_truth), scores, no_light, angles,
-                            native, mesh_scores)
+                            radiance_file.space, (rig_ours, rig_sh, rig_truth), (scores, light_scores), no_light,
+                            angles, native, mesh_scores)
                 bar.update(1)
     psnr = scores.psnr()
     leads = {f"lead_{b}_{r}_db": _diff(psnr["ours"][r], psnr[b][r]) for b in LEAD_OVER for r in REGIONS}
     leads.update({f"gap_ceiling_{r}_db": _diff(psnr["ceiling"][r], psnr["ours"][r]) for r in REGIONS})
     leads.update({f"native_minus_ours_{r}_db": _diff(psnr["native"][r], psnr["ours"][r]) for r in REGIONS})
+    alone = light_scores.psnr()
+    leads.update({f"native_minus_ours_light_alone_{r}_db": _diff(alone["native"][r], alone["ours"][r]) for r in REGIONS})
     return {"workspace": str(ws.root), "views": views, "lights": [li.name for li in lights],
             "psnr": psnr, "leads": leads, "pixels": scores.pixels(),
-            "per_light": {li.name: {"psnr": scores.psnr(li.name), "pixels": scores.pixels(li.name)} for li in lights},
+            "per_light": {li.name: {"psnr": scores.psnr(li.name), "pixels": scores.pixels(li.name),
+                                    "light_alone_psnr": light_scores.psnr(li.name)} for li in lights},
+            "light_alone_psnr": alone,
             "ours_without_light_psnr": round(10 * math.log10(no_light["n"] / no_light["se"]), 3)
             if no_light["se"] > 0 else None,
             "normal_error_deg": {k: _angle_summary(v) for k, v in angles.items()},
@@ -248,8 +263,11 @@ def _diff(a: float | None, b: float | None) -> float | None:
 
 def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings, ours: tuple[Splats, ...],
                 sh: tuple[Splats, Splats], sh_space: str, rigs: tuple[LightRig, LightRig, LightRig],
-                scores: Scores, no_light: dict[str, float], angles: dict[str, list], native: NativeRenders,
-                mesh_scores: MeshScores | None) -> None:
+                both: tuple[Scores, Scores], no_light: dict[str, float], angles: dict[str, list],
+                native: NativeRenders, mesh_scores: MeshScores | None) -> None:
+    """Score every light on the view ``cam``: the relit images into ``both[0]``, the added light alone into
+    ``both[1]`` (module docstring)."""
+    scores, light_scores = both
     stem = Path(cam.name).stem
     a_gt = srgb_to_linear(read_image(ws.gt_pass("albedo") / cam.name))
     i_orig = a_gt * read_exr(ws.gt_pass("shading") / f"{stem}.exr")[..., :3] + \
@@ -292,13 +310,21 @@ def _score_view(ws: Workspace, cam: Camera, lights: list[Light], s: EvalSettings
         preds = {"ours": A * (S + s_ours[light.name].numpy()) + R, "unlit": model, "none": i_orig,
                  "sh_strip": i_3dgs + dc * s_sh[light.name].numpy(),
                  "ceiling": i_orig + a_gt * s_truth[light.name].numpy()}
-        blender = native.image(stem, light.name, False)
+        blender, blender_unlit = native.image(stem, light.name, False), native.image(stem, None, False)
+        alone = {"ours": A * s_ours[light.name].numpy(), "sh_strip": dc * s_sh[light.name].numpy(),
+                 "ceiling": a_gt * s_truth[light.name].numpy()}
         if blender is not None:
             preds["native"] = blender
+        if blender_unlit is not None:
+            preds["native_unlit"] = blender_unlit
+            if blender is not None:
+                alone["native"] = blender - blender_unlit
         if mesh_scores is not None:
             mesh_scores.add_view(ws, stem, light.name, native, target, s.shadow_threshold, display)
         for method, pred in preds.items():
             scores.add(light.name, method, pred, target, masks)
+        for method, pred in alone.items():
+            light_scores.add(light.name, method, pred, i_light, masks)
         rows.append([i_orig, target, preds["ours"], preds["sh_strip"], preds["ceiling"]])
     if s.figures:
         grid = np.concatenate([np.concatenate([display(x) for x in row], 1) for row in rows], 0)

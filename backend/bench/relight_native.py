@@ -4,7 +4,8 @@ lights and the added meshes, and the renders are scored against Cycles' truth.
 :func:`render_native` runs :mod:`backend.bench.native_render_worker` (the add-on installed in the bpy 5.3
 module, driven through its operators) in a process of its own, for every held-out view and added light:
 once without the meshes (the ``native`` row, scored like ``ours`` against ``I_orig + I_L``), and, when the
-workspace has ``gt_mesh/`` (``igs synth --meshes``), once with them. The ``mesh`` rows
+workspace has ``gt_mesh/`` (``igs synth --meshes``), once with them; and every view once without an added
+light (the ``native_unlit`` row, and the light Blender adds: the render with the light minus this one). The ``mesh`` rows
 (:class:`MeshScores`) compare the render with the meshes against the truth with them,
 ``gt_mesh/capture/images + gt_mesh/<L>/images``:
 
@@ -74,13 +75,17 @@ class NativeRenders:
     axes), as the add-on recorded on the albedo splats; None when every frame was reused."""
 
     @staticmethod
-    def file(stem: str, light: str, meshes: bool) -> str:
+    def file(stem: str, light: str | None, meshes: bool) -> str:
+        """The render of the view ``stem`` with ``light`` (None: no added light, the composite as loaded)."""
+        if light is None:
+            return f"{stem}__no_light.exr"
         return f"{stem}__{light}__{'meshes' if meshes else 'open'}.exr"
 
-    def image(self, stem: str, light: str, meshes: bool) -> np.ndarray | None:
+    def image(self, stem: str, light: str | None, meshes: bool) -> np.ndarray | None:
         if self.folder is None:
             return None
-        return read_exr(self.folder / self.file(stem, light, meshes))[..., :3]
+        path = self.folder / self.file(stem, light, meshes)
+        return read_exr(path)[..., :3] if light is not None or path.is_file() else None
 
     def summary(self) -> dict[str, Any]:
         s, m = sorted(self.seconds), sorted(self.seconds_meshes)
@@ -109,6 +114,9 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
     settings = read_saved(ws.root / "gt" / "synth_settings.json")
     renders = [{"view": v, "light": li["name"], "meshes": m, "file": NativeRenders.file(Path(v).stem, li["name"], m)}
                for v in views for li in lights for m in ((False, True) if meshes else (False,))]
+    # and each view without an added light: what Blender's render of the composite owes to itself, not the light
+    renders += [{"view": v, "light": None, "meshes": False, "file": NativeRenders.file(Path(v).stem, None, False)}
+                for v in views]
     folder.mkdir(parents=True, exist_ok=True)
     job = {"workspace": str(ws.root), "out": str(folder), "samples": samples or settings["samples"],
            "seed": settings["seed"],

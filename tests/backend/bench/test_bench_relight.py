@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from backend.bench import bench_relight
-from backend.bench.relight_eval import METHODS, REGIONS, _edges
+from backend.bench.relight_eval import LIGHT_METHODS, METHODS, REGIONS, _edges
 from tests.support.synth_capture import needs_synth_renderer
 
 
@@ -43,7 +43,7 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     assert scene["layers"] == "trained" and scene["views"] == ["frame_0000.png", "frame_0008.png"]
     assert scene["lights"] == ["shadow_spot", "grazing_point", "soft_area"]
     native = has_bpy_53()
-    for m in METHODS if native else [m for m in METHODS if m != "native"]:
+    for m in METHODS if native else [m for m in METHODS if not m.startswith("native")]:
         for r in ("lit", "image"):
             assert 5.0 < scene["psnr"][m][r] < 60.0, (m, r, scene["psnr"][m][r])
     assert scene["pixels"]["lit"] > 0 and scene["pixels"]["image"] == 2 * 3 * 64 * 48
@@ -53,10 +53,18 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     assert doc["aggregate"]["ours_lit"]["n"] == 1 and doc["aggregate"]["ours_lit"]["std"] is None
     assert set(REGIONS) <= set(scene["psnr"]["ours"])
     assert scene["meshes"] == ["cube", "sphere"] and "added meshes" in printed
-    if native:  # Blender rendered every view and light without and with the meshes, and started no backend job
-        assert scene["native"]["rendered"] == 2 * 3 * 2 and scene["native"]["backend_jobs_started"] == 0
-        # the lit material took the backend's depth normals, which the bench wrote for its workspace
-        assert scene["native"]["normals"] == "depth" and (tmp_path / "seed_room" / "layers" / "albedo_normals.npz").is_file()
+    # the added light alone, each method's against the truth's light-only image
+    alone = scene["light_alone_psnr"]
+    assert "the added light alone" in printed and "| room |" in doc["tables"]["light_alone"]
+    for m in LIGHT_METHODS if native else [m for m in LIGHT_METHODS if m != "native"]:
+        assert 5.0 < alone[m]["lit"] < 80.0, (m, alone[m])
+    assert alone["ceiling"]["lit"] > alone["sh_strip"]["lit"]  # the true albedo and geometry
+    if native:  # Blender rendered every view and light without and with the meshes, and every view without a
+        # light, and started no backend job
+        assert scene["native"]["rendered"] == 2 * 3 * 2 + 2 and scene["native"]["backend_jobs_started"] == 0
+        assert scene["leads"]["native_minus_ours_light_alone_lit_db"] is not None
+        # the lit material took the backend's blended depth normals, which the bench wrote for its workspace
+        assert scene["native"]["normals"] == "blended" and (tmp_path / "seed_room" / "layers" / "albedo_normals.npz").is_file()
         mesh = scene["mesh"]
         assert mesh["pixels"]["mesh"] > 20 and mesh["pixels"]["shadow"] > 0
         for m in ("mesh", "no_shadow"):
@@ -69,7 +77,7 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     again = json.loads(out.read_text())["scenes"]["room"]
     assert again["layers"] == "reused" and again["psnr"] == scene["psnr"]
     if native:  # Blender's frames too: the same layers, lights, meshes and samples
-        assert again["native"]["reused"] == 2 * 3 * 2 and again["native"]["rendered"] == 0
+        assert again["native"]["reused"] == 2 * 3 * 2 + 2 and again["native"]["rendered"] == 0
 
 
 def test_bad_options_are_one_error(tmp_path, capsys):
