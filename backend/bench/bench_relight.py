@@ -34,7 +34,14 @@ from typing import Any
 from backend.bench import bench_decompose
 from backend.bench.bench_cli import error, timed_step
 from backend.bench.bench_seeds import ROOM, SeedSettings, label, machine, parse_scene_seeds
-from backend.bench.relight_eval import LEAD_OVER, LIGHT_METHODS, METHODS, REGIONS, EvalSettings, evaluate_scene
+from backend.bench.relight_eval import (
+    LEAD_OVER,
+    LIGHT_METHODS,
+    METHODS,
+    REGIONS,
+    EvalSettings,
+    evaluate_scene,
+)
 from backend.bench.relight_native import MESH_METHODS, MESH_REGIONS
 from backend.bench.seed_stats import aggregate_metrics, cell, markdown, spread_cells
 from backend.core.atomic_io import write_json
