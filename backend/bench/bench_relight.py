@@ -38,6 +38,7 @@ from backend.bench.relight_eval import (
     LEAD_OVER,
     LIGHT_METHODS,
     METHODS,
+    NATIVE_SAMPLES,
     REGIONS,
     EvalSettings,
     evaluate_scene,
@@ -181,8 +182,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-views", type=int, default=None,
                    help="score only this many of the held-out views, evenly spaced (default: all); every method "
                         "on the same views")
-    p.add_argument("--native-samples", type=int, default=None,
-                   help="Cycles samples per pixel of Blender's native renders (default: the capture's)")
+    p.add_argument("--native-samples", type=int, default=NATIVE_SAMPLES,
+                   help=f"Cycles samples per pixel of Blender's native renders (default {NATIVE_SAMPLES})")
     p.add_argument("--shadow-threshold", type=float, default=ev.shadow_threshold,
                    help=f"linear luminance by which the truth with the meshes is darker in their shadow region "
                         f"(default {ev.shadow_threshold})")

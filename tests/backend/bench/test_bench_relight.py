@@ -34,7 +34,7 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     out = tmp_path / "relight.json"
     argv = ["--root", str(tmp_path), "--scene-seeds", "room", "--preset", "test", "--views", "9",
             "--iterations", "30", "--max-gaussians", "3000", "--backend", "cpu", "--shadow-size", "64",
-            "--out", str(out)]
+            "--native-samples", "16", "--out", str(out)]
     assert bench_relight.main(argv) == 0
     printed = capsys.readouterr().out
     assert "| room | ours |" in printed and "ours minus" in printed and "| room | native |" in printed
