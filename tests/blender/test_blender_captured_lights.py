@@ -21,7 +21,7 @@ if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, floor_workspace, render_outputs, sub  # noqa: E402
+from tests.support.blender import cycles, diffuse, floor_workspace, render_outputs, sub  # noqa: E402
 
 ALBEDO, SKY = 0.5, 0.05
 LAMP, INTENSITY = (0.25, -0.6, 0.8), 0.3
@@ -43,16 +43,6 @@ def lamp_floor_workspace(ws: Path) -> None:
         return INTENSITY * d[:, 2] / (d * d).sum(1) ** 1.5 + SKY
 
     floor_workspace(ws, ALBEDO, lamp_and_sky)
-
-
-def diffuse(name: str, value: float) -> bpy.types.Material:
-    mat = bpy.data.materials.new(name)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    bsdf = nodes.new("ShaderNodeBsdfDiffuse")
-    bsdf.inputs["Color"].default_value = (value, value, value, 1.0)
-    links.new(bsdf.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
-    return mat
 
 
 def add_cube(coll) -> bpy.types.Object:

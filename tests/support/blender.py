@@ -370,6 +370,17 @@ def flat_layer(kind: str, means: np.ndarray, scale, color: float):
     return GaussianSet(kind, t, sh_degree=0)
 
 
+def diffuse(name: str, value: float) -> bpy.types.Material:
+    """A grey Diffuse BSDF material (the truth's mesh surfaces)."""
+    mat = bpy.data.materials.new(name)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    bsdf = nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (value, value, value, 1.0)
+    links.new(bsdf.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    return mat
+
+
 FLOOR_ALBEDO, FLOOR_SHADING = 0.5, 0.4
 """The albedo and shading of :func:`floor_workspace`'s floor."""
 
