@@ -166,26 +166,28 @@ def camera_centres(workspace: str) -> np.ndarray:
     return np.array([v.center for v in views], dtype=np.float64)
 
 
-def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | None, str]:
+def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | None, str, str]:
     """(N, 3) the backend's normals of the albedo splats ``obj`` (its rows of ``<ws>/layers/albedo_normals.npz``)
-    when ``obj`` shows the workspace's ``layers/albedo.ply`` and the file belongs to it; else None and a note
-    for the report ("" for an albedo of another PLY, an edit's: the file never covers it)."""
+    when ``obj`` shows the workspace's ``layers/albedo.ply`` and the file belongs to it, a note for the report
+    and the file's ``source``; else None, a note ("" for an albedo of another PLY, an edit's: the file never
+    covers it) and ``axes`` (the shortest axes stand in)."""
     ply = Path(workspace) / "layers" / "albedo.ply" if workspace else None
     source = obj.get("igs_ply")
     if ply is None or not source or Path(source).resolve() != ply.resolve():
-        return None, ""
+        return None, "", "axes"
     path = ply.parent / normals_file.FILE
     normals, why = normals_file.read(path, ply, obj.get("igs_total"))
     if normals is None:
         return None, (f"'{obj.name}': normals from the Gaussians' shortest axes ({why}); `{normals_file.COMMAND} "
                       f"{workspace}` writes the depth normals at the pixels each Gaussian colours, then Load Layers "
-                      "again")
+                      "again"), "axes"
     idx = get_point_attribute(obj.data, "igs_index", 1, "value", WHAT, dtype=np.int32).astype(np.int64)
-    if normals_file.source_of(path) != normals_file.CURRENT_SOURCE:
+    made = normals_file.source_of(path) or "depth"
+    if made != normals_file.CURRENT_SOURCE:
         return normals[idx], (f"'{obj.name}': normals from an older {normals_file.FILE} (the depth normals at each "
                               f"Gaussian's centre, which light a floor less than it should); `{normals_file.COMMAND} "
-                              f"{workspace}` writes those at the pixels each Gaussian colours, then Load Layers again")
-    return normals[idx], ""
+                              f"{workspace}` writes those at the pixels each Gaussian colours, then Load Layers again"), made
+    return normals[idx], "", made
 
 
 def normals_line(scene: bpy.types.Scene) -> str:
@@ -195,8 +197,8 @@ def normals_line(scene: bpy.types.Scene) -> str:
     for obj in albedo_objects():
         source = obj.get("igs_ply")
         if ply is not None and source and Path(source).resolve() == ply.resolve() and obj.get("igs_normals") == "axes":
-            return (f"Normals: the Gaussians' shortest axes; `{normals_file.COMMAND} WORKSPACE` writes light-bake's "
-                    "depth normals (then Load Layers)")
+            return (f"Normals: the Gaussians' shortest axes; `{normals_file.COMMAND} WORKSPACE` writes the depth "
+                    "normals at the pixels each Gaussian colours (then Load Layers)")
     return ""
 
 
@@ -207,9 +209,7 @@ def ensure_normals(obj: bpy.types.Object, eyes: np.ndarray, workspace: str = "")
     pc = obj.data
     if pc.attributes.get(NORMAL) is not None and obj.get("igs_normals_points") == len(pc.points):
         return ""
-    normals, note = file_normals(obj, workspace)
-    source = (normals_file.source_of(Path(workspace) / "layers" / normals_file.FILE) or "depth") \
-        if normals is not None else "axes"
+    normals, note, source = file_normals(obj, workspace)
     if normals is None:
         means = get_point_attribute(pc, "position", 3, "vector", WHAT)
         scales = get_point_attribute(pc, "scale", 3, "vector", WHAT)
