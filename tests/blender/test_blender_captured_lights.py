@@ -21,7 +21,15 @@ if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import cycles, diffuse, floor_workspace, render_outputs, sub  # noqa: E402
+from tests.support.blender import (  # noqa: E402
+    cycles,
+    diffuse,
+    floor_workspace,
+    render_outputs,
+    render_still,
+    sub,
+    truth_scene,
+)
 
 ALBEDO, SKY = 0.5, 0.05
 LAMP, INTENSITY = (0.25, -0.6, 0.8), 0.3
@@ -59,16 +67,7 @@ def add_cube(coll) -> bpy.types.Object:
 def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
     """Cycles renders of the captured scene itself, linear (H, W, 3): the mesh floor under the lamp and the sky
     with the cube ("cube") and without it ("open"), and the cube alone over nothing (its alpha: "cube_mask")."""
-    ts = bpy.data.scenes.new("truth")
-    ts.world = bpy.data.worlds.new("truth sky")
-    background = next(n for n in ts.world.node_tree.nodes if n.type == "BACKGROUND")
-    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    background.inputs["Strength"].default_value = SKY  # a diffuse floor under it has S = SKY
-    ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
-    ts.render.resolution_percentage = 100
-    ts.render.film_transparent = True
-    ts.view_settings.view_transform = "Standard"
-    cycles(ts, 32)
+    ts = truth_scene(scene, sky=SKY)  # a diffuse floor under the sky has S = SKY
     bpy.ops.mesh.primitive_plane_add(size=2.0)
     plane = bpy.context.active_object
     for c in list(plane.users_collection):
@@ -81,21 +80,11 @@ def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
     lamp = bpy.data.objects.new("truth lamp", data)
     ts.collection.objects.link(lamp)
     lamp.location = LAMP
-    ts.camera = scene.camera
-    images = sub("images")
     out = {}
-    window = bpy.context.window
-    previous = window.scene if window is not None else None
     for tag, cube_on, floor_on in (("cube", True, True), ("open", False, True), ("cube_mask", True, False)):
         cube.hide_render, plane.hide_render, lamp.hide_render = not cube_on, not floor_on, not floor_on
-        ts.render.image_settings.file_format = "OPEN_EXR"
-        ts.render.image_settings.color_depth = "32"
-        ts.render.filepath = str(tmp_path / f"truth_{tag}.exr")
-        bpy.ops.render.render(write_still=True, scene=ts.name)
-        px = images.pixels(bpy.data.images.load(ts.render.filepath))
-        out[tag] = px[..., 3] if tag == "cube_mask" else px[..., :3].astype(np.float64)
-    if previous is not None:
-        window.scene = previous
+        px = render_still(ts, tmp_path / f"truth_{tag}.exr")
+        out[tag] = px[..., 3] if tag == "cube_mask" else px[..., :3]
     return out
 
 

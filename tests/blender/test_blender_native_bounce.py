@@ -24,25 +24,22 @@ from tests.support.blender import (  # noqa: E402
     flat_layer,
     floor_workspace,
     render_outputs,
+    render_still,
     sub,
+    truth_scene,
 )
 
 ALBEDO, SHADING = FLOOR_ALBEDO, FLOOR_SHADING
-
-
-@pytest.fixture
-def scene(native_scene):
-    """Native splats on (the conftest's ``native_scene``)."""
-    return native_scene
 
 
 WALL_X, WALL_ALBEDO = -0.6, 0.8
 """The wall of :func:`test_the_added_light_bounces_off_the_capture_onto_the_capture`: the plane x = -0.6."""
 
 
-def test_the_added_light_bounces_off_the_capture_onto_the_capture(scene, tmp_path):
+def test_the_added_light_bounces_off_the_capture_onto_the_capture(native_scene, tmp_path):
     """A narrow spot lights a splat wall only; the splat floor in front of it gets the light the wall bounces,
     as the truth's mesh wall and floor do (the lit copy is seen by diffuse rays)."""
+    scene = native_scene
     import torch
 
     from backend.splats.ply import write_ply
@@ -80,11 +77,7 @@ def test_the_added_light_bounces_off_the_capture_onto_the_capture(scene, tmp_pat
     bpy.context.view_layer.update()
     added = (render_outputs(scene, tmp_path / "lit", ("Image",))["Image"] - dark).mean(axis=2)
 
-    ts = bpy.data.scenes.new("truth")  # the same wall and floor as meshes, the same spot, no world
-    ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
-    ts.render.resolution_percentage = 100
-    ts.view_settings.view_transform = "Standard"
-    cycles(ts, 256)
+    ts = truth_scene(scene, samples=256)  # the same wall and floor as meshes, the same spot, no world light
     bpy.ops.mesh.primitive_plane_add(size=2.0)
     mesh_floor = bpy.context.active_object
     mesh_floor.data.materials.append(diffuse("truth floor", ALBEDO))
@@ -99,12 +92,7 @@ def test_the_added_light_bounces_off_the_capture_onto_the_capture(scene, tmp_pat
     light = bpy.data.objects.new("truth spot", spot.data.copy())
     ts.collection.objects.link(light)
     light.matrix_world = spot.matrix_world.copy()
-    ts.camera = scene.camera
-    ts.render.image_settings.file_format = "OPEN_EXR"
-    ts.render.image_settings.color_depth = "32"
-    ts.render.filepath = str(tmp_path / "truth.exr")
-    bpy.ops.render.render(write_still=True, scene=ts.name)
-    truth = sub("images").pixels(bpy.data.images.load(ts.render.filepath))[..., :3].astype(np.float64).mean(axis=2)
+    truth = render_still(ts, tmp_path / "truth.exr")[..., :3].mean(axis=2)
 
     # the floor in front of the wall, outside the cone (0.15-0.45 m from the wall): bounce light only
     h, w = truth.shape

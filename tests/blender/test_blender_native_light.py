@@ -30,8 +30,10 @@ from tests.support.blender import (  # noqa: E402
     floor_workspace,
     patch,
     render_outputs,
+    render_still,
     shown_text,
     sub,
+    truth_scene,
 )
 
 ALBEDO, SHADING = FLOOR_ALBEDO, FLOOR_SHADING
@@ -70,16 +72,7 @@ def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
     """Cycles renders of the scene's own geometry (module docstring), linear (H, W, 3), under a uniform sky
     that gives the floor its captured shading S: the floor lit by the light with the cube ("cube"), without
     it ("open"), the sky alone ("sky"), and the cube alone over nothing (its alpha: "cube_mask")."""
-    ts = bpy.data.scenes.new("truth")
-    ts.world = bpy.data.worlds.new("truth sky")
-    background = next(n for n in ts.world.node_tree.nodes if n.type == "BACKGROUND")
-    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    background.inputs["Strength"].default_value = SHADING  # a diffuse floor under it reflects A * SHADING
-    ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
-    ts.render.resolution_percentage = 100
-    ts.render.film_transparent = True
-    ts.view_settings.view_transform = "Standard"
-    cycles(ts, 32)
+    ts = truth_scene(scene, sky=SHADING)  # a diffuse floor under the sky reflects A * SHADING
     bpy.ops.mesh.primitive_plane_add(size=2.0)
     plane = bpy.context.active_object
     plane.data.materials.append(diffuse("truth floor", ALBEDO))
@@ -88,22 +81,12 @@ def truth(scene, tmp_path: Path) -> dict[str, np.ndarray]:
     for obj in list(plane.users_collection):
         obj.objects.unlink(plane)
     ts.collection.objects.link(plane)
-    ts.camera = scene.camera
-    images = sub("images")
     out = {}
-    window = bpy.context.window
-    previous = window.scene if window is not None else None
     for tag, cube_on, floor_on, light_on in (("cube", True, True, True), ("open", False, True, True),
                                              ("sky", False, True, False), ("cube_mask", True, False, False)):
         cube.hide_render, plane.hide_render, sun.hide_render = not cube_on, not floor_on, not light_on
-        ts.render.image_settings.file_format = "OPEN_EXR"
-        ts.render.image_settings.color_depth = "32"
-        ts.render.filepath = str(tmp_path / f"truth_{tag}.exr")
-        bpy.ops.render.render(write_still=True, scene=ts.name)
-        px = images.pixels(bpy.data.images.load(ts.render.filepath))
-        out[tag] = px[..., 3] if tag == "cube_mask" else px[..., :3].astype(np.float64)
-    if previous is not None:
-        window.scene = previous
+        px = render_still(ts, tmp_path / f"truth_{tag}.exr")
+        out[tag] = px[..., 3] if tag == "cube_mask" else px[..., :3]
     return out
 
 
@@ -303,14 +286,10 @@ def seen_through(scene, tmp_path: Path, ys: list[float]) -> list[float]:
     ts.collection.objects.link(cam)
     ts.camera = cam
     cam.rotation_euler = (0.0, 0.75 * np.pi, 0.0)  # its -z turned towards (-1, 0, 1): the sun
-    images = sub("images")
     out = []
     for y in ys:
         cam.location = (PLATE_X + PLATE_Z - 0.1, y, 0.1)  # on the ray, above the floor's discs
-        ts.render.image_settings.file_format = "OPEN_EXR"
-        ts.render.filepath = str(tmp_path / f"through_{y:+.1f}.exr")
-        bpy.ops.render.render(write_still=True, scene=ts.name)
-        out.append(1.0 - float(images.pixels(bpy.data.images.load(ts.render.filepath))[..., 3].mean()))
+        out.append(1.0 - float(render_still(ts, tmp_path / f"through_{y:+.1f}.exr")[..., 3].mean()))
     return out
 
 

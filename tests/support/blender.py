@@ -381,6 +381,41 @@ def diffuse(name: str, value: float) -> bpy.types.Material:
     return mat
 
 
+def truth_scene(scene, sky: float | None = None, samples: int = 32, name: str = "truth") -> bpy.types.Scene:
+    """A scene of its own for Cycles' truth of ``scene``: its output size, the Standard view, ``samples``, a
+    transparent film, and under a uniform white sky of strength ``sky`` (None: no world light)."""
+    ts = bpy.data.scenes.new(name)
+    ts.world = bpy.data.worlds.new(f"{name} sky")
+    background = next(n for n in ts.world.node_tree.nodes if n.type == "BACKGROUND")
+    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    background.inputs["Strength"].default_value = 0.0 if sky is None else sky
+    ts.render.resolution_x, ts.render.resolution_y = scene.render.resolution_x, scene.render.resolution_y
+    ts.render.resolution_percentage = 100
+    ts.render.film_transparent = True
+    ts.view_settings.view_transform = "Standard"
+    cycles(ts, samples)
+    ts.camera = scene.camera
+    return ts
+
+
+def render_still(ts: bpy.types.Scene, path: Path) -> np.ndarray:
+    """F12 of ``ts`` written to the 32-bit EXR ``path`` and read back: linear (H, W, 4) float64, alpha last.
+    The window keeps showing the scene it showed."""
+    window = bpy.context.window
+    previous = window.scene if window is not None else None
+    ts.render.image_settings.file_format = "OPEN_EXR"
+    ts.render.image_settings.color_depth = "32"
+    ts.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True, scene=ts.name)
+    image = bpy.data.images.load(ts.render.filepath)
+    try:
+        return sub("images").pixels(image).astype(np.float64)
+    finally:
+        bpy.data.images.remove(image)
+        if previous is not None:
+            window.scene = previous
+
+
 FLOOR_ALBEDO, FLOOR_SHADING = 0.5, 0.4
 """The albedo and shading of :func:`floor_workspace`'s floor."""
 
