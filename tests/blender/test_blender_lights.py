@@ -24,7 +24,7 @@ from mathutils import Euler, Matrix, Vector  # noqa: E402
 
 from igs_contract.layer_ply import C0  # noqa: E402
 from igs_contract.light_json import read_lights  # noqa: E402
-from tests.support.blender import MOD, PYTHON, ROOT, flat_layer, sub, write_layers  # noqa: E402
+from tests.support.blender import MOD, PYTHON, ROOT, flat_layer, floor_capture, sub, write_layers  # noqa: E402
 from tests.support.fake_backend import make_tiny_workspace  # noqa: E402
 
 LIGHTS_DOUBLE = r'''#!{python}
@@ -333,26 +333,12 @@ PLATE = (0.15, 0.30, -0.10, 0.10, 0.5)
 
 
 def floor_workspace(ws: Path) -> np.ndarray:
-    """A workspace whose layers are a floor and a plate above it, seen from above by three views; returns the
-    shading Gaussians' centres (the floor's 81, then the plate's)."""
-    import cv2
-
-    from backend.capture.colmap_io import write_model
-    from backend.capture.transforms_io import write_transforms
-    from backend.core.cameras import Camera
+    """A workspace whose layers are a floor and a plate above it, seen from above by three views
+    (:func:`tests.support.blender.floor_capture`); returns the shading Gaussians' centres (the floor's 81, then
+    the plate's)."""
     from backend.splats.ply import write_ply
 
-    w, h = 48, 36
-    cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
-                           [0, 0, 1], w, h, 60) for i in range(3)]
-    rng = np.random.default_rng(0)
-    write_model(ws / "sparse" / "0", cams, rng.uniform(-0.5, 0.5, (20, 3)) * [1, 1, 0], np.full((20, 3), 128))
-    write_transforms(ws / "transforms.json", cams)
-    (ws / "images").mkdir(parents=True, exist_ok=True)
-    for cam in cams:
-        cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
-    (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
-                                                 "frames": [c.name for c in cams], "size": [w, h]}))
+    floor_capture(ws)
     gx, gy = np.meshgrid(FLOOR_XY, FLOOR_XY, indexing="ij")
     floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
     x0, x1, y0, y1, z = PLATE

@@ -420,18 +420,17 @@ FLOOR_ALBEDO, FLOOR_SHADING = 0.5, 0.4
 """The albedo and shading of :func:`floor_workspace`'s floor."""
 
 
-def floor_workspace(ws: Path, albedo: float = FLOOR_ALBEDO, shading=None) -> None:
-    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), seen by three cameras from above: albedo
-    ``albedo``, shading :data:`FLOOR_SHADING` or ``shading(points)`` ((N, 3) disc centres -> (N,) grey values)."""
+def floor_capture(ws: Path) -> None:
+    """A capture of three 48x36 views from above, 1.6 m out and 1.6 m up around the origin (grey images, 20
+    points near z = 0), with its COLMAP model, ``transforms.json`` and ``capture.json``: the cameras of
+    :func:`floor_workspace` and the other floor scenes."""
     import json
 
     import cv2
-    import torch
 
     from backend.capture.colmap_io import write_model
     from backend.capture.transforms_io import write_transforms
     from backend.core.cameras import Camera
-    from backend.splats.ply import write_ply
 
     w, h = 48, 36
     cams = [Camera.look_at(f"frame_{i:04d}.png", [1.6 * np.cos(2.1 * i), 1.6 * np.sin(2.1 * i), 1.6], [0, 0, 0],
@@ -444,6 +443,17 @@ def floor_workspace(ws: Path, albedo: float = FLOOR_ALBEDO, shading=None) -> Non
         cv2.imwrite(str(ws / "images" / cam.name), np.full((h, w, 3), 128, np.uint8))
     (ws / "capture.json").write_text(json.dumps({"schema": 1, "source": {"kind": "test"},
                                                  "frames": [c.name for c in cams], "size": [w, h]}))
+
+
+def floor_workspace(ws: Path, albedo: float = FLOOR_ALBEDO, shading=None) -> None:
+    """Layers of a floor of flat discs on z = 0 (|x|, |y| <= 1), seen by three cameras from above
+    (:func:`floor_capture`): albedo ``albedo``, shading :data:`FLOOR_SHADING` or ``shading(points)`` ((N, 3)
+    disc centres -> (N,) grey values)."""
+    import torch
+
+    from backend.splats.ply import write_ply
+
+    floor_capture(ws)
     g = np.arange(-1.0, 1.001, 0.05)
     gx, gy = np.meshgrid(g, g, indexing="ij")
     floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
