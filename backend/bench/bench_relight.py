@@ -184,6 +184,10 @@ def parser() -> argparse.ArgumentParser:
                         "on the same views")
     p.add_argument("--native-samples", type=int, default=NATIVE_SAMPLES,
                    help=f"Cycles samples per pixel of Blender's native renders (default {NATIVE_SAMPLES})")
+    p.add_argument("--native-filter", choices=("default", "box"), default=ev.native_filter,
+                   help="Cycles' pixel filter of Blender's native renders: Blender's default (Blackman-Harris 1.5 px, "
+                        "the low-pass the antialiased layers are fitted for) or a 1 px box, as the truth "
+                        f"(default {ev.native_filter})")
     p.add_argument("--shadow-threshold", type=float, default=ev.shadow_threshold,
                    help=f"linear luminance by which the truth with the meshes is darker in their shadow region "
                         f"(default {ev.shadow_threshold})")
@@ -231,7 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         relight.check()
         ev = EvalSettings(lit_threshold=args.lit_threshold, edge_band=args.edge_band, relight=relight,
                           figures=args.figures, native=not args.no_native, shadow_threshold=args.shadow_threshold,
-                          native_samples=args.native_samples, views=args.eval_views)
+                          native_samples=args.native_samples, native_filter=args.native_filter,
+                          views=args.eval_views)
         meshes = None if args.meshes == "none" else args.meshes
         settings = {"capture_and_decomposition": s.decomposition_json(), "lights": args.lights, "meshes": meshes,
                     "evaluation": {**{k: v for k, v in asdict(ev).items() if k != "relight"},

@@ -12,7 +12,8 @@ its own, both placed through the capture's matrix. Then per job: Look Through th
 light (or none) and the meshes (or not), F12 in Cycles on the CPU, and the composite written as a 32-bit
 EXR (linear). ``JOBS.json``::
 
-    {"workspace": WS, "out": DIR, "samples": 16, "seed": 0, "threads": 2, "lights": [canonical lights],
+    {"workspace": WS, "out": DIR, "samples": 16, "seed": 0, "pixel_filter": "default" | "box", "threads": 2,
+     "lights": [canonical lights],
      "meshes": [canonical meshes], "renders": [{"view": "frame_0000.png", "light": "key" | null,
                                                "meshes": true, "file": "x.exr"}, ...]}
 
@@ -90,8 +91,10 @@ def set_up(job: dict[str, Any]):
     c.use_adaptive_sampling = False
     c.use_denoising = False
     c.seed = int(job["seed"])
-    c.pixel_filter_type = "BOX"  # as the truth: each sample lands in one pixel
-    c.filter_width = 1.0
+    if job.get("pixel_filter") == "box":  # as the truth: each sample lands in one pixel
+        c.pixel_filter_type = "BOX"
+        c.filter_width = 1.0
+    # else Blender's default, Blackman-Harris 1.5 px: the low-pass the antialiased raster mode fits the layers for
     r.threads_mode = "FIXED"
     r.threads = int(job["threads"])
     r.image_settings.file_format = "OPEN_EXR"

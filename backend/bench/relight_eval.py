@@ -43,7 +43,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -110,6 +110,9 @@ class EvalSettings:
     """Score only this many of the held-out views, evenly spaced (None: all): every method on the same ones."""
     native_samples: int | None = NATIVE_SAMPLES
     """Cycles' samples per pixel of the native renders (None: the capture's)."""
+    native_filter: Literal["default", "box"] = "default"
+    """Cycles' pixel filter of the native renders: Blender's default (Blackman-Harris, 1.5 px: what an artist's F12
+    uses, and the low-pass the ``antialiased`` raster mode fits the layers for) or a 1 px box (as the truth)."""
     shadow_threshold: float = 0.02
     """Linear luminance by which the truth with the meshes is darker than without them in their shadow region."""
     relight: RelightConfig = field(default_factory=RelightConfig)
@@ -211,7 +214,7 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
     if s.native and not normals_current(ws.root):  # the lit material's normals, as igs decompose leaves them
         write_albedo_normals(ws.root)
     native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native",
-                           samples=s.native_samples) if s.native \
+                           samples=s.native_samples, pixel_filter=s.native_filter) if s.native \
         else NativeRenders(note="not asked for")
     mesh_scores = MeshScores() if meshes and native.folder is not None else None
     layers = {k: read_ply(ws.layers / f"{k}.ply", kind=k) for k in ("albedo", "shading", "residual", "radiance")}

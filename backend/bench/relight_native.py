@@ -18,8 +18,10 @@ more than ``shadow_threshold`` in linear luminance, averaged over 5 x 5 pixels, 
 capture's samples is above it per pixel where the meshes change the bounces: the meshes' shadows, the
 light's and the captured light's), ``mesh`` (the meshes' pixels, ``gt_mesh/capture/mask``) and ``image``.
 
-Renders use the capture's sample count and seed, Cycles on the CPU, no denoising, a 1 px box filter (as the
-truth). Without the bpy 5.3 module the rows are empty and the JSON says why.
+Renders use the capture's seed, Cycles on the CPU, no denoising, and Blender's default pixel filter
+(Blackman-Harris, 1.5 px), the low-pass the layers were fitted for (the ``antialiased`` raster mode); the truth's
+1 px box makes the splats sharper than the raster and puts Blender's composite 0.5-0.8 dB further from it (test-preset
+room, 512 samples). Without the bpy 5.3 module the rows are empty and the JSON says why.
 """
 
 from __future__ import annotations
@@ -103,11 +105,12 @@ def meshes_of(ws: Workspace) -> list[dict[str, Any]]:
 
 
 def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: list[dict], folder: Path,
-                  python: str | None = None, samples: int | None = None) -> NativeRenders:
+                  python: str | None = None, samples: int | None = None,
+                  pixel_filter: str = "default") -> NativeRenders:
     """Blender's render of every view in ``views`` with each light of ``lights`` (canonical), without and
     (when ``meshes``) with the meshes, into ``folder``; a :class:`NativeRenders` with a note and no
     renders when ``python`` (default: this one) has no bpy 5.3 module. ``samples``: Cycles' samples per pixel
-    (default: the capture's)."""
+    (default: the capture's); ``pixel_filter``: ``default`` (Blender's own) or ``box`` (1 px)."""
     python = python or sys.executable
     if python == sys.executable and importlib.util.find_spec("bpy") is None:
         return NativeRenders(note=f"no bpy module in {python}: the native rows need Blender 5.3's")
@@ -119,7 +122,7 @@ def render_native(ws: Workspace, views: list[str], lights: list[dict], meshes: l
                 for v in views]
     folder.mkdir(parents=True, exist_ok=True)
     job = {"workspace": str(ws.root), "out": str(folder), "samples": samples or settings["samples"],
-           "seed": settings["seed"],
+           "seed": settings["seed"], "pixel_filter": pixel_filter,
            "threads": os.cpu_count() or 1, "lights": lights, "meshes": meshes, "renders": renders}
     out = NativeRenders(folder=folder, samples=job["samples"])
     made = _reusable(ws, folder, job)
@@ -171,10 +174,10 @@ def addon_hash(root: Path = ROOT) -> str:
 
 
 def job_key(ws: Workspace, job: dict[str, Any], root: Path = ROOT) -> dict[str, Any]:
-    """What decides Blender's frames of a job: the samples, seed, lights and meshes, the sizes and times of the
+    """What decides Blender's frames of a job: the samples, seed, pixel filter, lights and meshes, the sizes and times of the
     layers and of the albedo's normals file (the lit material's normals), and the add-on's code
     (:func:`addon_hash` of ``root``: the lights it estimates, its materials and compositing)."""
-    key = {k: job[k] for k in ("samples", "seed", "lights", "meshes")}
+    key = {k: job.get(k) for k in ("samples", "seed", "pixel_filter", "lights", "meshes")}
     files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE)])
     key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
     key["addon"] = addon_hash(root)

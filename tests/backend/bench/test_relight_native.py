@@ -101,3 +101,15 @@ def test_blenders_frames_are_rendered_again_when_the_addon_changes(tmp_path):
     (root / "igs_blender" / "native" / "lighting.py").write_text("A = 1\n")
     (root / "igs_blender" / "native" / "captured_lights.py").write_text("")
     assert job_key(ws, job, root) != first
+
+
+def test_blenders_frames_are_rendered_again_for_another_pixel_filter(tmp_path):
+    """Blender's default filter and the truth's 1 px box give other frames of the same layers: a cache of one is
+    stale for the other."""
+    from backend.bench.relight_native import job_key
+
+    ws = Workspace(tmp_path / "ws")
+    ws.layers.mkdir(parents=True)
+    (ws.layers / "albedo.ply").write_bytes(b"ply")
+    job = {"samples": 4, "seed": 0, "lights": [], "meshes": [], "pixel_filter": "default"}
+    assert job_key(ws, job) != job_key(ws, {**job, "pixel_filter": "box"})
