@@ -65,6 +65,9 @@ OPTIONS = (
     Option("--multiview-tolerance", "multiview_tolerance",
            f"with --shading-target multiview: the share of a pixel's light above the agreement kept in the "
            f"target (default {_D.multiview_tolerance})", type=opt.number(0, 1, hi_open=True)),
+    Option("--multiview-channels", "multiview_channels",
+           "with --shading-target multiview: compare the views' 'luminance' (default) or each channel apart "
+           "('rgb': a reflection's colour leaves the target too)"),
     Option("--joint-residual", "joint_residual",
            "the fraction of the shading stage's iterations, at its end, in which the residual trains with "
            f"the shading (default {_D.joint_residual}; 0 = the residual only after the shading)",

@@ -22,6 +22,9 @@ SHADING_GEOMETRIES: tuple[ShadingGeometry, ...] = get_args(ShadingGeometry)
 ShadingTarget = Literal["image", "multiview"]
 """What the shading stage fits A * S to (DecomposeConfig.shading_target)."""
 SHADING_TARGETS: tuple[ShadingTarget, ...] = get_args(ShadingTarget)
+MultiviewChannels = Literal["luminance", "rgb"]
+"""What the views' agreement compares (DecomposeConfig.multiview_channels)."""
+MULTIVIEW_CHANNELS: tuple[MultiviewChannels, ...] = get_args(MultiviewChannels)
 ShadingEnvelope = Literal["none", "irradiance"]
 """What bounds the shading from above (DecomposeConfig.shading_envelope)."""
 SHADING_ENVELOPES: tuple[ShadingEnvelope, ...] = get_args(ShadingEnvelope)
@@ -116,6 +119,10 @@ class DecomposeConfig:
     multiview_tolerance: float = 0.1
     """With shading_target 'multiview': the share of a pixel's light above the agreement that is left in
     the target, because 16-sample noise alone spreads the views by several percent."""
+    multiview_channels: MultiviewChannels = "luminance"
+    """With shading_target 'multiview': compare the views' luminance ('luminance': the light taken out is
+    the same share of each channel) or each channel apart ('rgb': a reflection's colour leaves the target
+    too, as a blue sky's tint on a glossy floor)."""
     joint_residual: float = 0.0
     """The fraction of the shading stage's iterations, at its end, in which the residual is trained
     with the shading (``I = A * S + R``, both updated); the residual stage then continues from that
@@ -191,6 +198,7 @@ class DecomposeConfig:
         return ShadingTerms(gray=self.lambda_gray, dark=self.lambda_dark, dark_level=self.dark_level,
                             texture=self.lambda_texture, quantile=self.shading_quantile, target=self.shading_target,
                             target_quantile=self.multiview_quantile, target_tolerance=self.multiview_tolerance,
+                            target_channels=self.multiview_channels,
                             envelope=self.shading_envelope, envelope_weight=self.envelope_weight,
                             envelope_cells=self.envelope_cells, envelope_margin=self.envelope_margin,
                             envelope_quantile=self.envelope_quantile)

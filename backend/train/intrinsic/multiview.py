@@ -49,37 +49,41 @@ DISK_PER_VIEW_PIXEL = 6
 stage's views' file."""
 
 
-def _signal(view: View, albedo_key: str) -> torch.Tensor:
-    """(H, W): the view's luminance over its albedo's (``view.extras[albedo_key]`` where it has one; at
-    least :data:`ALBEDO_FLOOR`), averaged over 3x3 pixels (replicated at the border). Over the albedo, a
+def _signal(view: View, albedo_key: str, channels: str = "luminance") -> torch.Tensor:
+    """(C, H, W): the view's luminance over its albedo's (C = 1), or with ``channels`` 'rgb' each channel
+    over the albedo's (C = 3) (``view.extras[albedo_key]`` where it has one; at least
+    :data:`ALBEDO_FLOOR`), averaged over 3x3 pixels (replicated at the border). Over the albedo, a
     texture's edges cancel: a sample a fraction of a pixel off at an edge is no view-dependence."""
-    lum = luminance(view.image.clamp_min(0.0))
+    image = view.image.clamp_min(0.0)
+    sig = image.permute(2, 0, 1) if channels == "rgb" else luminance(image)[None]
     if albedo_key in view.extras:
-        lum = lum / luminance(view.extras[albedo_key].clamp_min(0.0)).clamp_min(ALBEDO_FLOOR)
-    return F.avg_pool2d(F.pad(lum[None, None], (1, 1, 1, 1), mode="replicate"), 3, stride=1)[0, 0]
+        albedo = view.extras[albedo_key].clamp_min(0.0)
+        sig = sig / (albedo.permute(2, 0, 1) if channels == "rgb" else luminance(albedo)[None]).clamp_min(ALBEDO_FLOOR)
+    return F.avg_pool2d(F.pad(sig[None], (1, 1, 1, 1), mode="replicate"), 3, stride=1)[0]
 
 
 def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_tolerance: float = 0.03,
                          min_views: int = MIN_VIEWS, max_views: int = MAX_VIEWS,
-                         albedo_key: str = "A") -> list[torch.Tensor | None]:
+                         albedo_key: str = "A", channels: str = "luminance") -> list[torch.Tensor | None]:
     """Per view, the (H, W) share of each pixel's light above the ``quantile`` of the views that see
     its surface point (module docstring), over at most ``max_views`` views spread evenly over the
     list (and the view itself); None for a view without a depth prior. All views have the same size.
     Where the views hold their albedo render (``extras[albedo_key]``), the light is compared as the
-    ratio image / albedo (:func:`_signal`)."""
+    ratio image / albedo (:func:`_signal`). With ``channels`` 'rgb' the share is per channel, (H, W, 3):
+    a reflection's colour (a blue sky on a floor) leaves S too, not only its brightness."""
     depths = [v.depth for v in views]
-    lums = [_signal(v, albedo_key) for v in views]
+    lums = [_signal(v, albedo_key, channels) for v in views]
     out: list[torch.Tensor | None] = [None] * len(views)
     with_depth = [i for i, d in enumerate(depths) if d is not None]
     if not with_depth:
         return out
-    h, w = lums[0].shape
+    c, h, w = lums[0].shape
     panel = with_depth[:: max(1, -(-len(with_depth) // max_views))]  # the views every point is looked up in
     rs = torch.stack([torch.from_numpy(views[i].camera.R) for i in panel]).float()  # (K, 3, 3)
     ts = torch.stack([torch.from_numpy(views[i].camera.t) for i in panel]).float()  # (K, 3)
     intr = torch.tensor([[views[i].camera.fx, views[i].camera.fy, views[i].camera.cx, views[i].camera.cy]
                          for i in panel], dtype=torch.float32)
-    lum_stack = torch.stack([lums[i] for i in panel])[:, None].float()  # (K, 1, H, W)
+    lum_stack = torch.stack([lums[i] for i in panel]).float()  # (K, C, H, W)
     depth_stack = torch.stack([depths[i].float() for i in panel])[:, None]  # (K, 1, H, W)
     # the nearest and farthest depth around each pixel, over the blurred, bilinearly sampled luminance's
     # footprint: a sample that mixes an occluder's silhouette with what lies behind it is not seen
@@ -97,25 +101,28 @@ def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_to
         inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], -1)[:, None]  # (K, 1, N, 2), align_corners=False
         lo, hi = F.grid_sample(bounds, grid, mode="nearest", align_corners=False)[:, :, 0].unbind(1)  # (K, N) each
-        their_lum = F.grid_sample(lum_stack, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
+        their = F.grid_sample(lum_stack, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, :, 0]
         visible = inside & (lo > 0) & ((lo - z).abs() <= depth_tolerance * z) & ((hi - z).abs() <= depth_tolerance * z)
-        own = lums[i].reshape(-1)
+        own = lums[i].reshape(c, -1)  # (C, N)
         # the view itself is one of the views that see its pixels, whether or not it is on the panel
-        vals = torch.cat([torch.where(visible, their_lum, torch.full_like(z, float("inf"))), own[None]])
+        vals = torch.cat([torch.where(visible[:, None], their, torch.full_like(their, float("inf"))), own[None]])
         n = visible.sum(0) + 1
-        ranked = vals.sort(dim=0).values
-        q = ranked.gather(0, (quantile * (n - 1)).floor().long()[None])[0]  # the lower quantile, over the visible
-        ok = (n >= min_views) & (d.reshape(-1) > 0) & (own > 1e-6)
-        share = torch.where(ok, 1 - q / own.clamp_min(1e-6), torch.zeros_like(own))
-        out[i] = share.clamp(0.0, 1.0).reshape(h, w)
+        ranked = vals.sort(dim=0).values  # (K + 1, C, N)
+        idx = (quantile * (n - 1)).floor().long()[None, None].expand(1, c, -1)
+        q = ranked.gather(0, idx)[0]  # (C, N): the lower quantile, over the visible
+        ok = (n >= min_views) & (d.reshape(-1) > 0)
+        share = torch.where(ok & (own > 1e-6), 1 - q / own.clamp_min(1e-6), torch.zeros_like(own))
+        share = share.clamp(0.0, 1.0).reshape(c, h, w)
+        out[i] = share[0] if channels == "luminance" else share.permute(1, 2, 0)
     return out
 
 
-def diffuse_targets(views: Sequence[View], quantile: float, tolerance: float, key: str = "diffuse_target") -> float:
+def diffuse_targets(views: Sequence[View], quantile: float, tolerance: float, key: str = "diffuse_target",
+                    channels: str = "luminance") -> float:
     """Put each view's diffuse target ``I * (1 - max(0, share - tolerance))`` (H, W, 3) into
-    ``view.extras[key]`` (:func:`view_dependent_share`; a view without depth keeps its image); returns
-    the mean share of the light taken out, over the views' pixels."""
-    shares = view_dependent_share(views, quantile)
+    ``view.extras[key]`` (:func:`view_dependent_share`, per channel with ``channels`` 'rgb'; a view
+    without depth keeps its image); returns the mean share of the light taken out, over the views' pixels."""
+    shares = view_dependent_share(views, quantile, channels=channels)
     taken = []
     for v, share in zip(views, shares):
         image = v.image
@@ -123,10 +130,11 @@ def diffuse_targets(views: Sequence[View], quantile: float, tolerance: float, ke
             v.extras[key] = image
             continue
         cut = (share - tolerance).clamp_min(0.0)
-        v.extras[key] = image * (1.0 - cut)[..., None]
+        cut = cut[..., None] if cut.dim() == 2 else cut  # (H, W, 1) or per channel (H, W, 3)
+        v.extras[key] = image * (1.0 - cut)
         lum = luminance(image.clamp_min(0.0))
-        taken.append(float((lum * cut).sum() / lum.sum().clamp_min(1e-12)))
+        taken.append(float((lum - luminance(v.extras[key].clamp_min(0.0))).sum() / lum.sum().clamp_min(1e-12)))
     mean = float(np.mean(taken)) if taken else 0.0
     events.log(f"shading: the views' agreement takes {100 * mean:.1f} % of the training images' light out of the "
-               f"shading's target (quantile {quantile}, tolerance {tolerance})")
+               f"shading's target (quantile {quantile}, tolerance {tolerance}, {channels})")
     return mean

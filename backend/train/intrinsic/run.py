@@ -24,6 +24,7 @@ from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from backend.splats.strategy import DensifyStrategy
 from backend.train.intrinsic.config import (
+    MULTIVIEW_CHANNELS,
     SHADING_ENVELOPES,
     SHADING_GEOMETRIES,
     SHADING_TARGETS,
@@ -122,6 +123,9 @@ def check_shading_target(cfg: DecomposeConfig) -> None:
         raise IGSError(f"--multiview-quantile: must be in (0, 0.5], got {cfg.multiview_quantile}")
     if not 0 <= cfg.multiview_tolerance < 1:
         raise IGSError(f"--multiview-tolerance: must be in [0, 1), got {cfg.multiview_tolerance}")
+    if cfg.multiview_channels not in MULTIVIEW_CHANNELS:
+        raise IGSError(f"--multiview-channels: must be one of {', '.join(MULTIVIEW_CHANNELS)}, "
+                       f"got {cfg.multiview_channels!r}")
     if cfg.shading_envelope not in SHADING_ENVELOPES:
         raise IGSError(f"--shading-envelope: must be one of {', '.join(SHADING_ENVELOPES)}, "
                        f"got {cfg.shading_envelope!r}")

@@ -46,6 +46,8 @@ class ShadingTerms:
     """With target 'multiview': the quantile of the views' radiance that counts as their agreement."""
     target_tolerance: float = 0.1
     """With target 'multiview': the share of a pixel's light above the agreement that is kept (noise)."""
+    target_channels: str = "luminance"
+    """With target 'multiview': the views compared by 'luminance' or per channel ('rgb')."""
     envelope: str = "none"
     """'irradiance': S is charged for rising above a smooth irradiance model fitted beside it
     (:mod:`backend.train.intrinsic.envelope`); 'none': off."""

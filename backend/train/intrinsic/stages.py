@@ -274,7 +274,8 @@ class ShadingStage(Stage):
                                            self.config.backend, "albedo")
         if self.terms.target == "multiview" and not all(DIFFUSE_TARGET in v.extras for v in self.train_views):
             t0 = time.perf_counter()
-            diffuse_targets(self.train_views, self.terms.target_quantile, self.terms.target_tolerance, DIFFUSE_TARGET)
+            diffuse_targets(self.train_views, self.terms.target_quantile, self.terms.target_tolerance, DIFFUSE_TARGET,
+                            self.terms.target_channels)
             self.cache_seconds += time.perf_counter() - t0
         if self.terms.envelope == "irradiance" and self.envelope is None:
             t0 = time.perf_counter()

@@ -56,6 +56,9 @@ def stage_settings(cfg: DecomposeConfig, name: str) -> dict[str, Any]:
                          "shading_quantile": cfg.shading_quantile, "shading_budget": cfg.shading_budget,
                          "shading_target": cfg.shading_target, "multiview_quantile": cfg.multiview_quantile,
                          "multiview_tolerance": cfg.multiview_tolerance,
+                         # only when not the default, so that a workspace decomposed before the option resumes
+                         **({"multiview_channels": cfg.multiview_channels} if cfg.multiview_channels != "luminance"
+                            else {}),
                          "shading_init": cfg.shading_init,
                          "shading_geometry": cfg.shading_geometry, "shading_from_albedo": cfg.shading_from_albedo,
                          **_joint_settings(cfg), **_envelope_settings(cfg)})

@@ -95,6 +95,25 @@ def test_an_occluder_is_no_evidence_of_a_reflection():
     assert torch.equal(views[0].extras[DIFFUSE_TARGET], views[0].image)
 
 
+def test_per_channel_a_blue_reflection_leaves_the_blue_channel_only():
+    """A blue highlight (+0.5 in blue alone) seen by one view: by luminance, the same small share of every
+    channel is taken out (the target keeps the blue tint and loses some red); per channel, blue loses half."""
+    views = _floor_views(highlight_in=-1)
+    _, _, pts = _floor_view(0, 8)
+    spot = ((pts[..., 0] - 0.4) ** 2 + pts[..., 1] ** 2).sqrt()
+    core = spot < 0.2
+    views[0].image[spot < 0.3, 2] += 0.5
+    lum = view_dependent_share(views, quantile=0.25)[0]
+    rgb = view_dependent_share(views, quantile=0.25, channels="rgb")[0]
+    assert lum.shape == (H, W) and rgb.shape == (H, W, 3)
+    assert float(lum[core].mean()) == pytest.approx(1 - 0.5 / (0.5 + 0.0722 * 0.5), abs=0.02)  # blue's weight
+    assert float(rgb[core][:, 2].mean()) == pytest.approx(0.5, abs=0.03)
+    assert float(rgb[core][:, :2].max()) < 0.02 and float(rgb[spot > 0.45].max()) < 0.02
+    diffuse_targets(views, 0.25, 0.05, channels="rgb")
+    target = views[0].extras[DIFFUSE_TARGET][core].mean(0)
+    assert target.tolist() == pytest.approx([0.5, 0.5, 1.0 * (1 - 0.45)], abs=0.03)  # the tint gone, red kept
+
+
 OPAQUE = InitConfig(init_opacity=0.9)
 
 
@@ -141,6 +160,7 @@ def test_bad_shading_target_settings_are_one_error_naming_the_option():
     for changes, option in (({"shading_target": "mirror"}, "--shading-target"),
                             ({"multiview_quantile": 0.0}, "--multiview-quantile"),
                             ({"multiview_quantile": 0.7}, "--multiview-quantile"),
-                            ({"multiview_tolerance": 1.0}, "--multiview-tolerance")):
+                            ({"multiview_tolerance": 1.0}, "--multiview-tolerance"),
+                            ({"multiview_channels": "hsv"}, "--multiview-channels")):
         with pytest.raises(IGSError, match=option):
             check_shading_target(DecomposeConfig(**changes))
