@@ -96,7 +96,7 @@ EDIT_MEASURES = tuple((f"{m}{part}", f"multi_view/{m}{part}") for m in ("image",
 # the per-seed table's decomposition columns, where some seed has them (all metrics: JSON and aggregate)
 DECOMPOSITION_TABLE = ("3dgs_full_psnr", "full_psnr", "albedo_psnr", "shading_psnr", "3dgs_full_psnr_fg",
                        "full_psnr_fg", "albedo_psnr_fg", "shading_psnr_fg", "shading_psnr_glossy",
-                       "shading_psnr_matte", "residual_recall", "residual_false_matte", "leakage")
+                       "shading_psnr_matte", "shading_ratio_glossy", "residual_recall", "residual_false_matte", "leakage")
 # decomposition metrics the printed aggregate leaves to the JSON (SSIM, LPIPS)
 JSON_ONLY = ("_ssim", "_lpips")
 DECOMPOSITION_SETTINGS = ("preset", "views", "seed", "iterations", "downscale", "max_gaussians", "residual_points",

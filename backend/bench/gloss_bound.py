@@ -18,7 +18,9 @@ the glossy pixels), beside:
 - ``ours``: the decomposition's own, metrics.json's ``gloss.shading_psnr_glossy`` when the workspace has one
   (scored at the decomposition's size, the bound at the capture's).
 
-``share_q`` is the part of the true residual's light on glossy pixels that the bound leaves in S,
+``ratio``: the median over the glossy pixels of S's luminance over the true S's, per view, averaged over the
+views (metrics.json's ``gloss.shading_ratio_glossy`` for ours). ``share_q`` is the part of the true residual's
+light on glossy pixels that the bound leaves in S,
 ``sum(A_true m) / sum(R_true)``. q = 0 (the darkest view) is the ideal of noise-free views; Cycles' noise
 makes it optimistic, a low quantile such as 0.25 is what a method can use. Prints a table, writes JSON.
 """
@@ -38,7 +40,7 @@ import torch.nn.functional as F
 
 from backend.capture.load import load_capture
 from backend.core.errors import IGSError
-from backend.core.imageio import read_depth, read_exr, read_image, srgb_to_linear
+from backend.core.imageio import luminance, read_depth, read_exr, read_image, srgb_to_linear
 from backend.core.workspace import Frame, Workspace, split_frames
 from backend.eval.foreground import foreground_mask, masked_psnr
 from backend.eval.gloss import gloss_masks
@@ -111,6 +113,7 @@ def bound_scene(path: Path, quantiles: list[float], depth_tolerance: float = 0.0
         raise IGSError(f"{path}: no held-out view to score")
     panel = ViewPanel(ws, train)
     psnr: dict[str, list[float]] = {"none": [], **{f"bound_q{q:g}": [] for q in quantiles}}
+    ratio: dict[str, list[float]] = {k: [] for k in psnr}
     left = {q: 0.0 for q in quantiles}
     total, seen_by, glossy_px = 0.0, [], 0
     for f in test:
@@ -124,29 +127,31 @@ def bound_scene(path: Path, quantiles: list[float], depth_tolerance: float = 0.0
                       **{f"bound_q{q:g}": s + m[q].reshape(s.shape) for q in quantiles}}
         for key, pred in candidates.items():
             psnr[key].append(masked_psnr(to_display(pred, "linear"), target, glossy))
+            ratio[key].append(float((luminance(pred) / luminance(s).clamp_min(1e-3))[glossy].median()))
         for q in quantiles:
             left[q] += float((a * m[q].reshape(s.shape))[glossy].sum())
         total += float(r.clamp_min(0)[glossy].sum())
         seen_by.append(float(n.reshape(d.shape)[glossy].float().mean()))
         glossy_px += int(glossy.sum())
     metrics = ws.root / "metrics.json"
-    ours = None
-    if metrics.is_file():
-        ours = ((json.loads(metrics.read_text()).get("gloss") or {}).get("shading_psnr_glossy"))
+    gloss = (json.loads(metrics.read_text()).get("gloss") or {}) if metrics.is_file() else {}
     finite = lambda xs: [x for x in xs if x is not None and math.isfinite(x)]  # noqa: E731
     return {"workspace": str(path), "held_out_views": len(test), "glossy_pixels": glossy_px,
             "training_views_seeing_glossy_points": round(float(np.mean(seen_by)), 1) if seen_by else None,
             "shading_psnr_glossy": {**{k: round(float(np.mean(finite(v))), 2) if finite(v) else None
-                                       for k, v in psnr.items()}, "ours": ours},
+                                       for k, v in psnr.items()}, "ours": gloss.get("shading_psnr_glossy")},
+            "shading_ratio_glossy": {**{k: round(float(np.mean(v)), 3) if v else None for k, v in ratio.items()},
+                                     "ours": gloss.get("shading_ratio_glossy")},
             "share_left_in_s": {f"q{q:g}": round(left[q] / total, 3) if total > 0 else None for q in quantiles}}
 
 
 def table(scenes: list[dict[str, Any]], quantiles: list[float]) -> str:
     keys = ["none", *(f"bound_q{q:g}" for q in quantiles), "ours"]
-    head = ["scene", "views", *(f"S glossy {k}" for k in keys), *(f"share left q{q:g}" for q in quantiles)]
+    head = ["scene", "views", *(f"S glossy {k}" for k in keys), *(f"S ÷ true S {k}" for k in keys),
+            *(f"share left q{q:g}" for q in quantiles)]
     cell = lambda x: "-" if x is None else f"{x:.2f}" if isinstance(x, float) else str(x)  # noqa: E731
     rows = [[Path(s["workspace"]).name, cell(s["training_views_seeing_glossy_points"]),
-             *(cell(s["shading_psnr_glossy"][k]) for k in keys),
+             *(cell(s["shading_psnr_glossy"][k]) for k in keys), *(cell(s["shading_ratio_glossy"][k]) for k in keys),
              *(cell(s["share_left_in_s"][f"q{q:g}"]) for q in quantiles)] for s in scenes]
     return "\n".join("| " + " | ".join(r) + " |" for r in [head, ["---"] * len(head), *rows])
 

@@ -28,6 +28,7 @@ from backend.bench.seed_stats import cell, markdown
 
 DECOMPOSITION_COLUMNS = (("leakage", "leakage"), ("leakage GT", "leakage_gt"), ("leakage − GT", "leakage_vs_gt"),
                          ("S glossy dB", "shading_psnr_glossy"), ("S matte dB", "shading_psnr_matte"),
+                         ("S ÷ true S, glossy", "shading_ratio_glossy"),
                          ("R recall", "residual_recall"), ("R false on matte", "residual_false_matte"),
                          ("albedo dB", "albedo_psnr"), ("ours − 3DGS dB", "full_vs_3dgs_db"),
                          ("time ÷ 3DGS", "time_vs_3dgs"))

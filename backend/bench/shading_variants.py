@@ -130,8 +130,8 @@ def run_variant(src: Path, dst: Path, v: Variant, iterations: int, downscale: fl
     m = headline_metrics(evaluate_decomposition(run))
     return {"albedo_psnr": m.get("albedo_psnr"), "full_psnr": m.get("full_psnr"), "shading_psnr": m.get("shading_psnr"),
             "shading_psnr_fg": m.get("shading_psnr_fg"), "leakage": m.get("leakage"), "leakage_gt": m.get("leakage_gt"),
-            **{k: m.get(k) for k in ("shading_psnr_glossy", "shading_psnr_matte", "residual_recall",
-                                     "residual_false_matte")},
+            **{k: m.get(k) for k in ("shading_psnr_glossy", "shading_psnr_matte", "shading_ratio_glossy",
+                                     "residual_recall", "residual_false_matte")},
             "repaint_psnr": repaint_psnr(dst, edit, downscale), "seconds": round(seconds, 1),
             "stages": {k: {s: e.get(s) for s in ("train_seconds", "cache_seconds", "gaussians")}
                        for k, e in run.stages.items() if k in stages}}
@@ -145,11 +145,12 @@ def table(result: dict[str, Any]) -> str:
         for seed, r in seeds.items():
             rows.append([name, seed, f(r.get("albedo_psnr"), ".2f"), f(r["full_psnr"], ".2f"), f(r["shading_psnr_fg"], ".2f"),
                          f(r.get("shading_psnr_glossy"), ".2f"), f(r.get("shading_psnr_matte"), ".2f"),
+                         f(r.get("shading_ratio_glossy"), ".2f"),
                          f(r.get("residual_recall"), ".2f"), f(r.get("residual_false_matte"), ".3f"),
                          f(r["repaint_psnr"], ".2f"), f(r["leakage"], "+.3f"), f(r["leakage_gt"], "+.3f"),
                          f(r["seconds"], ".0f")])
-    return markdown(("variant", "seed", "albedo dB", "full dB", "shading fg dB", "S glossy dB", "S matte dB", "R recall",
-                     "R false on matte", f"{result['edit']} repaint, our S and R", "leakage", "leakage GT",
+    return markdown(("variant", "seed", "albedo dB", "full dB", "shading fg dB", "S glossy dB", "S matte dB",
+                     "S ÷ true S glossy", "R recall", "R false on matte", f"{result['edit']} repaint, our S and R", "leakage", "leakage GT",
                      f"s ({' + '.join(result['stages'])})"), rows)
 
 

@@ -102,11 +102,14 @@ def _leak(leak: dict[str, Any] | None) -> str:
 
 
 def _gloss(gloss: dict[str, Any] | None) -> str:
-    """' | S glossy/matte 18.2/25.0 dB, R recall 0.12, false on matte 0.01': the gloss entry's means."""
+    """' | S glossy/matte 18.2/25.0 dB (glossy 1.39x the truth), R recall 0.12, false on matte 0.01': the gloss
+    entry's means."""
     if gloss is None:
         return ""
     share = lambda x: f"{x:.2f}" if isinstance(x, float) else "n/a"  # noqa: E731
-    return (f" | S glossy/matte {_db(gloss.get('shading_psnr_glossy'))}/{_db(gloss.get('shading_psnr_matte'))} dB,"
+    ratio = gloss.get("shading_ratio_glossy")
+    return (f" | S glossy/matte {_db(gloss.get('shading_psnr_glossy'))}/{_db(gloss.get('shading_psnr_matte'))} dB"
+            + (f" (glossy {ratio:.2f}x the truth)" if isinstance(ratio, float) else "") + ","
             f" R recall {share(gloss.get('residual_recall'))}, false on matte {share(gloss.get('residual_false_matte'))}")
 
 

@@ -15,6 +15,8 @@ Per view (all images (H, W, 3) linear):
 
 - ``shading_psnr_glossy`` / ``shading_psnr_matte``: S against the true S on those pixels (sRGB-encoded,
   clipped to [0, 1], as every layer metric);
+- ``shading_ratio_glossy``: the median over the glossy pixels of S's luminance over the true S's (1: S as
+  bright as the truth; 1.5: half again, the reflection held in S);
 - recall: the share of the true residual's energy that ours holds where it belongs,
   ``sum min(R, R_gt) / sum R_gt`` over the foreground's pixels and channels (R clipped at 0): 1 when our R
   holds all of the true R, 0 when it is empty or elsewhere;
@@ -72,6 +74,9 @@ def view_gloss(r: Mapping[str, torch.Tensor], g: Mapping[str, torch.Tensor],
         s, s_gt = to_display(r["shading"], "linear"), to_display(g["shading"], "linear")
         out["shading_psnr_glossy"] = masked_psnr(s, s_gt, glossy)
         out["shading_psnr_matte"] = masked_psnr(s, s_gt, matte)
+        if bool(glossy.any()):
+            ratio = luminance(r["shading"].clamp_min(0)) / luminance(g["shading"].clamp_min(0)).clamp_min(1e-3)
+            out["shading_ratio_glossy"] = float(ratio[glossy].median())
     ours = r["residual"].clamp_min(0) if "residual" in r else torch.zeros_like(g["residual"])
     truth = g["residual"].clamp_min(0)
     fg, mt = foreground[..., None].expand_as(truth), matte[..., None].expand_as(truth)
@@ -108,12 +113,14 @@ def gloss_summary(views: Mapping[str, Mapping[str, Any]]) -> dict[str, Any] | No
             "min_residual": MIN_RESIDUAL, "views": len(views),
             "glossy_fraction": mean("glossy_fraction"), "matte_fraction": mean("matte_fraction"),
             "shading_psnr_glossy": mean("shading_psnr_glossy"), "shading_psnr_matte": mean("shading_psnr_matte"),
+            "shading_ratio_glossy": mean("shading_ratio_glossy"),
             "residual_recall": _ratio(total("recall_held_sum"), total("recall_truth_sum")),
             "residual_false_matte": _ratio(total("matte_residual_sum"), total("matte_image_sum")),
             "residual_false_matte_gt": _ratio(total("matte_residual_gt_sum"), total("matte_image_sum")),
             "per_view": {name: {k: v for k, v in m.items() if not k.endswith("_sum")} for name, m in views.items()}}
 
 
-HEADLINE_KEYS = ("shading_psnr_glossy", "shading_psnr_matte", "residual_recall", "residual_false_matte",
+HEADLINE_KEYS = ("shading_psnr_glossy", "shading_psnr_matte", "shading_ratio_glossy", "residual_recall",
+                 "residual_false_matte",
                  "residual_false_matte_gt", "glossy_fraction")
 """The 'gloss' entry's numbers that :func:`backend.eval.layer_metrics.headline_metrics` flattens (same names)."""

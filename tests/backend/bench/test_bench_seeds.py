@@ -159,7 +159,8 @@ def _issue_entry(leak: float, full_vs: float, ratio: float, ours: float, true: f
     result = {"psnr": {"multi_view/image": true, "multi_view/image_decomposed": ours, "single_view/image": true - 5,
                        "single_view/image_decomposed": ours - 3, "oracle/image_decomposed": ours + 1}}
     return {"decomposition": {"leakage": leak, "leakage_gt": -0.02, "leakage_vs_gt": round(leak + 0.02, 4),
-                              "shading_psnr_glossy": 18.0, "shading_psnr_matte": 25.0, "residual_recall": 0.2,
+                              "shading_psnr_glossy": 18.0, "shading_psnr_matte": 25.0, "shading_ratio_glossy": 1.4,
+                              "residual_recall": 0.2,
                               "residual_false_matte": 0.01, "albedo_psnr": 35.0,
                               "full_vs_3dgs_db": full_vs, "time_vs_3dgs": ratio},
             "edits": {"poster_recolor": bench_seeds.edit_headline(result)}, "seconds": {"total": 5.0}}
@@ -175,11 +176,11 @@ def test_headline_table_has_leakage_vs_gt_3dgs_time_and_the_repaint_with_our_s_a
     assert edit["single_view_image_decomposed"] == pytest.approx(25.7)
     text = bench_seeds.headline_table(seeds, aggregate(seeds))
     lines = text.splitlines()
-    assert lines[0] == ("| seed | leakage | leakage GT | leakage − GT | S glossy dB | S matte dB | R recall | "
-                        "R false on matte | albedo dB | ours − 3DGS dB | time ÷ 3DGS |")
-    assert "| 100 | -0.20 | -0.02 | -0.18 | 18.00 | 25.00 | 0.20 | 0.01 | 35.00 | 0.50 | 1.90 |" in lines
-    assert ("| mean ± std | -0.05 ± 0.21 | -0.02 ± 0.00 | -0.03 ± 0.21 | 18.00 ± 0.00 | 25.00 ± 0.00 | 0.20 ± 0.00 | "
-            "0.01 ± 0.00 | 35.00 ± 0.00 | 0.40 ± 0.14 | 1.80 ± 0.14 |") in lines
+    assert lines[0] == ("| seed | leakage | leakage GT | leakage − GT | S glossy dB | S matte dB | S ÷ true S, glossy | "
+                        "R recall | R false on matte | albedo dB | ours − 3DGS dB | time ÷ 3DGS |")
+    assert "| 100 | -0.20 | -0.02 | -0.18 | 18.00 | 25.00 | 1.40 | 0.20 | 0.01 | 35.00 | 0.50 | 1.90 |" in lines
+    assert ("| mean ± std | -0.05 ± 0.21 | -0.02 ± 0.00 | -0.03 ± 0.21 | 18.00 ± 0.00 | 25.00 ± 0.00 | 1.40 ± 0.00 | "
+            "0.20 ± 0.00 | 0.01 ± 0.00 | 35.00 ± 0.00 | 0.40 ± 0.14 | 1.80 ± 0.14 |") in lines
     assert ("| seed | edit | image, true S and R | image, our S and R | oracle, our S and R | lead, true S and R | "
             "lead, our S and R |") in lines
     assert "| 101 | poster_recolor | 42.00 | 30.70 | 31.70 | 5.00 | 3.00 |" in lines

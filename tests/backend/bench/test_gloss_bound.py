@@ -49,7 +49,9 @@ def test_the_bound_leaves_the_view_independent_part_of_the_residual_in_s(tmp_pat
     assert share["q1"] > 0.7  # the brightest view: all of it, where two views see the point
     psnr = got["shading_psnr_glossy"]
     assert psnr["bound_q0"] > psnr["none"] + 10 and psnr["bound_q1"] < psnr["bound_q0"] - 10
-    assert psnr["ours"] is None  # not decomposed
+    assert psnr["ours"] is None and got["shading_ratio_glossy"]["ours"] is None  # not decomposed
+    ratio = got["shading_ratio_glossy"]  # S = 0.5 under A * (0.1 + 1.0) of residual: 1 + 2.2 with all of it
+    assert ratio["none"] == pytest.approx(1 + 1.1 / 0.5, rel=0.05) and ratio["bound_q0"] == pytest.approx(1.2, rel=0.05)
 
 
 def test_the_command_writes_its_table_and_a_workspace_without_true_passes_is_one_error(tmp_path, capsys):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from backend.core.imageio import read_image, write_exr, write_image
+from backend.core.imageio import luminance, read_image, write_exr, write_image
 from backend.eval import gloss as gl
 from backend.eval.foreground import foreground_mask
 
@@ -49,11 +49,15 @@ def test_a_shading_that_holds_the_reflection_scores_low_on_glossy_pixels_only():
     leaky = {"shading": image / albedo, "residual": torch.zeros(H, W, 3)}
     got = gl.view_gloss(leaky, g, fg)
     assert got["shading_psnr_matte"] == math.inf and got["shading_psnr_glossy"] < 25.0
+    # S raised by R / A on the glossy pixels: its brightness there over the truth's, as the image's over A * S
+    lift = (luminance(image) / luminance(albedo * shading))[gl.gloss_masks(image, residual, fg)[0]].median()
+    assert got["shading_ratio_glossy"] == pytest.approx(float(lift), rel=1e-3) and got["shading_ratio_glossy"] > 1.1
     assert got["residual_recall"] == 0.0 and got["residual_false_matte"] == 0.0
     assert got["glossy_fraction"] == pytest.approx(0.5) and got["matte_fraction"] == pytest.approx(0.5)
     # the reflection in R: both exact, recall 1
     right = gl.view_gloss({"shading": shading, "residual": residual}, g, fg)
     assert right["shading_psnr_glossy"] == math.inf and right["residual_recall"] == pytest.approx(1.0)
+    assert right["shading_ratio_glossy"] == pytest.approx(1.0)
     # half of it in R, and some light claimed on the matte half: recall 0.5, false share R / I there
     spill = residual * 0.5
     spill[:, : W // 2] = 0.1
