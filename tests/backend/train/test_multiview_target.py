@@ -95,6 +95,41 @@ def test_an_occluder_is_no_evidence_of_a_reflection():
     assert torch.equal(views[0].extras[DIFFUSE_TARGET], views[0].image)
 
 
+def _sphere_views(n: int = 8, radius: float = 0.6) -> tuple[list[View], torch.Tensor]:
+    """A sphere of radius 0.6 (radiance 0.5) before a black backdrop, seen by n cameras around it at 2.2 m;
+    view 0 also sees a highlight of +0.5 on it. Returns the views and view 0's (H, W) mask of the sphere."""
+    views, mask0 = [], None
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        cam = Camera.look_at(f"frame_{i:04d}.png", [2.2 * np.cos(a), 2.2 * np.sin(a), 0.4], [0, 0, 0], [0, 0, 1], W, H, 50)
+        x, y = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        d = np.stack([(x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, np.ones_like(x)], -1) @ cam.R  # world rays
+        o = cam.center
+        b, c = d @ o, (o * o).sum() - radius**2
+        disc = b * b - (d * d).sum(-1) * c
+        hit = disc > 0
+        t_hit = np.where(hit, (-b - np.sqrt(np.maximum(disc, 0))) / (d * d).sum(-1), 0.0)
+        depth = np.where(hit, ((o + t_hit[..., None] * d) @ cam.R.T + cam.t)[..., 2], 0.0)
+        img = torch.zeros(H, W, 3)
+        on = torch.from_numpy(hit)
+        img[on] = 1.0 if i == 0 else 0.5
+        views.append(View(i, cam, img, torch.from_numpy(depth.astype(np.float32))))
+        mask0 = on if i == 0 else mask0
+    return views, mask0
+
+
+def test_a_curved_surface_is_seen_by_the_views_and_gets_its_share():
+    """On a sphere the depth changes across a few pixels; the occlusion test must still let the views see its
+    points (a 5x5 footprint left most of a glossy sphere without evidence at 128x96)."""
+    views, sphere = _sphere_views()
+    inner = torch.from_numpy(-torch.nn.functional.max_pool2d(-sphere[None, None].float(), 5, 1, 2)[0, 0].numpy() > 0)
+    share = view_dependent_share(views, quantile=0.25)[0]
+    assert int(inner.sum()) > 50
+    covered = (share[inner] > 0.4).float().mean()
+    assert float(covered) > 0.8, float(covered)
+    assert float(share[inner][share[inner] > 0.4].mean()) == pytest.approx(0.5, abs=0.03)
+
+
 def test_per_channel_a_blue_reflection_leaves_the_blue_channel_only():
     """A blue highlight (+0.5 in blue alone) seen by one view: by luminance, the same small share of every
     channel is taken out (the target keeps the blue tint and loses some red); per channel, blue loses half."""
