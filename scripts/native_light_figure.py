@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from backend.bench.bench_blender_native import Addon  # noqa: E402  (the add-on as Blender loads it)
 from backend.core.errors import IGSError  # noqa: E402
+from backend.synth import mesh_rig  # noqa: E402
 
 PLATES = ((-0.7, 0.99), (-0.3, 0.3), (0.3, 0.99), (0.7, 0.3))
 """(y, opacity) of the plates of splats at z = 0.5 over x = -0.3; the splat floor lies at y < 0."""
@@ -84,15 +85,6 @@ def workspace(ws: Path, size: tuple[int, int]) -> None:
                                                    np.full(len(floor[::4]), 0.99)))
 
 
-def diffuse(bpy, name: str, value: float):
-    mat = bpy.data.materials.new(name)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    bsdf = nodes.new("ShaderNodeBsdfDiffuse")
-    bsdf.inputs["Color"].default_value = (value, value, value, 1.0)
-    links.new(bsdf.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
-    return mat
-
 
 def mesh(bpy, coll, kind: str, location, scale, value: float):
     add = bpy.ops.mesh.primitive_cube_add if kind == "cube" else bpy.ops.mesh.primitive_plane_add
@@ -102,7 +94,7 @@ def mesh(bpy, coll, kind: str, location, scale, value: float):
     for c in list(obj.users_collection):
         c.objects.unlink(obj)
     coll.objects.link(obj)
-    obj.data.materials.append(diffuse(bpy, f"{kind} grey", value))
+    obj.data.materials.append(mesh_rig.diffuse_material(bpy, f"{kind} grey", (value, value, value)))
     return obj
 
 

@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
+from backend.bench.seed_stats import markdown
 from backend.capture.load import load_capture
 from backend.core.errors import IGSError
 from backend.core.imageio import luminance, read_depth, read_exr, read_image, srgb_to_linear
@@ -45,6 +45,7 @@ from backend.core.workspace import Frame, Workspace, split_frames
 from backend.eval.foreground import foreground_mask, masked_psnr
 from backend.eval.gloss import gloss_masks
 from backend.train.intrinsic.envelope import pixel_points
+from backend.train.intrinsic.multiview import ViewLookup, lower_quantile
 from backend.train.views import to_display
 
 ALBEDO_FLOOR = 0.02
@@ -68,41 +69,23 @@ def true_passes(ws: Workspace, frame: Frame) -> tuple[torch.Tensor, ...]:
 
 
 class ViewPanel:
-    """The training views' R_true / A_true (K, 3, H, W) and depth bounds over 3x3 pixels, for look-ups."""
+    """The training views' R_true / A_true (K, 3, H, W), looked up where they see a point (3x3 depth footprint)."""
 
     def __init__(self, ws: Workspace, frames: list[Frame]):
         passes = [true_passes(ws, f) for f in frames]
-        self.ratio = torch.stack([(r.clamp_min(0) / a.clamp_min(ALBEDO_FLOOR)).permute(2, 0, 1) for a, _, r, _ in passes])
-        depth = torch.stack([d for *_, d in passes])[:, None]
-        self.near, self.far = -F.max_pool2d(-depth, 3, 1, 1), F.max_pool2d(depth, 3, 1, 1)
-        self.rot = torch.stack([torch.from_numpy(f.camera.R) for f in frames]).float()
-        self.trans = torch.stack([torch.from_numpy(f.camera.t) for f in frames]).float()
-        self.intr = torch.tensor([[f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy] for f in frames]).float()
+        ratio = torch.stack([(r.clamp_min(0) / a.clamp_min(ALBEDO_FLOOR)).permute(2, 0, 1) for a, _, r, _ in passes])
+        self.lookup = ViewLookup([f.camera for f in frames], torch.stack([d for *_, d in passes]), ratio, footprint=3)
 
     def view_independent(self, points: torch.Tensor, quantiles: list[float],
                          depth_tolerance: float) -> tuple[dict[float, torch.Tensor], torch.Tensor]:
         """For (N, 3) world points: {q: (N, 3) the q-quantile of R / A over the views that see each point}
         (0 where fewer than :data:`MIN_VIEWS` do) and (N,) the number of those views."""
-        h, w = self.near.shape[-2:]
-        pc = torch.einsum("kab,nb->kna", self.rot, points) + self.trans[:, None]
-        z = pc[..., 2]
-        zs = z.clamp_min(1e-6)
-        u = self.intr[:, None, 0] * pc[..., 0] / zs + self.intr[:, None, 2]
-        v = self.intr[:, None, 1] * pc[..., 1] / zs + self.intr[:, None, 3]
-        inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], -1)[:, None]  # (K, 1, N, 2)
-        lo = F.grid_sample(self.near, grid, mode="nearest", align_corners=False)[:, 0, 0]
-        hi = F.grid_sample(self.far, grid, mode="nearest", align_corners=False)[:, 0, 0]
-        seen = inside & (lo > 0) & ((lo - z).abs() <= depth_tolerance * z) & ((hi - z).abs() <= depth_tolerance * z)
-        vals = F.grid_sample(self.ratio, grid, mode="nearest", align_corners=False)[:, :, 0]  # (K, 3, N)
-        ranked = torch.where(seen[:, None], vals, torch.full_like(vals, math.inf)).sort(0).values
-        n = seen.sum(0)
+        vals, seen = self.lookup(points, depth_tolerance)
         out = {}
         for q in quantiles:
-            idx = (q * (n - 1).clamp_min(0)).floor().long()
-            m = ranked.gather(0, idx[None, None].expand(1, 3, -1))[0].T  # (N, 3)
-            out[q] = torch.where((n >= MIN_VIEWS)[:, None], m, torch.zeros_like(m))
-        return out, n
+            m, n = lower_quantile(vals, seen, q)
+            out[q] = torch.where((n >= MIN_VIEWS)[:, None], m.T, torch.zeros_like(m.T))
+        return out, seen.sum(0)
 
 
 def bound_scene(path: Path, quantiles: list[float], depth_tolerance: float = 0.03) -> dict[str, Any]:
@@ -153,7 +136,7 @@ def table(scenes: list[dict[str, Any]], quantiles: list[float]) -> str:
     rows = [[Path(s["workspace"]).name, cell(s["training_views_seeing_glossy_points"]),
              *(cell(s["shading_psnr_glossy"][k]) for k in keys), *(cell(s["shading_ratio_glossy"][k]) for k in keys),
              *(cell(s["share_left_in_s"][f"q{q:g}"]) for q in quantiles)] for s in scenes]
-    return "\n".join("| " + " | ".join(r) + " |" for r in [head, ["---"] * len(head), *rows])
+    return markdown(head, rows)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,16 +19,21 @@ SEGMENTS = (48, 24)
 """A sphere's rings: it deviates from the true sphere by under 0.3 % of its radius."""
 
 
-def _material(bpy, mesh: dict[str, Any]):
-    mat = bpy.data.materials.new(f"{TAG} {mesh['name']}")
+def diffuse_material(bpy, name: str, color) -> Any:
+    """A new material ``name``: a Diffuse BSDF of the linear RGB ``color``, and nothing else."""
+    mat = bpy.data.materials.new(name)
     if mat.node_tree is None:  # Blender before 5.0 makes a material without nodes
         mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     bsdf = nodes.new("ShaderNodeBsdfDiffuse")
-    bsdf.inputs["Color"].default_value = (*(float(c) for c in mesh["color"]), 1.0)
+    bsdf.inputs["Color"].default_value = (*(float(c) for c in color), 1.0)
     links.new(bsdf.outputs["BSDF"], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
     return mat
+
+
+def _material(bpy, mesh: dict[str, Any]):
+    return diffuse_material(bpy, f"{TAG} {mesh['name']}", mesh["color"])
 
 
 def _geometry(bpy, mesh: dict[str, Any]):

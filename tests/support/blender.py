@@ -19,6 +19,7 @@ from mathutils import Vector  # noqa: E402
 
 from backend.splats.gaussians import GaussianSet  # noqa: E402
 from backend.splats.ply import write_ply  # noqa: E402
+from backend.synth import mesh_rig  # noqa: E402
 from tests.support.addon_install import MOD, PYTHON, REPO, ROOT, build_zip  # noqa: E402, F401  (the tests' names for them)
 
 
@@ -372,13 +373,7 @@ def flat_layer(kind: str, means: np.ndarray, scale, color: float):
 
 def diffuse(name: str, value: float) -> bpy.types.Material:
     """A grey Diffuse BSDF material (the truth's mesh surfaces)."""
-    mat = bpy.data.materials.new(name)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    bsdf = nodes.new("ShaderNodeBsdfDiffuse")
-    bsdf.inputs["Color"].default_value = (value, value, value, 1.0)
-    links.new(bsdf.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
-    return mat
+    return mesh_rig.diffuse_material(bpy, name, (value, value, value))
 
 
 def truth_scene(scene, sky: float | None = None, samples: int = 32, name: str = "truth") -> bpy.types.Scene:

@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 
 from backend.core import events
+from backend.core.cameras import Camera
 from backend.core.imageio import luminance
 from backend.train.intrinsic.envelope import pixel_points
 from backend.train.views import View
@@ -73,6 +74,48 @@ def _signal(view: View, albedo_key: str, channels: str = "luminance", depth_tole
     return ((patches * same).sum(1) / same.sum(0).clamp_min(1.0)).reshape(c, h, w)
 
 
+class ViewLookup:
+    """K views' values (K, C, H, W) read at world points, where each view sees the point: its depth (K, H, W)
+    over the ``footprint`` (square, pixels) around the point's nearest pixel lies within a tolerance of the
+    point's distance (the occlusion test). All views have the same size."""
+
+    def __init__(self, cameras: Sequence[Camera], depths: torch.Tensor, values: torch.Tensor,
+                 footprint: int = FOOTPRINT):
+        self.values = values
+        self.rot = torch.stack([torch.from_numpy(c.R) for c in cameras]).float()  # (K, 3, 3)
+        self.trans = torch.stack([torch.from_numpy(c.t) for c in cameras]).float()  # (K, 3)
+        self.intr = torch.tensor([[c.fx, c.fy, c.cx, c.cy] for c in cameras], dtype=torch.float32)
+        d = depths[:, None]
+        # the nearest and farthest depth over a sample's footprint: a sample on another surface is not seen
+        near = -F.max_pool2d(-d, footprint, stride=1, padding=footprint // 2)
+        far = F.max_pool2d(d, footprint, stride=1, padding=footprint // 2)
+        self.bounds = torch.cat([near, far], 1)  # (K, 2, H, W)
+
+    def __call__(self, points: torch.Tensor, depth_tolerance: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """For (N, 3) world points: each view's values there (K, C, N) and whether it sees them (K, N)."""
+        h, w = self.bounds.shape[-2:]
+        pc = torch.einsum("kab,nb->kna", self.rot, points) + self.trans[:, None]  # (K, N, 3) in each camera
+        z = pc[..., 2]
+        zs = z.clamp_min(1e-6)
+        u = self.intr[:, None, 0] * pc[..., 0] / zs + self.intr[:, None, 2]
+        v = self.intr[:, None, 1] * pc[..., 1] / zs + self.intr[:, None, 3]
+        inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], -1)[:, None]  # (K, 1, N, 2), align_corners=False
+        lo, hi = F.grid_sample(self.bounds, grid, mode="nearest", align_corners=False)[:, :, 0].unbind(1)
+        vals = F.grid_sample(self.values, grid, mode="nearest", padding_mode="border", align_corners=False)[:, :, 0]
+        seen = inside & (lo > 0) & ((lo - z).abs() <= depth_tolerance * z) & ((hi - z).abs() <= depth_tolerance * z)
+        return vals, seen
+
+
+def lower_quantile(vals: torch.Tensor, seen: torch.Tensor, quantile: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``quantile`` (C, N) of values (K, C, N) over the views that see each point (K, N) (the lower
+    neighbour's rank; +inf where none does) and the number of those views (N,)."""
+    ranked = torch.where(seen[:, None], vals, torch.full_like(vals, float("inf"))).sort(dim=0).values
+    n = seen.sum(0)
+    idx = (quantile * (n - 1).clamp_min(0)).floor().long()[None, None].expand(1, vals.shape[1], -1)
+    return ranked.gather(0, idx)[0], n
+
+
 def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_tolerance: float = 0.03,
                          min_views: int = MIN_VIEWS, max_views: int = MAX_VIEWS,
                          albedo_key: str = "A", channels: str = "luminance") -> list[torch.Tensor | None]:
@@ -90,36 +133,15 @@ def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_to
         return out
     c, h, w = lums[0].shape
     panel = with_depth[:: max(1, -(-len(with_depth) // max_views))]  # the views every point is looked up in
-    rs = torch.stack([torch.from_numpy(views[i].camera.R) for i in panel]).float()  # (K, 3, 3)
-    ts = torch.stack([torch.from_numpy(views[i].camera.t) for i in panel]).float()  # (K, 3)
-    intr = torch.tensor([[views[i].camera.fx, views[i].camera.fy, views[i].camera.cx, views[i].camera.cy]
-                         for i in panel], dtype=torch.float32)
-    lum_stack = torch.stack([lums[i] for i in panel]).float()  # (K, C, H, W)
-    depth_stack = torch.stack([depths[i].float() for i in panel])[:, None]  # (K, 1, H, W)
-    # the nearest and farthest depth over a sample's footprint: a sample on another surface is not seen
-    near = -F.max_pool2d(-depth_stack, FOOTPRINT, stride=1, padding=FOOTPRINT // 2)
-    far = F.max_pool2d(depth_stack, FOOTPRINT, stride=1, padding=FOOTPRINT // 2)
-    bounds = torch.cat([near, far], 1)  # (K, 2, H, W)
+    lookup = ViewLookup([views[i].camera for i in panel], torch.stack([depths[i].float() for i in panel]),
+                        torch.stack([lums[i] for i in panel]).float())
     for i in with_depth:
         d = depths[i].float()
-        x = pixel_points(views[i].camera, d).reshape(-1, 3)  # (N, 3)
-        pc = torch.einsum("kab,nb->kna", rs, x) + ts[:, None]  # (K, N, 3) in each camera
-        z = pc[..., 2]
-        zs = z.clamp_min(1e-6)
-        u = intr[:, None, 0] * pc[..., 0] / zs + intr[:, None, 2]
-        v = intr[:, None, 1] * pc[..., 1] / zs + intr[:, None, 3]
-        inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], -1)[:, None]  # (K, 1, N, 2), align_corners=False
-        lo, hi = F.grid_sample(bounds, grid, mode="nearest", align_corners=False)[:, :, 0].unbind(1)  # (K, N) each
-        their = F.grid_sample(lum_stack, grid, mode="nearest", padding_mode="border", align_corners=False)[:, :, 0]
-        visible = inside & (lo > 0) & ((lo - z).abs() <= depth_tolerance * z) & ((hi - z).abs() <= depth_tolerance * z)
+        their, visible = lookup(pixel_points(views[i].camera, d).reshape(-1, 3), depth_tolerance)
         own = lums[i].reshape(c, -1)  # (C, N)
         # the view itself is one of the views that see its pixels, whether or not it is on the panel
-        vals = torch.cat([torch.where(visible[:, None], their, torch.full_like(their, float("inf"))), own[None]])
-        n = visible.sum(0) + 1
-        ranked = vals.sort(dim=0).values  # (K + 1, C, N)
-        idx = (quantile * (n - 1)).floor().long()[None, None].expand(1, c, -1)
-        q = ranked.gather(0, idx)[0]  # (C, N): the lower quantile, over the visible
+        q, n = lower_quantile(torch.cat([their, own[None]]), torch.cat([visible, torch.ones_like(visible[:1])]),
+                              quantile)
         ok = (n >= min_views) & (d.reshape(-1) > 0)
         share = torch.where(ok & (own > 1e-6), 1 - q / own.clamp_min(1e-6), torch.zeros_like(own))
         share = share.clamp(0.0, 1.0).reshape(c, h, w)
