@@ -23,7 +23,7 @@ linear images with (H, W) z-depths; pixels without depth, or seen by too few vie
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import torch
@@ -45,6 +45,9 @@ nearest pixel and averaged only over its own surface (:func:`_signal`), so the p
 A 5x5 test (with a bilinear read of a plain 3x3 blur) left 8 % of the glossy pixels of family scene 100 at
 128x96 seen by enough views, since a curved object's depth changes by more than the tolerance across it."""
 MAX_VIEWS = 24
+CHUNK = 1 << 16
+"""Points of one view looked up in the panel at a time: about 100 bytes each per panel view in flight
+(their projection, samples and sort), 0.15 GiB at 24 views, whatever the image size."""
 """Views every point is looked up in, spread evenly over the training views: the cost grows with them."""
 DISK_PER_VIEW_PIXEL = 6
 """Bytes per view-pixel the multi-view target (an (H, W, 3) extra, 2 bytes a value) adds to the shading
@@ -116,37 +119,55 @@ def lower_quantile(vals: torch.Tensor, seen: torch.Tensor, quantile: float) -> t
     return ranked.gather(0, idx)[0], n
 
 
+def iter_view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_tolerance: float = 0.03,
+                               min_views: int = MIN_VIEWS, max_views: int = MAX_VIEWS, albedo_key: str = "A",
+                               channels: str = "luminance") -> Iterator[tuple[int, torch.Tensor | None]]:
+    """(index, share) for each view in turn: the (H, W) share of each pixel's light above the ``quantile``
+    of the views that see its surface point (module docstring), over at most ``max_views`` views spread
+    evenly over the list (the panel) and the view itself; None for a view without a depth prior. All views
+    have the same size. Where the views hold their albedo render (``extras[albedo_key]``), the light is
+    compared as the ratio image / albedo (:func:`_signal`). With ``channels`` 'rgb' the share is per
+    channel, (H, W, 3): a reflection's colour (a blue sky on a floor) leaves S too, not only its brightness.
+
+    Only the panel's signals and depths are held, (4 + 4 C) bytes a pixel of each of its views; the other
+    views are read one at a time and their points looked up :data:`CHUNK` at a time, so the memory does
+    not grow with the number of views or with more than the panel's share of their size."""
+    with_depth = [i for i, v in enumerate(views) if v.depth is not None]
+    panel = with_depth[:: max(1, -(-len(with_depth) // max_views))]  # the views every point is looked up in
+    lookup = None
+    if panel:
+        lookup = ViewLookup([views[i].camera for i in panel], torch.stack([views[i].depth.float() for i in panel]),
+                            torch.stack([_signal(views[i], albedo_key, channels, depth_tolerance)
+                                         for i in panel]).float())
+    for i, v in enumerate(views):
+        if lookup is None or v.depth is None:
+            yield i, None
+            continue
+        d = v.depth.float()
+        own_all = _signal(v, albedo_key, channels, depth_tolerance).float()
+        c, h, w = own_all.shape
+        own_all, points = own_all.reshape(c, -1), pixel_points(v.camera, d).reshape(-1, 3)
+        share = torch.zeros_like(own_all)
+        for a in range(0, points.shape[0], CHUNK):
+            b = min(a + CHUNK, points.shape[0])
+            their, visible = lookup(points[a:b], depth_tolerance)
+            own = own_all[:, a:b]  # (C, n)
+            # the view itself is one of the views that see its pixels, whether or not it is on the panel
+            q, n = lower_quantile(torch.cat([their, own[None]]), torch.cat([visible, torch.ones_like(visible[:1])]),
+                                  quantile)
+            ok = (n >= min_views) & (d.reshape(-1)[a:b] > 0)
+            share[:, a:b] = torch.where(ok & (own > 1e-6), 1 - q / own.clamp_min(1e-6), torch.zeros_like(own))
+        share = share.clamp(0.0, 1.0).reshape(c, h, w)
+        yield i, share[0] if channels == "luminance" else share.permute(1, 2, 0)
+
+
 def view_dependent_share(views: Sequence[View], quantile: float = 0.25, depth_tolerance: float = 0.03,
                          min_views: int = MIN_VIEWS, max_views: int = MAX_VIEWS,
                          albedo_key: str = "A", channels: str = "luminance") -> list[torch.Tensor | None]:
-    """Per view, the (H, W) share of each pixel's light above the ``quantile`` of the views that see
-    its surface point (module docstring), over at most ``max_views`` views spread evenly over the
-    list (and the view itself); None for a view without a depth prior. All views have the same size.
-    Where the views hold their albedo render (``extras[albedo_key]``), the light is compared as the
-    ratio image / albedo (:func:`_signal`). With ``channels`` 'rgb' the share is per channel, (H, W, 3):
-    a reflection's colour (a blue sky on a floor) leaves S too, not only its brightness."""
-    depths = [v.depth for v in views]
-    lums = [_signal(v, albedo_key, channels, depth_tolerance) for v in views]
-    out: list[torch.Tensor | None] = [None] * len(views)
-    with_depth = [i for i, d in enumerate(depths) if d is not None]
-    if not with_depth:
-        return out
-    c, h, w = lums[0].shape
-    panel = with_depth[:: max(1, -(-len(with_depth) // max_views))]  # the views every point is looked up in
-    lookup = ViewLookup([views[i].camera for i in panel], torch.stack([depths[i].float() for i in panel]),
-                        torch.stack([lums[i] for i in panel]).float())
-    for i in with_depth:
-        d = depths[i].float()
-        their, visible = lookup(pixel_points(views[i].camera, d).reshape(-1, 3), depth_tolerance)
-        own = lums[i].reshape(c, -1)  # (C, N)
-        # the view itself is one of the views that see its pixels, whether or not it is on the panel
-        q, n = lower_quantile(torch.cat([their, own[None]]), torch.cat([visible, torch.ones_like(visible[:1])]),
-                              quantile)
-        ok = (n >= min_views) & (d.reshape(-1) > 0)
-        share = torch.where(ok & (own > 1e-6), 1 - q / own.clamp_min(1e-6), torch.zeros_like(own))
-        share = share.clamp(0.0, 1.0).reshape(c, h, w)
-        out[i] = share[0] if channels == "luminance" else share.permute(1, 2, 0)
-    return out
+    """Every view's share (:func:`iter_view_dependent_share`) in a list: for a few views (tests, figures);
+    it holds them all."""
+    return [share for _, share in iter_view_dependent_share(views, quantile, depth_tolerance, min_views, max_views,
+                                                            albedo_key, channels)]
 
 
 def diffuse_targets(views: Sequence[View], quantile: float, tolerance: float, key: str = "diffuse_target",
@@ -154,9 +175,9 @@ def diffuse_targets(views: Sequence[View], quantile: float, tolerance: float, ke
     """Put each view's diffuse target ``I * (1 - max(0, share - tolerance))`` (H, W, 3) into
     ``view.extras[key]`` (:func:`view_dependent_share`, per channel with ``channels`` 'rgb'; a view
     without depth keeps its image); returns the mean share of the light taken out, over the views' pixels."""
-    shares = view_dependent_share(views, quantile, channels=channels)
     taken = []
-    for v, share in zip(views, shares):
+    for i, share in iter_view_dependent_share(views, quantile, channels=channels):
+        v = views[i]
         image = v.image
         if share is None:
             v.extras[key] = image

@@ -12,7 +12,7 @@ from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.render import render_layers
 from backend.splats.init import InitConfig, from_points
-from backend.train.intrinsic import stages
+from backend.train.intrinsic import multiview, stages
 from backend.train.intrinsic.config import DecomposeConfig
 from backend.train.intrinsic.multiview import diffuse_targets, view_dependent_share
 from backend.train.intrinsic.run import check_shading_target
@@ -128,6 +128,19 @@ def test_a_curved_surface_is_seen_by_the_views_and_gets_its_share():
     covered = (share[inner] > 0.4).float().mean()
     assert float(covered) > 0.8, float(covered)
     assert float(share[inner][share[inner] > 0.4].mean()) == pytest.approx(0.5, abs=0.03)
+
+
+def test_points_looked_up_in_chunks_and_views_one_at_a_time_give_the_same_shares(monkeypatch):
+    """The lookup streams: each view's points go through the panel a chunk at a time, and the shares come
+    one view at a time (no list of every view's share or signal), with the same values as in one piece."""
+    views = _floor_views(occluded=(1, 2))
+    whole = view_dependent_share(views, quantile=0.25)
+    monkeypatch.setattr(multiview, "CHUNK", 97)  # not a divisor of the 48x36 pixels
+    chunked = multiview.iter_view_dependent_share(views, quantile=0.25)
+    assert not isinstance(chunked, list)
+    i, first = next(chunked)
+    assert i == 0 and torch.equal(first, whole[0])
+    assert all(torch.equal(s, whole[k]) for k, s in chunked)
 
 
 def test_per_channel_a_blue_reflection_leaves_the_blue_channel_only():
