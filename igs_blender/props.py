@@ -157,9 +157,9 @@ class IGS_SceneProps(bpy.types.PropertyGroup):
                                                        ("residual", "Residual", "")], default="ALL")
     iterations: IntProperty(
         name="Iterations", default=0, min=0,
-        description="N: the albedo stage runs N steps, shading 3N/4, residual N/2 (the 3DGS baseline: N). "
+        description="N: the albedo stage runs N steps, shading N/2, residual N/2 (the 3DGS baseline: N). "
                     f"0: the backend's defaults, N = {DECOMPOSE_DEFAULT} ({DECOMPOSE_DEFAULT}/"
-                    f"{DECOMPOSE_DEFAULT * 3 // 4}/{DECOMPOSE_DEFAULT // 2}; 3DGS {TRAIN_3DGS_DEFAULT})")
+                    f"{DECOMPOSE_DEFAULT // 2}/{DECOMPOSE_DEFAULT // 2}; 3DGS {TRAIN_3DGS_DEFAULT})")
     restart: BoolProperty(name="Start Over", default=False,
                           description="Discard the checkpoints instead of resuming (needed after changing settings)")
     metrics_info: StringProperty(default="")

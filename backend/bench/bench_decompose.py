@@ -3,7 +3,7 @@
 Runs, in one process on one workspace (ratios hold on a shared machine, absolute times less so):
 
 1. vanilla 3DGS (``train-3dgs``: sRGB images, SH degree 3) with N iterations;
-2. the three-set decomposition with the iterations of ``--iterations N`` (albedo N, shading 3N / 4,
+2. the three-set decomposition with the iterations of ``--iterations N`` (albedo N, shading N / 2,
    residual N / 2);
 3. the single-set baseline with the same losses, the same total iterations and the three fields'
    Gaussian budget together (``--single-set-fraction F`` runs each of its phases at F times the
@@ -300,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
                         "its layers/, metrics.json and report*.png are overwritten")
     p.add_argument("--out", default="bench_decompose.json", help="JSON output (default bench_decompose.json)")
     p.add_argument("--iterations", type=int, default=2000,
-                   help="3DGS iterations; the decomposition runs albedo N, shading 3N/4, residual N/2 (default 2000)")
+                   help="3DGS iterations; the decomposition runs albedo N, shading N/2, residual N/2 (default 2000)")
     p.add_argument("--downscale", type=float, default=1.0, help="divide image sizes by this factor (default 1)")
     p.add_argument("--max-gaussians", type=int, default=100_000,
                    help="densification budget of 3DGS and of each of the albedo and shading fields (default 100000)")

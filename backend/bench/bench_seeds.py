@@ -119,7 +119,7 @@ class SeedSettings:
     seed: int = 0
     """``igs synth --seed``: camera path and Cycles seed, the same for every scene."""
     iterations: int = 2000
-    """3DGS iterations; the decomposition runs albedo N, shading 3N/4, residual N/2."""
+    """3DGS iterations; the decomposition runs albedo N, shading N/2, residual N/2."""
     downscale: float = 1.0
     max_gaussians: int = 100_000
     residual_points: int = field(default_factory=lambda: DecomposeConfig().spawn.points)
@@ -504,7 +504,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--views", type=int, default=None, help="views per capture (default: the preset's)")
     p.add_argument("--seed", type=int, default=d.seed, help="igs synth --seed: camera path and Cycles seed (default 0)")
     p.add_argument("--iterations", type=int, default=d.iterations,
-                   help=f"3DGS iterations; the decomposition runs albedo N, shading 3N/4, residual N/2 (default {d.iterations})")
+                   help=f"3DGS iterations; the decomposition runs albedo N, shading N/2, residual N/2 (default {d.iterations})")
     p.add_argument("--downscale", type=float, default=d.downscale)
     p.add_argument("--max-gaussians", type=int, default=d.max_gaussians)
     p.add_argument("--residual-points", type=int, default=d.residual_points)

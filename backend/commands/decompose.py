@@ -57,8 +57,8 @@ OPTIONS = (
            "quantile of the views that the shading stage fits, under a glossy surface's reflection "
            f"(default {_D.shading_quantile}; 0.5 = the median, a plain L1)", type=opt.number(0, 0.5, lo_open=True)),
     Option("--shading-target", "shading_target",
-           "what the shading stage fits A*S to: 'image' (default) or 'multiview' (the image less the light "
-           "above the views' agreement on each surface point: reflections left to the residual)"),
+           "what the shading stage fits A*S to: 'multiview' (default: the image less the light above the "
+           "views' agreement on each surface point, reflections left to the residual) or 'image'"),
     Option("--multiview-quantile", "multiview_quantile",
            f"with --shading-target multiview: the quantile of the views' radiance at a point that counts as "
            f"their agreement (default {_D.multiview_quantile})", type=opt.number(0, 0.5, lo_open=True)),
@@ -113,7 +113,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage", choices=STAGES, action="append",
                    help="run only this stage (repeatable; earlier layers are read from <ws>/layers)")
     p.add_argument("--iterations", type=opt.COUNT, default=None,
-                   help=f"iterations per stage: albedo N, shading 3N/4, residual N/2 (default "
+                   help=f"iterations per stage: albedo N, shading N/2, residual N/2 (default "
                         f"{_D.albedo.iterations}/{_D.shading.iterations}/{_D.residual.iterations})")
     add_config_arguments(p, _D, STAGE_ITERATIONS)
     p.add_argument("--single-set", action="store_true",

@@ -33,7 +33,7 @@ from backend.train.intrinsic.run import decompose
 
 DEFAULT_WORKSPACE = Path("workspaces") / "demo"
 DEMO_EDIT = "wall_decal"
-# Per-stage iteration budget (albedo N, shading 3N/4, residual N/2) per preset: sized so the whole
+# Per-stage iteration budget (albedo N, shading N/2, residual N/2) per preset: sized so the whole
 # demo runs in minutes on a 2-core CPU.
 ITERATIONS = {"test": 300, "demo": 2000, "paper": 7000}
 # Bake re-optimisation steps per preset: the test preset's tiny field needs fewer than the default.
@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="synthetic capture preset (default: demo)")
     p.add_argument("--seed", type=opt.SEED, default=0, help="scene seed")
     p.add_argument("--iterations", type=opt.COUNT, default=None,
-                   help="decomposition budget: albedo N, shading 3N/4, residual N/2 (default per preset: "
+                   help="decomposition budget: albedo N, shading N/2, residual N/2 (default per preset: "
                         + ", ".join(f"{k} {v}" for k, v in ITERATIONS.items()) + ")")
     p.add_argument("--frames", type=opt.COUNT, default=36, help="turntable frames (default 36)")
     locking.writes(p, locking.workspace_arg, create=True)

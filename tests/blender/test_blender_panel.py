@@ -69,7 +69,7 @@ def test_iterations_tooltip_and_shown_defaults_are_the_backends(addon):
     tip = bpy.context.scene.igs.bl_rna.properties["iterations"].description
     n = props_mod.DECOMPOSE_DEFAULT
     stages = split_iterations(n)
-    assert "shading 3N/4, residual N/2" in tip
+    assert "shading N/2, residual N/2" in tip
     assert f"N = {n} ({stages['albedo']}/{stages['shading']}/{stages['residual']}" in tip
     help_text = subprocess.run([PYTHON, "-m", "backend", "decompose", "--help"], capture_output=True, text=True,
                                cwd=ROOT, timeout=120).stdout

@@ -279,14 +279,15 @@ def test_bench_targets_without_the_single_set_report_its_target_as_not_measured(
     assert t["albedo_vs_single_set"]["met"] is False and "single-seq" in table({**r, "targets": t})
 
 
-def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_three_quarters():
+def test_budget_split_gives_the_albedo_the_3dgs_budget_and_the_shading_half_with_the_residual_beside_it():
     from backend.train.intrinsic.run import joint_residual
-    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 2250, "residual": 1500}
+    assert config.split_iterations(3000) == {"albedo": 3000, "shading": 1500, "residual": 1500}
     assert config.split_iterations(1) == {"albedo": 1, "shading": 1, "residual": 1}
     cfg = DecomposeConfig()
     assert {s: cfg.stage(s).iterations for s in config.STAGES} == config.split_iterations(cfg.albedo.iterations)
-    assert joint_residual(cfg, cfg.shading) is None  # the residual beside the shading is an option
-    joint = joint_residual(replace(cfg, joint_residual=0.5), cfg.shading)
+    assert joint_residual(replace(cfg, joint_residual=0.0), cfg.shading) is None  # off: the residual after
+    assert cfg.joint_residual == 0.5 and cfg.shading_target == "multiview"  # the defaults
+    joint = joint_residual(cfg, cfg.shading)
     assert joint.start == round(cfg.shading.iterations / 2) and joint.config.iterations == cfg.shading.iterations - joint.start
     assert joint.config.lambda_depth == cfg.residual.lambda_depth and joint.config.depth_normalized
     assert joint.weight == cfg.joint_residual_weight > 0
@@ -303,8 +304,8 @@ def test_bench_single_set_fraction_scales_each_phase_and_is_not_judged():
 
     _, dec = configs(1000, 1.0, 5000, "cpu", 100, "cpu")
     half = scaled_iterations(dec, 0.3)
-    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 225, 150]
-    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 750, 500]
+    assert [half.stage(s).iterations for s in ("albedo", "shading", "residual")] == [300, 150, 150]
+    assert [dec.stage(s).iterations for s in ("albedo", "shading", "residual")] == [1000, 500, 500]
     assert scaled_iterations(dec, 1.0) is dec
     # --gray-weight reaches the decomposition config only when given
     from backend.train.intrinsic.config import DecomposeConfig
