@@ -93,7 +93,7 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
             "shading_psnr_matte"} <= set(flat)
     assert m["decompose_seconds"] > 0 and all(st[s]["train_seconds"] > 0 for s in st)
     assert st["shading"]["cache_seconds"] > 0 and st["residual"]["cache_seconds"] > 0
-    assert "spawned at high" in st["residual"]["init"]  # by default the residual starts after the shading
+    assert "trained with the shading" in st["residual"]["init"]  # by default the residual joins the shading
 
     # the layers: standard PLYs of the right kinds, counted in metrics.json and capture.json
     layers = {k: read_ply(ws / "layers" / f"{k}.ply")[0] for k in ("albedo", "shading", "residual")}
@@ -142,7 +142,7 @@ def test_decompose_learns_every_stage_and_resumes_after_a_kill(capture, tmp_path
 def test_the_residual_trained_with_the_shading_is_where_the_residual_stage_goes_on_from(capture, tmp_path):
     """--joint-residual 0.5: killed after the residual joined (iteration 12 of 24), the shading stage
     resumes with it; the residual stage, run apart, goes on from it; without the option the shading
-    is redone alone and the residual is spawned after it."""
+    (--joint-residual 0) is redone alone and the residual is spawned after it."""
     ws = tmp_path / "ws"
     shutil.copytree(capture, ws)
     joint = [*ARGS, "--joint-residual", "0.5"]
@@ -176,7 +176,7 @@ def test_the_residual_trained_with_the_shading_is_where_the_residual_stage_goes_
     assert main(["decompose", str(ws), *joint, "--stage", "residual"]) == 0
     st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
     assert st["residual"]["init"] == f"{len(kept)} trained with the shading"
-    assert main(["decompose", str(ws), *ARGS]) == 0
+    assert main(["decompose", str(ws), *ARGS, "--joint-residual", "0"]) == 0
     st = json.loads((ws / "metrics.json").read_text())["decompose"]["stages"]
     assert st["shading"]["resumed_from"] == 0 and "spawned at high" in st["residual"]["init"]
     assert not (ws / "checkpoints" / "decompose_shading" / "joint_residual.ply").exists()

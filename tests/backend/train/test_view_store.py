@@ -101,7 +101,8 @@ def test_decompose_asks_for_the_disk_its_shading_options_add(capture, monkeypatc
         raise IGSError("stop here")  # nothing after the checks is under test
 
     monkeypatch.setattr(decompose_setup, "check_disk_room", record)
-    for cfg in (DecomposeConfig(), DecomposeConfig(**change)):
+    plain = {"shading_target": "image"}  # the shading fitted to the image: neither option's extras
+    for cfg in (DecomposeConfig(**plain), DecomposeConfig(**{**plain, **change})):
         with pytest.raises(IGSError, match="stop here"):
             decompose_setup.prepare_setup(capture.workspace.root, cfg)
     cam = capture.frames[0].camera
