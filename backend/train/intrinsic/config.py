@@ -229,10 +229,9 @@ def split_iterations(total: int) -> dict[StageName, int]:
     image was 27.07 / 30.97 / 26.54 dB at 3N / 4 and 27.00 / 29.77 / 26.41 at N / 2 (the defaults at N / 2 were also 0.3 / 0.2 dB under
     the previous defaults on scenes 100 / 101), for about 4 s less of 70. With the residual trained
     beside the shading for its second half (:attr:`DecomposeConfig.joint_residual`), N / 2 in all did
-    as well on scenes 0-2, in the same time, and that is the default;
-    at 3N / 4 with it, S on matte pixels of scenes 100 and 102 was no better. A residual iteration renders
-    only the residual's few Gaussians over the cached A * S, so N / 2 of them cost little (at N / 4 the full
-    image lost 0.3 dB on the demo).
+    as well on scenes 0-2, in the same time, and that is the default; at 3N / 4 with it, S on matte pixels
+    of scenes 100 and 102 was no better. A residual iteration renders only the residual's few Gaussians
+    over the cached A * S, so N / 2 of them cost little (at N / 4 the full image lost 0.3 dB on the demo).
     """
     if total < 1:
         raise IGSError(f"--iterations must be >= 1, got {total}")

@@ -139,12 +139,14 @@ def iter_view_dependent_share(views: Sequence[View], quantile: float = 0.25, dep
         lookup = ViewLookup([views[i].camera for i in panel], torch.stack([views[i].depth.float() for i in panel]),
                             torch.stack([_signal(views[i], albedo_key, channels, depth_tolerance)
                                          for i in panel]).float())
+    on_panel = {i: k for k, i in enumerate(panel)}
     for i, v in enumerate(views):
         if lookup is None or v.depth is None:
             yield i, None
             continue
         d = v.depth.float()
-        own_all = _signal(v, albedo_key, channels, depth_tolerance).float()
+        # a panel view's own signal is already in the look-up
+        own_all = lookup.values[on_panel[i]] if i in on_panel else _signal(v, albedo_key, channels, depth_tolerance).float()
         c, h, w = own_all.shape
         own_all, points = own_all.reshape(c, -1), pixel_points(v.camera, d).reshape(-1, 3)
         share = torch.zeros_like(own_all)
