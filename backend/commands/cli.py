@@ -47,6 +47,7 @@ COMMAND_MODULES: list[str] = [
     "backend.commands.render",
     "backend.commands.light_bake",
     "backend.commands.normals",
+    "backend.commands.native_tune",
     "backend.commands.distil",
     "backend.commands.export",
     "backend.commands.convert",

@@ -1,0 +1,145 @@
+"""Layers tuned for Blender's drawing: copies of the albedo, shading and residual layers whose Cycles render
+(:mod:`backend.render.raycast`) gives, at the capture's views, the images the rasteriser gives of the layers
+themselves. The decomposition is fitted through the rasteriser; Cycles draws the same Gaussians along each
+ray, and on the bench's scenes its render of the layers lies 0.1-0.6 dB further from the truth than ours
+(docs/relighting.md). Each copy keeps its Gaussians, in the same rows (no densification or pruning), so the
+albedo's normals file still indexes it; only their parameters move.
+
+Writes ``<ws>/layers/native/{albedo,shading,residual}.ply`` and ``native.json`` (the source layers'
+hashes, the settings, the agreement before and after), all swapped in together when complete.
+Memory: the rasterised targets, 12 bytes per pixel per layer and view, and the ray-cast pairs of one view.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from backend.capture.load import load_capture
+from backend.core import events
+from backend.core.atomic_io import atomic_paths
+from backend.core.errors import IGSError
+from backend.render import Splats, render_layers
+from backend.render.raycast import raycast
+from backend.render.threads import torch_threads
+from backend.splats.gaussians import GaussianSet
+from backend.splats.ply import read_ply, write_ply
+from igs_contract.albedo_normals import sha256_16
+
+KINDS = ("albedo", "shading", "residual")
+NATIVE_DIR = "native"
+REPORT = "native.json"
+
+
+@dataclass
+class NativeTuneConfig:
+    iterations: int = 200
+    """One capture view per iteration, all three layers."""
+    supersample: int = 2
+    """Rays per pixel along each axis (jittered within their cells)."""
+    lr_means: float = 1e-4
+    lr_scales: float = 2e-3
+    lr_quats: float = 1e-3
+    lr_opacity: float = 1e-2
+    lr_colors: float = 2e-3
+    seed: int = 0
+
+    def check(self) -> None:
+        if self.iterations < 1:
+            raise IGSError(f"native-tune: --iterations must be at least 1, got {self.iterations}")
+        if not 1 <= self.supersample <= 8:
+            raise IGSError(f"native-tune: --supersample must be 1-8, got {self.supersample}")
+
+
+def native_dir(ws_root: str | Path) -> Path:
+    return Path(ws_root) / "layers" / NATIVE_DIR
+
+
+def _param_groups(sets: list[GaussianSet], cfg: NativeTuneConfig) -> list[dict]:
+    rates = {"means": cfg.lr_means, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
+             "opacity_logits": cfg.lr_opacity}
+    groups = []
+    for g in sets:
+        for name, p in g.params.items():
+            if name in rates or name in ("colors", "sh0", "shN"):
+                p.requires_grad_(True)
+                groups.append({"params": [p], "lr": rates.get(name, cfg.lr_colors)})
+    return groups
+
+
+def _splats(g: GaussianSet) -> Splats:
+    return Splats(**g.render_args())
+
+
+def agreement(sets: list[GaussianSet], cameras: list, targets: list[list[torch.Tensor]],
+              supersample: int) -> dict[str, float]:
+    """Mean PSNR (linear, peak 1) of each layer's ray-cast render against its target over ``cameras``, and of
+    the composite A * S + R against the targets' composite."""
+    se = {k: 0.0 for k in (*KINDS, "composite")}
+    with torch.no_grad():
+        for cam, want in zip(cameras, targets):
+            got = [raycast(_splats(g), cam, supersample=supersample)[0].clamp_min(0) for g in sets]
+            want = [w.clamp_min(0) for w in want]
+            for k, a, b in zip(KINDS, got, want):
+                se[k] += float(((a - b) ** 2).mean())
+            se["composite"] += float(((got[0] * got[1] + got[2] - want[0] * want[1] - want[2]) ** 2).mean())
+    n = max(len(cameras), 1)
+    return {k: round(10 * math.log10(n / max(v, 1e-20)), 3) for k, v in se.items()}
+
+
+def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
+    """Tune copies of the workspace's layers for Blender's drawing (module docstring); returns a summary."""
+    t0 = time.perf_counter()
+    cfg.check()
+    capture = load_capture(workspace)
+    root = capture.workspace.root
+    paths = {k: root / "layers" / f"{k}.ply" for k in KINDS}
+    missing = [str(p) for p in paths.values() if not p.is_file()]
+    if missing:
+        raise IGSError(f"native-tune: {', '.join(missing)} missing; decompose the workspace first (igs decompose)")
+    sets = [read_ply(paths[k], kind=k)[0] for k in KINDS]
+    cameras = [f.camera for f in capture.frames]
+    events.log(f"native-tune: {', '.join(f'{len(g):,} {k}' for k, g in zip(KINDS, sets))} Gaussians, "
+               f"{len(cameras)} views, {cfg.iterations} iterations, {cfg.supersample}x{cfg.supersample} rays a pixel")
+    gen = torch.Generator().manual_seed(cfg.seed)
+    with torch_threads():
+        with torch.no_grad():
+            targets = [[o.color for o in render_layers([_splats(g) for g in sets], cam)] for cam in cameras]
+        before = agreement(sets, cameras, targets, cfg.supersample)
+        opt = torch.optim.Adam(_param_groups(sets, cfg), eps=1e-15)
+        order = torch.randperm(len(cameras), generator=gen)
+        with events.stage("native-tune", cfg.iterations) as bar:
+            for it in range(cfg.iterations):
+                events.check_cancel()
+                i = int(order[it % len(cameras)])
+                loss = sum((raycast(_splats(g), cameras[i], supersample=cfg.supersample, generator=gen)[0] - w)
+                           .abs().mean() for g, w in zip(sets, targets[i]))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                bar.update(1, loss=float(loss.detach()))
+        after = agreement(sets, cameras, targets, cfg.supersample)
+    bad = [k for k, g in zip(KINDS, sets) if not all(bool(torch.isfinite(p).all()) for p in g.params.values())]
+    if bad:
+        raise IGSError(f"native-tune: the tuned {', '.join(bad)} layer diverged (non-finite parameters); nothing "
+                       "was written. Lower the learning rates or the iterations")
+    out = native_dir(root)
+    files = [out / f"{k}.ply" for k in KINDS] + [out / REPORT]
+    doc = {"note": "layers tuned for Blender's drawing by igs native-tune (docs/blender.md)",
+           "sources": {k: {"file": f"layers/{k}.ply", "sha256_16": sha256_16(p)} for k, p in paths.items()},
+           "settings": asdict(cfg), "views": len(cameras),
+           "psnr_against_rasteriser": {"before": before, "after": after}}
+    with atomic_paths(files) as tmp:
+        for g, p in zip(sets, tmp):
+            write_ply(p, g.clone())
+        tmp[-1].write_text(json.dumps(doc, indent=2) + "\n")
+    for f in files:
+        events.output("native_tune", f)
+    return {"out": str(out), "before": before, "after": after, "iterations": cfg.iterations,
+            "seconds": round(time.perf_counter() - t0, 1)}
