@@ -97,7 +97,7 @@ def build_composite_object(albedo: SplatLayer, shading: SplatLayer, residual: Sp
 def load_workspace_layers(workspace: Path, *, max_points: int = 0, radius_scale: float = 1.0,
                           composite: bool = True) -> dict[str, bpy.types.Object]:
     """Build an object for every layer PLY of the workspace (and the composite preview); by kind."""
-    paths = layers.layer_paths(workspace)
+    paths = layers.layer_paths(workspace, tuned=use_native())
     if not paths:
         raise UserError(f"{workspace / 'layers'}: no layer PLYs yet; run Decompose first")
     loaded = {kind: read_splat_ply(path) for kind, path in paths.items()}

@@ -16,6 +16,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from ..igs_contract import native_layers
 from . import scene_objects
 from .ply_io import SplatLayer
 
@@ -46,9 +47,35 @@ def shown_kind(requested: str) -> str | None:
     return next(iter(loaded), None)
 
 
-def layer_paths(workspace: Path) -> dict[str, Path]:
-    """The layer PLYs the workspace has, by kind."""
-    return {k: workspace / "layers" / f"{k}.ply" for k in LAYER_KINDS if (workspace / "layers" / f"{k}.ply").is_file()}
+def layer_paths(workspace: Path, tuned: bool = False) -> dict[str, Path]:
+    """The layer PLYs the workspace has, by kind; with ``tuned``, the copies ``igs native-tune`` made for
+    Blender's drawing in place of albedo, shading and residual while they belong to the current layers."""
+    paths = {k: workspace / "layers" / f"{k}.ply" for k in LAYER_KINDS if (workspace / "layers" / f"{k}.ply").is_file()}
+    if tuned:
+        paths.update(native_layers.tuned_paths(workspace)[0])
+    return paths
+
+
+def tuned_note(workspace: Path) -> str:
+    """One clause for Load Layers' report on Blender's splats: the tuned layers drawn, why they are not, or
+    how to make them."""
+    paths, why = native_layers.tuned_paths(workspace)
+    if paths:
+        return "albedo, shading and residual drawn from layers/native/ (tuned for Blender's drawing)"
+    return why or (f"Tune for Blender (`{native_layers.COMMAND}`) fits the layers to Blender's drawing of "
+                   "splats for a closer F12")
+
+
+def is_workspace_layer(obj: bpy.types.Object, workspace: str | Path, kind: str) -> bool:
+    """Whether ``obj`` shows the workspace's ``layers/<kind>.ply`` or its current tuned copy."""
+    source = obj.get("igs_ply")
+    if not workspace or not source:
+        return False
+    shown = Path(source).resolve()
+    if shown == (Path(workspace) / "layers" / f"{kind}.ply").resolve():
+        return True
+    tuned = native_layers.tuned_paths(Path(workspace))[0].get(kind)
+    return tuned is not None and shown == tuned.resolve()
 
 
 def composite_missing(kinds) -> list[str]:

@@ -76,4 +76,26 @@ class IGS_OT_train_3dgs(BackendOperator, bpy.types.Operator):
         return "3DGS baseline trained (shown); layers: " + _load_results(context, ("radiance",), show="radiance")
 
 
-CLASSES = (IGS_OT_decompose, IGS_OT_train_3dgs)
+class IGS_OT_native_tune(BackendOperator, bpy.types.Operator):
+    """Tune copies of the layers for Blender's own drawing of splats (layers/native/), so that F12 gives the images the decomposition was fitted to, then load them (Blender 5.3+)"""
+
+    bl_idname = "igs.native_tune"
+    bl_label = "Tune for Blender"
+
+    @classmethod
+    def poll(cls, context):
+        if not display.use_native():
+            cls.poll_message_set("Blender 5.3's own splats are off (Preferences > Native Splats) or this Blender is older")
+            return False
+        return super().poll(context)
+
+    def make_job(self, context) -> BackendJob:
+        ws = existing_workspace(context.scene.igs.workspace)
+        return backend_job(context, commands.native_tune(ws), "Tune for Blender", expected_stages=1)
+
+    def finish(self, context, job: BackendJob) -> str:
+        return "Tuned for Blender's drawing (layers/native/); layers: " + \
+            _load_results(context, ("albedo", "shading", "residual"))
+
+
+CLASSES = (IGS_OT_decompose, IGS_OT_train_3dgs, IGS_OT_native_tune)

@@ -204,6 +204,7 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
         if native:
             _lines(layout.box(), "Blender's own Gaussian splats: Material Preview or Rendered shading shows them, "
                    "F12 renders A×S+R (Render panel)", icon="INFO", context=context)
+            layout.operator("igs.native_tune", icon="MOD_SMOOTH")
         else:
             _splat_view(layout.box(), props)
         layout.operator("igs.export_layer", icon="EXPORT")

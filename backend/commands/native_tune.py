@@ -17,6 +17,8 @@ OPTIONS = (
            type=opt.integer(1, 1_000_000)),
     Option("--supersample", "supersample", "rays a pixel along each axis (default %(default)s)",
            type=opt.integer(1, 8)),
+    Option("--crop", "crop", "pixels on a side of the window of a view each iteration tunes (default %(default)s)",
+           type=opt.integer(8, 100_000)),
     Option("--seed", "seed", "seed of the views' order and the rays' jitter (default %(default)s)", type=opt.SEED),
 )
 

@@ -60,26 +60,31 @@ def _colours(s: Splats, centre: Tensor) -> Tensor:
 
 def raycast(s: Splats, camera: Camera, *, supersample: int = 2, generator: torch.Generator | None = None,
             pixel_filter: PixelFilter = "blackman_harris", filter_width: float = FILTER_WIDTH,
-            near: float = 0.01, rows: int = 16) -> tuple[Tensor, Tensor]:
+            near: float = 0.01, rows: int = 16,
+            window: tuple[int, int, int, int] | None = None) -> tuple[Tensor, Tensor]:
     """(H, W, C) colour and (H, W) alpha of ``s`` for ``camera``, drawn as Cycles draws splats (module
-    docstring). ``generator``: jitter each ray within its cell (None: rays at the cells' centres).
-    Differentiable in the Gaussians' parameters."""
+    docstring). ``generator``: jitter each ray within its cell (None: rays at the cells' centres);
+    ``window``: only the pixels ``x0, y0, width, height`` of the view (the result is that size; its outer
+    1.5 px lack the rays beyond it that the filter would take). Differentiable in the Gaussians' parameters."""
     dt = s.means.dtype
-    W, H, k = camera.width, camera.height, int(supersample)
+    x0, y0, W, H = window if window is not None else (0, 0, camera.width, camera.height)
+    k = int(supersample)
     Ws, Hs = W * k, H * k
     jit = (lambda n: torch.rand(n, generator=generator, dtype=dt) - 0.5) if generator is not None \
         else (lambda n: torch.zeros(n, dtype=dt))
-    xs = (torch.arange(Ws, dtype=dt) + 0.5 + jit(Ws)) / k  # ray positions in pixels
+    xs = (torch.arange(Ws, dtype=dt) + 0.5 + jit(Ws)) / k  # ray positions in the window's pixels
     ys = (torch.arange(Hs, dtype=dt) + 0.5 + jit(Hs)) / k
-    colour, alpha = _cast(s, camera, xs, ys, near, rows)
+    colour, alpha = _cast(s, camera, xs, ys, near, rows, (x0, y0), k)
     fx, fy = _filter_matrix(xs, W, pixel_filter, filter_width), _filter_matrix(ys, H, pixel_filter, filter_width)
     colour = torch.einsum("ya,xb,abc->yxc", fy, fx, colour)
     alpha = torch.einsum("ya,xb,ab->yx", fy, fx, alpha)
     return colour, alpha
 
 
-def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: int) -> tuple[Tensor, Tensor]:
-    """(len(ys), len(xs), C) colour and alpha of single rays through the pixel positions ``xs`` x ``ys``."""
+def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: int, origin: tuple[int, int],
+          k: int) -> tuple[Tensor, Tensor]:
+    """(len(ys), len(xs), C) colour and alpha of single rays through the positions ``xs`` x ``ys`` (pixels of
+    a window whose corner is the view's pixel ``origin``), ``k`` rays a pixel along each axis."""
     dt = s.means.dtype
     cam = CameraTensors.of(camera, s.means.device, dt)
     Hs, Ws = len(ys), len(xs)
@@ -93,18 +98,21 @@ def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: 
     mPm = (m * Pm).sum(-1)
     q6 = torch.stack([P[:, 0, 0], P[:, 1, 1], P[:, 2, 2], 2 * P[:, 0, 1], 2 * P[:, 0, 2], 2 * P[:, 1, 2]], -1)
     colours = _colours(s, cam.center)
-    with torch.no_grad():  # which rays each Gaussian can reach: its projected box, widened past the jitter
-        scale_x, scale_y = Ws / camera.width, Hs / camera.height
-        big = CameraTensors(cam.R, cam.t, cam.center, cam.fx * scale_x, cam.fy * scale_y, cam.cx * scale_x,
-                            cam.cy * scale_y, Ws, Hs)
+    with torch.no_grad():  # which rays each Gaussian can reach: its projected box in the whole view (at k rays
+        # a pixel), widened past the jitter, then in the window's rays
+        big = CameraTensors(cam.R, cam.t, cam.center, cam.fx * k, cam.fy * k, cam.cx * k, cam.cy * k,
+                            camera.width * k, camera.height * k)
         box = project(s.means.detach(), s.quats.detach(), scales.detach(), s.opacities.detach(), big,
                       near=near, eps2d=1.0).bbox.long()
-    x0, x1, y0, y1 = box.unbind(-1)
+        box[:, :2] -= origin[0] * k
+        box[:, 2:] -= origin[1] * k
+        x0, x1 = box[:, 0].clamp_min(0), box[:, 1].clamp_max(Ws - 1)
+        y0, y1 = box[:, 2].clamp_min(0), box[:, 3].clamp_max(Hs - 1)
     live = (x1 >= x0) & (y1 >= y0)
     colour = torch.zeros(Hs * Ws, colours.shape[-1], dtype=dt)
     alpha = torch.zeros(Hs * Ws, dtype=dt)
-    u = (xs * 1.0 - cam.cx) / cam.fx  # ray directions in camera space (z = 1)
-    v = (ys * 1.0 - cam.cy) / cam.fy
+    u = (xs + origin[0] - cam.cx) / cam.fx  # ray directions in camera space (z = 1)
+    v = (ys + origin[1] - cam.cy) / cam.fy
     for r0 in range(0, Hs, rows):
         r1 = min(r0 + rows, Hs)
         idx = (live & (y0 < r1) & (y1 >= r0)).nonzero()[:, 0]

@@ -7,7 +7,10 @@ albedo's normals file still indexes it; only their parameters move.
 
 Writes ``<ws>/layers/native/{albedo,shading,residual}.ply`` and ``native.json`` (the source layers'
 hashes, the settings, the agreement before and after), all swapped in together when complete.
-Memory: the rasterised targets, 12 bytes per pixel per layer and view, and the ray-cast pairs of one view.
+Each iteration tunes all three layers on a window of one view (``crop``), its target rendered then, so
+memory does not grow with the views: the originals and the copies with Adam's state (about 5 times the
+layers' parameters, 59 floats a Gaussian with degree-3 SH), one view's rasterised layers, and the window's
+ray-cast pairs (about 60 bytes each, some 10-100 a ray).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import torch
 from backend.capture.load import load_capture
 from backend.core import events
 from backend.core.atomic_io import atomic_paths
+from backend.core.cameras import Camera
 from backend.core.errors import IGSError
 from backend.render import Splats, render_layers
 from backend.render.raycast import raycast
@@ -31,11 +35,10 @@ from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
 from igs_contract.albedo_normals import sha256_16
+from igs_contract.native_layers import KINDS, REPORT
+from igs_contract.native_layers import folder as native_dir
 
-KINDS = ("albedo", "shading", "residual")
-NATIVE_DIR = "native"
-REPORT = "native.json"
-
+MARGIN = 2  # pixels: Cycles' Blackman-Harris reaches 1.5 px
 
 @dataclass
 class NativeTuneConfig:
@@ -48,17 +51,20 @@ class NativeTuneConfig:
     lr_quats: float = 1e-3
     lr_opacity: float = 1e-2
     lr_colors: float = 2e-3
+    crop: int = 128
+    """Pixels on a side of the window of a view each iteration tunes (the whole view when smaller): memory
+    and time per iteration do not grow with the views' size."""
+    eval_views: int = 4
+    """Views, spread over the capture, on which the agreement before and after is measured."""
     seed: int = 0
 
     def check(self) -> None:
         if self.iterations < 1:
             raise IGSError(f"native-tune: --iterations must be at least 1, got {self.iterations}")
+        if self.crop < 8:
+            raise IGSError(f"native-tune: --crop must be at least 8 pixels, got {self.crop}")
         if not 1 <= self.supersample <= 8:
             raise IGSError(f"native-tune: --supersample must be 1-8, got {self.supersample}")
-
-
-def native_dir(ws_root: str | Path) -> Path:
-    return Path(ws_root) / "layers" / NATIVE_DIR
 
 
 def _param_groups(sets: list[GaussianSet], cfg: NativeTuneConfig) -> list[dict]:
@@ -77,20 +83,40 @@ def _splats(g: GaussianSet) -> Splats:
     return Splats(**g.render_args())
 
 
-def agreement(sets: list[GaussianSet], cameras: list, targets: list[list[torch.Tensor]],
-              supersample: int) -> dict[str, float]:
-    """Mean PSNR (linear, peak 1) of each layer's ray-cast render against its target over ``cameras``, and of
-    the composite A * S + R against the targets' composite."""
+def agreement(sets: list[GaussianSet], frozen: list[Splats], cameras: list, supersample: int) -> dict[str, float]:
+    """Mean PSNR (linear, peak 1) over ``cameras`` of each layer's ray-cast render against the rasteriser's of
+    ``frozen`` (the originals), and of the composite A * S + R against theirs."""
     se = {k: 0.0 for k in (*KINDS, "composite")}
     with torch.no_grad():
-        for cam, want in zip(cameras, targets):
+        for cam in cameras:
             got = [raycast(_splats(g), cam, supersample=supersample)[0].clamp_min(0) for g in sets]
-            want = [w.clamp_min(0) for w in want]
+            want = [o.color.clamp_min(0) for o in render_layers(frozen, cam)]
             for k, a, b in zip(KINDS, got, want):
                 se[k] += float(((a - b) ** 2).mean())
             se["composite"] += float(((got[0] * got[1] + got[2] - want[0] * want[1] - want[2]) ** 2).mean())
     n = max(len(cameras), 1)
     return {k: round(10 * math.log10(n / max(v, 1e-20)), 3) for k, v in se.items()}
+
+
+def crop_window(cam: Camera, size: int, gen: torch.Generator) -> tuple[int, int, int, int]:
+    """A random ``size`` x ``size`` window of the view (the whole view where it is smaller): x0, y0, w, h."""
+    w, h = min(size, cam.width), min(size, cam.height)
+    x0 = int(torch.randint(0, cam.width - w + 1, (1,), generator=gen))
+    y0 = int(torch.randint(0, cam.height - h + 1, (1,), generator=gen))
+    return x0, y0, w, h
+
+
+def tune_step(sets: list[GaussianSet], frozen: list[Splats], cam: Camera, cfg: NativeTuneConfig,
+              gen: torch.Generator) -> torch.Tensor:
+    """The L1 loss of one random window of ``cam``, all three layers, against the rasteriser's render of the
+    originals; the window's outer :data:`MARGIN` pixels, whose filter lacks the rays beyond it, left out."""
+    x0, y0, w, h = crop_window(cam, cfg.crop, gen)
+    with torch.no_grad():
+        want = [o.color[y0:y0 + h, x0:x0 + w] for o in render_layers(frozen, cam)]
+    inner = (slice(MARGIN if y0 > 0 else 0, h - MARGIN if y0 + h < cam.height else h),
+             slice(MARGIN if x0 > 0 else 0, w - MARGIN if x0 + w < cam.width else w))
+    return sum((raycast(_splats(g), cam, supersample=cfg.supersample, generator=gen, window=(x0, y0, w, h))[0]
+                - t)[inner].abs().mean() for g, t in zip(sets, want))
 
 
 def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
@@ -104,27 +130,27 @@ def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
     if missing:
         raise IGSError(f"native-tune: {', '.join(missing)} missing; decompose the workspace first (igs decompose)")
     sets = [read_ply(paths[k], kind=k)[0] for k in KINDS]
+    frozen = [_splats(g.clone()) for g in sets]
     cameras = [f.camera for f in capture.frames]
+    shown = [cameras[round(i * (len(cameras) - 1) / max(cfg.eval_views - 1, 1))]
+             for i in range(min(cfg.eval_views, len(cameras)))]
     events.log(f"native-tune: {', '.join(f'{len(g):,} {k}' for k, g in zip(KINDS, sets))} Gaussians, "
-               f"{len(cameras)} views, {cfg.iterations} iterations, {cfg.supersample}x{cfg.supersample} rays a pixel")
+               f"{len(cameras)} views, {cfg.iterations} iterations of a {cfg.crop} px window, "
+               f"{cfg.supersample}x{cfg.supersample} rays a pixel")
     gen = torch.Generator().manual_seed(cfg.seed)
     with torch_threads():
-        with torch.no_grad():
-            targets = [[o.color for o in render_layers([_splats(g) for g in sets], cam)] for cam in cameras]
-        before = agreement(sets, cameras, targets, cfg.supersample)
+        before = agreement(sets, frozen, shown, cfg.supersample)
         opt = torch.optim.Adam(_param_groups(sets, cfg), eps=1e-15)
         order = torch.randperm(len(cameras), generator=gen)
         with events.stage("native-tune", cfg.iterations) as bar:
             for it in range(cfg.iterations):
                 events.check_cancel()
-                i = int(order[it % len(cameras)])
-                loss = sum((raycast(_splats(g), cameras[i], supersample=cfg.supersample, generator=gen)[0] - w)
-                           .abs().mean() for g, w in zip(sets, targets[i]))
+                loss = tune_step(sets, frozen, cameras[int(order[it % len(cameras)])], cfg, gen)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
                 bar.update(1, loss=float(loss.detach()))
-        after = agreement(sets, cameras, targets, cfg.supersample)
+        after = agreement(sets, frozen, shown, cfg.supersample)
     bad = [k for k, g in zip(KINDS, sets) if not all(bool(torch.isfinite(p).all()) for p in g.params.values())]
     if bad:
         raise IGSError(f"native-tune: the tuned {', '.join(bad)} layer diverged (non-finite parameters); nothing "
@@ -133,7 +159,7 @@ def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
     files = [out / f"{k}.ply" for k in KINDS] + [out / REPORT]
     doc = {"note": "layers tuned for Blender's drawing by igs native-tune (docs/blender.md)",
            "sources": {k: {"file": f"layers/{k}.ply", "sha256_16": sha256_16(p)} for k, p in paths.items()},
-           "settings": asdict(cfg), "views": len(cameras),
+           "settings": asdict(cfg), "views": len(cameras), "measured_on": [c.name for c in shown],
            "psnr_against_rasteriser": {"before": before, "after": after}}
     with atomic_paths(files) as tmp:
         for g, p in zip(sets, tmp):

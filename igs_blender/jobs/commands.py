@@ -49,6 +49,11 @@ def decompose(ws: Path, *, stage: str | None = None, iterations: int = 0, restar
     return command_line(("decompose", ws), {"stage": stage, "iterations": iterations or None, "restart": restart})
 
 
+def native_tune(ws: Path, *, iterations: int = 0) -> list[Word]:
+    """``igs native-tune``; ``iterations`` 0: the backend's default."""
+    return command_line(("native-tune", ws), {"iterations": iterations or None})
+
+
 def train_3dgs(ws: Path, *, iterations: int = 0, restart: bool = False) -> list[Word]:
     return command_line(("train-3dgs", ws), {"iterations": iterations or None, "restart": restart})
 

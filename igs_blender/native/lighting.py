@@ -171,10 +171,9 @@ def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | No
     when ``obj`` shows the workspace's ``layers/albedo.ply`` and the file belongs to it, a note for the report
     and the file's ``source``; else None, a note ("" for an albedo of another PLY, an edit's: the file never
     covers it) and ``axes`` (the shortest axes stand in)."""
-    ply = Path(workspace) / "layers" / "albedo.ply" if workspace else None
-    source = obj.get("igs_ply")
-    if ply is None or not source or Path(source).resolve() != ply.resolve():
+    if not layers.is_workspace_layer(obj, workspace, "albedo"):  # the tuned copy keeps the rows of the original
         return None, "", "axes"
+    ply = Path(workspace) / "layers" / "albedo.ply"
     path = ply.parent / normals_file.FILE
     normals, why = normals_file.read(path, ply, obj.get("igs_total"))
     if normals is None:
@@ -193,10 +192,8 @@ def file_normals(obj: bpy.types.Object, workspace: str) -> tuple[np.ndarray | No
 def normals_line(scene: bpy.types.Scene) -> str:
     """One line for the Lights panel when the workspace's albedo splats light with their shortest axes (no
     normals file of theirs), naming the command that makes it; "" otherwise."""
-    ply = Path(scene.igs.workspace) / "layers" / "albedo.ply" if scene.igs.workspace else None
     for obj in albedo_objects():
-        source = obj.get("igs_ply")
-        if ply is not None and source and Path(source).resolve() == ply.resolve() and obj.get("igs_normals") == "axes":
+        if layers.is_workspace_layer(obj, scene.igs.workspace, "albedo") and obj.get("igs_normals") == "axes":
             return (f"Normals: the Gaussians' shortest axes; `{normals_file.COMMAND} WORKSPACE` writes the depth "
                     "normals at the pixels each Gaussian colours (then Load Layers)")
     return ""

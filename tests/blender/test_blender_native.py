@@ -19,15 +19,21 @@ bpy = pytest.importorskip("bpy")
 if bpy.app.version < (5, 3, 0):
     pytest.skip(f"native splats need Blender 5.3 (this bpy is {bpy.app.version_string})", allow_module_level=True)
 
-from backend.core.cameras import Camera  # noqa: E402
 from backend.core.imageio import srgb_psnr  # noqa: E402
-from backend.render import render_layers  # noqa: E402
-from backend.splats.gaussians import GaussianSet  # noqa: E402
 from backend.splats.ply import read_ply, write_ply  # noqa: E402
-from backend.train.intrinsic.stages import layer_splats  # noqa: E402
 from igs_contract.layer_ply import C0  # noqa: E402
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import SIZE, attr, cycles, load, render_outputs, sub, wall, wall_workspace  # noqa: E402  # noqa: E402  # noqa: E402
+from tests.support.blender import (  # noqa: E402  # noqa: E402  # noqa: E402
+    SIZE,
+    attr,
+    cycles,
+    load,
+    reference,
+    render_outputs,
+    sub,
+    wall,
+    wall_workspace,
+)
 from tests.support.fake_backend import make_tiny_workspace  # noqa: E402
 
 EMISSION_GREEN = (0.0, 1.0, 0.0)
@@ -37,18 +43,6 @@ EMISSION_GREEN = (0.0, 1.0, 0.0)
 def scene(native_scene):
     """Native splats on (the conftest's ``native_scene``)."""
     return native_scene
-
-
-def reference(scene, sets: dict[str, GaussianSet]) -> dict[str, np.ndarray]:
-    """``igs render`` of the scene camera: A, S, R and A*S+R, linear (H, W, 3), as render_views computes them."""
-    import torch
-
-    v = sub("camera_objects").sfm_view_from_object(scene, scene.camera)
-    cam = Camera("view", v.width, v.height, v.fx, v.fy, v.cx, v.cy, v.R, v.t)
-    with torch.no_grad():
-        outs = render_layers([layer_splats(sets[k]) for k in ("albedo", "shading", "residual")], cam)
-    a, s, r = (o.color.clamp_min(0).numpy().astype(np.float64) for o in outs)
-    return {"Albedo": a, "Shading": s, "Residual": r, "Image": a * s + r}
 
 
 # -- the colours ---------------------------------------------------------------------------------------------------

@@ -54,6 +54,8 @@ def test_an_option_is_spelled_as_the_cli_spells_it_and_empty_values_are_left_out
     (commands.render(WS, out=OUT, layers="A", cameras=OUT / "cameras.json"),
      {"command": "render", "cameras": "/out/cameras.json", "turntable": False, "layers": "A", "mp4": False}),
     (commands.light_bake(WS, light=Path("/l.json")), {"command": "light-bake", "light": "/l.json"}),
+    (commands.native_tune(WS, iterations=12), {"command": "native-tune", "iterations": 12}),
+    (commands.native_tune(WS), {"command": "native-tune", "iterations": 200}),
 ])
 def test_every_command_line_parses_with_the_backends_parser(argv, expected):
     ns = parsed(argv)

@@ -276,6 +276,22 @@ def load(scene, ws: Path) -> None:
     cycles(scene)
 
 
+def reference(scene, sets: dict[str, GaussianSet]) -> dict[str, np.ndarray]:
+    """``igs render`` of the scene camera: A, S, R and A*S+R, linear (H, W, 3), as render_views computes them."""
+    import torch
+
+    from backend.core.cameras import Camera
+    from backend.render import render_layers
+    from backend.train.intrinsic.stages import layer_splats
+
+    v = sub("camera_objects").sfm_view_from_object(scene, scene.camera)
+    cam = Camera("view", v.width, v.height, v.fx, v.fy, v.cx, v.cy, v.R, v.t)
+    with torch.no_grad():
+        outs = render_layers([layer_splats(sets[k]) for k in ("albedo", "shading", "residual")], cam)
+    a, s, r = (o.color.clamp_min(0).numpy().astype(np.float64) for o in outs)
+    return {"Albedo": a, "Shading": s, "Residual": r, "Image": a * s + r}
+
+
 def render_outputs(scene, folder: Path, outputs=("Image", "Albedo", "Shading", "Residual")) -> dict[str, np.ndarray]:
     """F12 of ``scene`` with the composite group's outputs read back (the add-on's own helper)."""
     assert bpy.context.scene == scene

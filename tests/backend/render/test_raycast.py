@@ -64,6 +64,20 @@ def test_crossing_splats_swap_along_the_line_where_they_meet():
     assert colour[16, 28, 0] > 2 * colour[16, 28, 2]
 
 
+def test_a_window_is_the_same_rays():
+    """A window of the view casts the same rays as the whole view: equal inside, beyond the filter's reach."""
+    cam = _front(40, 30, 30.0)
+    g = torch.Generator().manual_seed(1)
+    n = 40
+    s = Splats(torch.cat([torch.rand(n, 2, generator=g) * 1.6 - 0.8, 2 + torch.rand(n, 1, generator=g)], 1),
+               torch.randn(n, 4, generator=g), 0.03 + 0.1 * torch.rand(n, 3, generator=g),
+               0.2 + 0.7 * torch.rand(n, generator=g), torch.rand(n, 3, generator=g))
+    whole = raycast(s, cam, supersample=2)[0]
+    part = raycast(s, cam, supersample=2, window=(7, 5, 20, 16))[0]
+    assert part.shape == (16, 20, 3)
+    assert torch.allclose(part[2:-2, 2:-2], whole[7:19, 9:25], atol=1e-5)
+
+
 def test_blackman_harris_is_cycles_width():
     """Cycles' Blackman-Harris of width 1.5 px spans 3 px with variance 0.173 px^2; a box of width 1 px, 1/12."""
     x = torch.linspace(-2, 2, 40001, dtype=torch.float64)
