@@ -188,6 +188,10 @@ def parser() -> argparse.ArgumentParser:
                    help="Cycles' pixel filter of Blender's native renders: Blender's default (Blackman-Harris 1.5 px, "
                         "the low-pass the antialiased layers are fitted for) or a 1 px box, as the truth "
                         f"(default {ev.native_filter})")
+    p.add_argument("--native-tune", type=int, default=ev.native_tune,
+                   help="first tune each scene's layers for Blender's drawing with this many igs native-tune "
+                        "iterations (unless layers/native is current), so that the native rows draw the tuned "
+                        f"copies as the add-on does (default {ev.native_tune}: whatever Load Layers finds)")
     p.add_argument("--shadow-threshold", type=float, default=ev.shadow_threshold,
                    help=f"linear luminance by which the truth with the meshes is darker in their shadow region "
                         f"(default {ev.shadow_threshold})")
@@ -229,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
             raise IGSError("--lit-threshold and --shadow-threshold must be > 0 and --edge-band >= 0")
         if args.eval_views is not None and args.eval_views < 1:
             raise IGSError(f"--eval-views must be >= 1, got {args.eval_views}")
+        if args.native_tune < 0:
+            raise IGSError(f"--native-tune must be >= 0, got {args.native_tune}")
         if args.native_samples is not None and not 1 <= args.native_samples <= 65536:
             raise IGSError(f"--native-samples must be 1 to 65536, got {args.native_samples}")
         relight = replace(RelightConfig(), normals=args.normals, shadow_size=args.shadow_size, backend=args.backend)
@@ -236,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
         ev = EvalSettings(lit_threshold=args.lit_threshold, edge_band=args.edge_band, relight=relight,
                           figures=args.figures, native=not args.no_native, shadow_threshold=args.shadow_threshold,
                           native_samples=args.native_samples, native_filter=args.native_filter,
-                          views=args.eval_views)
+                          views=args.eval_views, native_tune=args.native_tune)
         meshes = None if args.meshes == "none" else args.meshes
         settings = {"capture_and_decomposition": s.decomposition_json(), "lights": args.lights, "meshes": meshes,
                     "evaluation": {**{k: v for k, v in asdict(ev).items() if k != "relight"},

@@ -77,7 +77,9 @@ from backend.render.threads import torch_threads
 from backend.splats.ply import read_ply
 from backend.synth.gt_lights import LIGHTS_FILE
 from backend.train.intrinsic.stages import layer_splats
+from backend.train.native_tune import NativeTuneConfig, native_tune
 from igs_contract.light_json import read_lights
+from igs_contract.native_layers import tuned_paths
 
 METHODS = ("ours", "native", "unlit", "native_unlit", "none", "sh_strip", "ceiling")
 LIGHT_METHODS = ("ours", "native", "sh_strip", "ceiling")
@@ -115,6 +117,10 @@ class EvalSettings:
     uses, and the low-pass the ``antialiased`` raster mode fits the layers for) or a 1 px box (as the truth)."""
     shadow_threshold: float = 0.02
     """Linear luminance by which the truth with the meshes is darker than without them in their shadow region."""
+    native_tune: int = 0
+    """With the native rows: first tune the layers for Blender's drawing (``igs native-tune``, this many
+    iterations) unless ``layers/native`` already belongs to the layers; Blender then draws the tuned copies, as
+    the add-on does. 0: Blender draws whatever Load Layers finds."""
     relight: RelightConfig = field(default_factory=RelightConfig)
 
 
@@ -213,6 +219,8 @@ def evaluate_scene(ws_path: str | Path, s: EvalSettings) -> dict[str, Any]:
     meshes = meshes_of(ws)
     if s.native and not normals_current(ws.root):  # the lit material's normals, as igs decompose leaves them
         write_albedo_normals(ws.root)
+    if s.native and s.native_tune and not tuned_paths(ws.root)[0]:
+        native_tune(ws.root, NativeTuneConfig(iterations=s.native_tune))
     native = render_native(ws, views, specs, meshes, ws.root / "bench_relight" / "native",
                            samples=s.native_samples, pixel_filter=s.native_filter) if s.native \
         else NativeRenders(note="not asked for")

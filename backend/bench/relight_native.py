@@ -175,11 +175,11 @@ def addon_hash(root: Path = ROOT) -> str:
 
 def job_key(ws: Workspace, job: dict[str, Any], root: Path = ROOT) -> dict[str, Any]:
     """What decides Blender's frames of a job: the samples, seed, pixel filter, lights and meshes, the sizes and times of the
-    layers and of the albedo's normals file (the lit material's normals), and the add-on's code
+    layers, of their tuned copies (``layers/native``) and of the albedo's normals file (the lit material's normals), and the add-on's code
     (:func:`addon_hash` of ``root``: the lights it estimates, its materials and compositing)."""
     key = {k: job.get(k) for k in ("samples", "seed", "pixel_filter", "lights", "meshes")}
-    files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE)])
-    key["layers"] = {p.name: [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
+    files = sorted([*ws.layers.glob("*.ply"), *ws.layers.glob(normals_file.FILE), *ws.layers.glob("native/*")])
+    key["layers"] = {p.relative_to(ws.layers).as_posix(): [p.stat().st_size, p.stat().st_mtime_ns] for p in files}
     key["addon"] = addon_hash(root)
     return key
 

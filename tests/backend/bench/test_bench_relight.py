@@ -78,6 +78,12 @@ def test_tiny_run_end_to_end_on_the_test_room(tmp_path, capsys):
     assert again["layers"] == "reused" and again["psnr"] == scene["psnr"]
     if native:  # Blender's frames too: the same layers, lights, meshes and samples
         assert again["native"]["reused"] == 2 * 3 * 2 + 2 and again["native"]["rendered"] == 0
+        # tuned for Blender's drawing first: Blender draws the tuned copies, so its frames are rendered again
+        assert bench_relight.main([*argv, "--native-tune", "3"]) == 0
+        tuned = json.loads(out.read_text())["scenes"]["room"]
+        assert (tmp_path / "seed_room" / "layers" / "native" / "native.json").is_file()
+        assert tuned["native"]["rendered"] == 2 * 3 * 2 + 2 and tuned["psnr"]["ours"] == scene["psnr"]["ours"]
+        assert 5.0 < tuned["psnr"]["native"]["lit"] < 60.0
 
 
 def test_bad_options_are_one_error(tmp_path, capsys):

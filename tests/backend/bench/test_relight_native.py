@@ -80,6 +80,26 @@ def test_blenders_frames_are_rendered_again_when_the_normals_file_changes(tmp_pa
     assert job_key(ws, job) != first
 
 
+def test_blenders_frames_are_rendered_again_when_the_tuned_layers_change(tmp_path):
+    """Load Layers draws ``layers/native`` when it is current (``igs native-tune``): frames cached without it, or
+    for another tuning, are stale."""
+    import os
+
+    from backend.bench.relight_native import job_key
+
+    ws = Workspace(tmp_path / "ws")
+    ws.layers.mkdir(parents=True)
+    (ws.layers / "albedo.ply").write_bytes(b"ply")
+    job = {"samples": 4, "seed": 0, "lights": [], "meshes": []}
+    without = job_key(ws, job)
+    (ws.layers / "native").mkdir()
+    (ws.layers / "native" / "albedo.ply").write_bytes(b"ply tuned")
+    first = job_key(ws, job)
+    assert first != without and "native/albedo.ply" in first["layers"] and "albedo.ply" in first["layers"]
+    os.utime(ws.layers / "native" / "albedo.ply", ns=(1, 1))
+    assert job_key(ws, job) != first
+
+
 def test_blenders_frames_are_rendered_again_when_the_addon_changes(tmp_path):
     """The add-on decides what Blender renders of the same layers (its estimated lights, its materials): frames
     cached by another version of it are stale."""
