@@ -60,6 +60,17 @@ TRAIN_3DGS = MemoryModel(base=0.98 * GIB + FIRST_RUN, per_view_pixel=0.0, per_pi
 # as decompose's (the albedo, its copy and the trained part's moments), not fitted.
 BAKE = MemoryModel(base=1.02 * GIB, per_view_pixel=13.6, per_pixel=421.0, per_gaussian=600.0)
 MODELS: Mapping[str, MemoryModel] = {"decompose": DECOMPOSE, "train-3dgs": TRAIN_3DGS}
+# native-tune: one view's rasterised layers and its full-view ray casts for the agreement (per pixel); the
+# originals, the copies, their gradients and Adam's moments (per Gaussian, about 5 x the parameters); and the
+# ray pairs of one layer's window, NATIVE_TUNE_PER_WINDOW_PIXEL a pixel of the window, measured on the demo
+# room (256x192, 151k Gaussians: 2.4 GB at a 128 px window); a scene whose splats overlap more holds more.
+NATIVE_TUNE_PER_WINDOW_PIXEL = 80_000.0
+
+
+def native_tune_model(window_pixels: int) -> MemoryModel:
+    """``igs native-tune``'s model for windows of ``window_pixels`` pixels."""
+    return MemoryModel(base=0.98 * GIB + NATIVE_TUNE_PER_WINDOW_PIXEL * window_pixels, per_view_pixel=0.0,
+                       per_pixel=400.0, per_gaussian=600.0)
 
 DEFAULT_GAUSSIANS: Mapping[str, int] = {"decompose": 1_000_000, "train-3dgs": 100_000}
 """The densification budget of the largest set each command trains by default (the albedo field's for

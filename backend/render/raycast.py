@@ -11,8 +11,9 @@ renders (docs/blender.md).
 
 Rays pass through a grid of ``supersample`` x ``supersample`` points per pixel, each optionally moved by a
 random offset within its cell (a stratified sample, shared along a row or a column so that the filter
-stays separable), and the filter weights them. Memory: about 60 bytes per (ray, Gaussian) pair with
-alpha >= 1/255, held for one band of ``rows`` ray rows at a time (and kept for the backward pass).
+stays separable), and the filter weights them. Memory: the rays go in bands of rows of at most ``pairs``
+candidate (ray, Gaussian) pairs (about 100 bytes each while a band is cast); about 60 bytes per pair with
+alpha >= 1/255 are kept for the backward pass.
 """
 
 from __future__ import annotations
@@ -51,6 +52,13 @@ def _filter_matrix(centres: Tensor, n: int, kind: PixelFilter, width: float) -> 
     return w / w.sum(1, keepdim=True).clamp_min(1e-12)
 
 
+def _filtered(fy: Tensor, fx: Tensor, rays: Tensor) -> Tensor:
+    """(H, W, C) pixels of the (Hs, Ws, C) rays: along the rows, then along the columns (one product at a time,
+    never the (H, Hs, W, Ws) outer product)."""
+    along_x = torch.matmul(fx, rays)  # (Hs, W, C)
+    return torch.matmul(fy, along_x.reshape(along_x.shape[0], -1)).reshape(fy.shape[0], fx.shape[0], -1)
+
+
 def _colours(s: Splats, centre: Tensor) -> Tensor:
     """(N, C) colour of each Gaussian, its SH evaluated from the camera centre as the rasteriser does."""
     if s.sh_degree is None:
@@ -60,7 +68,7 @@ def _colours(s: Splats, centre: Tensor) -> Tensor:
 
 def raycast(s: Splats, camera: Camera, *, supersample: int = 2, generator: torch.Generator | None = None,
             pixel_filter: PixelFilter = "blackman_harris", filter_width: float = FILTER_WIDTH,
-            near: float = 0.01, rows: int = 16,
+            near: float = 0.01, pairs: int = 1 << 22,
             window: tuple[int, int, int, int] | None = None) -> tuple[Tensor, Tensor]:
     """(H, W, C) colour and (H, W) alpha of ``s`` for ``camera``, drawn as Cycles draws splats (module
     docstring). ``generator``: jitter each ray within its cell (None: rays at the cells' centres);
@@ -74,29 +82,43 @@ def raycast(s: Splats, camera: Camera, *, supersample: int = 2, generator: torch
         else (lambda n: torch.zeros(n, dtype=dt))
     xs = (torch.arange(Ws, dtype=dt) + 0.5 + jit(Ws)) / k  # ray positions in the window's pixels
     ys = (torch.arange(Hs, dtype=dt) + 0.5 + jit(Hs)) / k
-    colour, alpha = _cast(s, camera, xs, ys, near, rows, (x0, y0), k)
+    colour, alpha = _cast(s, camera, xs, ys, near, pairs, (x0, y0), k)
     fx, fy = _filter_matrix(xs, W, pixel_filter, filter_width), _filter_matrix(ys, H, pixel_filter, filter_width)
-    colour = torch.einsum("ya,xb,abc->yxc", fy, fx, colour)
-    alpha = torch.einsum("ya,xb,ab->yx", fy, fx, alpha)
-    return colour, alpha
+    return _filtered(fy, fx, colour), _filtered(fy, fx, alpha[..., None])[..., 0]
 
 
-def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: int, origin: tuple[int, int],
+def _bands(x0: Tensor, x1: Tensor, y0: Tensor, y1: Tensor, live: Tensor, rows: int, pairs: int) -> list[int]:
+    """Row boundaries of bands of ray rows, each with at most ``pairs`` (ray, Gaussian box) pairs where it can
+    (a single row may hold more)."""
+    width = torch.where(live, x1 - x0 + 1, torch.zeros_like(x0))
+    per_row = torch.zeros(rows + 1, dtype=torch.int64)
+    per_row.index_add_(0, y0.clamp(0, rows), width)
+    per_row.index_add_(0, (y1 + 1).clamp(0, rows), -width)
+    per_row = torch.cumsum(per_row, 0)[:rows].tolist()
+    cuts, held = [0], 0
+    for r, n in enumerate(per_row):
+        if held and held + n > pairs:
+            cuts.append(r)
+            held = 0
+        held += n
+    return [*cuts, rows]
+
+
+def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, pairs: int, origin: tuple[int, int],
           k: int) -> tuple[Tensor, Tensor]:
     """(len(ys), len(xs), C) colour and alpha of single rays through the positions ``xs`` x ``ys`` (pixels of
-    a window whose corner is the view's pixel ``origin``), ``k`` rays a pixel along each axis."""
+    a window whose corner is the view's pixel ``origin``), ``k`` rays a pixel along each axis; the rays go in
+    bands of rows of at most ``pairs`` (ray, Gaussian) candidates, which bounds the memory of a band."""
     dt = s.means.dtype
     cam = CameraTensors.of(camera, s.means.device, dt)
     Hs, Ws = len(ys), len(xs)
     scales = s.activated_scales
-    # The inverse covariance in camera space, as a quadratic form in the ray direction d = (u, v, 1):
-    # q(t) = (t d - m)^T P (t d - m) is least at t* = d.Pm / d.Pd, where it is m.Pm - (d.Pm)^2 / d.Pd.
-    rot = cam.R @ quat_to_rotmat(s.quats)  # (N, 3, 3)
-    P = (rot / scales[:, None, :] ** 2) @ rot.transpose(1, 2)
-    m = s.means @ cam.R.T + cam.t
-    Pm = (P @ m[:, :, None])[..., 0]
-    mPm = (m * Pm).sum(-1)
-    q6 = torch.stack([P[:, 0, 0], P[:, 1, 1], P[:, 2, 2], 2 * P[:, 0, 1], 2 * P[:, 0, 2], 2 * P[:, 1, 2]], -1)
+    # In each Gaussian's whitened frame (its axes, divided by its scales) the ray is t d' and the centre m':
+    # the density is least far, |m' x d'| / |d'|, at t* = d'.m' / |d'|^2 (camera z, as d = (u, v, 1)). The cross
+    # product keeps a thin Gaussian's distance exact where |m'|^2 - (d'.m')^2 / |d'|^2 would cancel.
+    rot = cam.R @ quat_to_rotmat(s.quats)  # (N, 3, 3) the axes in camera space, as columns
+    whiten = rot.transpose(1, 2) / scales[:, :, None]  # (N, 3, 3): camera space -> whitened
+    m = ((whiten @ (s.means @ cam.R.T + cam.t)[:, :, None])[..., 0])  # (N, 3) m'
     colours = _colours(s, cam.center)
     with torch.no_grad():  # which rays each Gaussian can reach: its projected box in the whole view (at k rays
         # a pixel), widened past the jitter, then in the window's rays
@@ -113,8 +135,8 @@ def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: 
     alpha = torch.zeros(Hs * Ws, dtype=dt)
     u = (xs + origin[0] - cam.cx) / cam.fx  # ray directions in camera space (z = 1)
     v = (ys + origin[1] - cam.cy) / cam.fy
-    for r0 in range(0, Hs, rows):
-        r1 = min(r0 + rows, Hs)
+    cuts = _bands(x0, x1, y0, y1, live, Hs, pairs)
+    for r0, r1 in zip(cuts[:-1], cuts[1:]):
         idx = (live & (y0 < r1) & (y1 >= r0)).nonzero()[:, 0]
         if len(idx) == 0:
             continue
@@ -127,7 +149,7 @@ def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: 
         px = bx0[g] + k % bw[g]
         py = by0[g] + torch.div(k, bw[g], rounding_mode="floor")
         gi = idx[g]
-        a, t = _peak(q6[gi], Pm[gi], mPm[gi], u[px], v[py], s.opacities[gi])
+        a, t = _peak(whiten[gi], m[gi], u[px], v[py], s.opacities[gi])
         with torch.no_grad():
             keep = (a >= ALPHA_MIN) & (t > near)
         a, t, gi, ray = a[keep], t[keep], gi[keep], (py * Ws + px)[keep]
@@ -149,11 +171,10 @@ def _cast(s: Splats, camera: Camera, xs: Tensor, ys: Tensor, near: float, rows: 
     return colour.view(Hs, Ws, -1), alpha.view(Hs, Ws)
 
 
-def _peak(q6: Tensor, Pm: Tensor, mPm: Tensor, u: Tensor, v: Tensor, opacity: Tensor) -> tuple[Tensor, Tensor]:
+def _peak(whiten: Tensor, m: Tensor, u: Tensor, v: Tensor, opacity: Tensor) -> tuple[Tensor, Tensor]:
     """Alpha and depth (camera z) of each pair's Gaussian at its densest point along the ray (u, v, 1).
-    q6: (M, 6) the inverse covariance's xx, yy, zz, 2xy, 2xz, 2yz; Pm: (M, 3); mPm, u, v, opacity: (M,)."""
-    dPd = q6[:, 0] * u * u + q6[:, 1] * v * v + q6[:, 2] + q6[:, 3] * u * v + q6[:, 4] * u + q6[:, 5] * v
-    dPm = Pm[:, 0] * u + Pm[:, 1] * v + Pm[:, 2]
-    t = dPm / dPd
-    q = (mPm - dPm * t).clamp_min(0.0)
-    return opacity * torch.exp(-0.5 * q), t
+    whiten: (M, 3, 3); m: (M, 3) the whitened centre; u, v, opacity: (M,)."""
+    d = whiten[:, :, 0] * u[:, None] + whiten[:, :, 1] * v[:, None] + whiten[:, :, 2]  # (M, 3) d'
+    dd = (d * d).sum(-1)
+    q = torch.linalg.cross(m, d).square().sum(-1) / dd
+    return opacity * torch.exp(-0.5 * q), (d * m).sum(-1) / dd

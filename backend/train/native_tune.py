@@ -34,7 +34,9 @@ from backend.render.raycast import raycast
 from backend.render.threads import torch_threads
 from backend.splats.gaussians import GaussianSet
 from backend.splats.ply import read_ply, write_ply
+from backend.train.memory_limit import memory_limit
 from igs_contract.albedo_normals import sha256_16
+from igs_contract.memory_estimate import NATIVE_TUNE_PER_WINDOW_PIXEL, estimate_line, gib, native_tune_model
 from igs_contract.native_layers import KINDS, REPORT
 from igs_contract.native_layers import folder as native_dir
 
@@ -107,16 +109,38 @@ def crop_window(cam: Camera, size: int, gen: torch.Generator) -> tuple[int, int,
 
 
 def tune_step(sets: list[GaussianSet], frozen: list[Splats], cam: Camera, cfg: NativeTuneConfig,
-              gen: torch.Generator) -> torch.Tensor:
-    """The L1 loss of one random window of ``cam``, all three layers, against the rasteriser's render of the
-    originals; the window's outer :data:`MARGIN` pixels, whose filter lacks the rays beyond it, left out."""
+              gen: torch.Generator) -> float:
+    """Accumulate the gradients of the L1 loss of one random window of ``cam``, each layer against the
+    rasteriser's render of its original, and return the loss. The window's outer :data:`MARGIN` pixels, whose
+    filter lacks the rays beyond it, are left out; each layer's backward pass runs before the next layer is
+    cast, so only one layer's ray pairs are held at a time."""
     x0, y0, w, h = crop_window(cam, cfg.crop, gen)
     with torch.no_grad():
         want = [o.color[y0:y0 + h, x0:x0 + w] for o in render_layers(frozen, cam)]
     inner = (slice(MARGIN if y0 > 0 else 0, h - MARGIN if y0 + h < cam.height else h),
              slice(MARGIN if x0 > 0 else 0, w - MARGIN if x0 + w < cam.width else w))
-    return sum((raycast(_splats(g), cam, supersample=cfg.supersample, generator=gen, window=(x0, y0, w, h))[0]
-                - t)[inner].abs().mean() for g, t in zip(sets, want))
+    total = 0.0
+    for g, target in zip(sets, want):
+        drawn = raycast(_splats(g), cam, supersample=cfg.supersample, generator=gen, window=(x0, y0, w, h))[0]
+        loss = (drawn - target)[inner].abs().mean()
+        loss.backward()
+        total += float(loss.detach())
+    return total
+
+
+def _check_memory(cfg: NativeTuneConfig, view: Camera, window: int, gaussians: int) -> None:
+    """Log the estimated peak; over the limit, one error naming the ``--crop`` that fits, if one does."""
+    model = native_tune_model(window)
+    estimate = model.estimate(1, view.width * view.height, gaussians)
+    limit, source = memory_limit()
+    if limit is None or estimate <= limit:
+        events.log(estimate_line("native-tune", estimate, 1, view.width, view.height, limit, source))
+        return
+    rest = estimate - NATIVE_TUNE_PER_WINDOW_PIXEL * window
+    side = int(math.sqrt(max(limit - rest, 0.0) / NATIVE_TUNE_PER_WINDOW_PIXEL))
+    fix = f"use --crop {side}" if side >= 8 else "free memory (the layers alone need more)"
+    raise IGSError(f"native-tune: estimated peak memory {gib(estimate)} for {gaussians:,} Gaussians and a "
+                   f"{cfg.crop} px window is over the limit {gib(limit)} ({source}); {fix}")
 
 
 def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
@@ -132,6 +156,9 @@ def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
     sets = [read_ply(paths[k], kind=k)[0] for k in KINDS]
     frozen = [_splats(g.clone()) for g in sets]
     cameras = [f.camera for f in capture.frames]
+    big = max(cameras, key=lambda c: c.width * c.height)
+    window = min(cfg.crop, big.width) * min(cfg.crop, big.height)
+    _check_memory(cfg, big, window, sum(len(g) for g in sets))
     shown = [cameras[round(i * (len(cameras) - 1) / max(cfg.eval_views - 1, 1))]
              for i in range(min(cfg.eval_views, len(cameras)))]
     events.log(f"native-tune: {', '.join(f'{len(g):,} {k}' for k, g in zip(KINDS, sets))} Gaussians, "
@@ -145,11 +172,10 @@ def native_tune(workspace: str | Path, cfg: NativeTuneConfig) -> dict[str, Any]:
         with events.stage("native-tune", cfg.iterations) as bar:
             for it in range(cfg.iterations):
                 events.check_cancel()
-                loss = tune_step(sets, frozen, cameras[int(order[it % len(cameras)])], cfg, gen)
                 opt.zero_grad(set_to_none=True)
-                loss.backward()
+                loss = tune_step(sets, frozen, cameras[int(order[it % len(cameras)])], cfg, gen)
                 opt.step()
-                bar.update(1, loss=float(loss.detach()))
+                bar.update(1, loss=loss)
         after = agreement(sets, frozen, shown, cfg.supersample)
     bad = [k for k, g in zip(KINDS, sets) if not all(bool(torch.isfinite(p).all()) for p in g.params.values())]
     if bad:
