@@ -32,6 +32,15 @@ def use_native() -> bool:
         return True
 
 
+def draws_tuned(scene: bpy.types.Scene | None = None) -> bool:
+    """Load Layers draws the copies tuned for Blender's drawing (``layers/native``) when they are current: only
+    natively and with Cycles as the render engine. They are fitted to Cycles' drawing (each Gaussian at its
+    peak along the ray, ordered along it); EEVEE sorts the splats as the rasteriser does, and draws the
+    decomposition's layers closer (docs/blender.md)."""
+    scene = scene or bpy.context.scene
+    return use_native() and scene is not None and scene.render.engine == "CYCLES"
+
+
 def viewport_engine_draws() -> bool:
     """Our viewport engine draws the splats (the point-cloud side); natively Blender draws them."""
     return not use_native()
@@ -97,7 +106,7 @@ def build_composite_object(albedo: SplatLayer, shading: SplatLayer, residual: Sp
 def load_workspace_layers(workspace: Path, *, max_points: int = 0, radius_scale: float = 1.0,
                           composite: bool = True) -> dict[str, bpy.types.Object]:
     """Build an object for every layer PLY of the workspace (and the composite preview); by kind."""
-    paths = layers.layer_paths(workspace, tuned=use_native())
+    paths = layers.layer_paths(workspace, tuned=draws_tuned())
     if not paths:
         raise UserError(f"{workspace / 'layers'}: no layer PLYs yet; run Decompose first")
     loaded = {kind: read_splat_ply(path) for kind, path in paths.items()}

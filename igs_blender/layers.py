@@ -56,14 +56,22 @@ def layer_paths(workspace: Path, tuned: bool = False) -> dict[str, Path]:
     return paths
 
 
-def tuned_note(workspace: Path) -> str:
+def tuned_note(workspace: Path, cycles: bool) -> str:
     """One clause for Load Layers' report on Blender's splats: the tuned layers drawn, why they are not, or
-    how to make them."""
+    how to make them (they are for Cycles: ``cycles`` says whether it is the render engine)."""
     paths, why = native_layers.tuned_paths(workspace)
+    if paths and cycles:
+        return "albedo, shading and residual drawn from layers/native/ (tuned for Cycles' drawing of splats)"
     if paths:
-        return "albedo, shading and residual drawn from layers/native/ (tuned for Blender's drawing)"
-    return why or (f"Tune for Blender (`{native_layers.COMMAND}`) fits the layers to Blender's drawing of "
-                   "splats for a closer F12")
+        return ("layers/native/ is tuned for Cycles' drawing of splats: with Cycles as the render engine, Load "
+                "Layers draws it")
+    return why or (f"Tune for Blender (`{native_layers.COMMAND}`) fits the layers to Cycles' drawing of splats "
+                   "for a closer F12")
+
+
+def shows_tuned() -> bool:
+    """Whether a loaded layer is a tuned copy (``layers/native``)."""
+    return any(Path(str(o.get("igs_ply", ""))).parent.name == native_layers.DIR for o in loaded_layers().values())
 
 
 def is_workspace_layer(obj: bpy.types.Object, workspace: str | Path, kind: str) -> bool:

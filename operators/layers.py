@@ -45,7 +45,7 @@ class IGS_OT_load_layers(bpy.types.Operator):
         elif native:
             msg += "; F12 renders A×S+R (view layers IGS Albedo/Shading/Residual/Scene/Lit, compositor group IGS Composite)"
             msg += "".join(f"; {n}" for n in notes)
-            msg += f"; {layers.tuned_note(ws)}"
+            msg += f"; {layers.tuned_note(ws, display.draws_tuned(context.scene))}"
         on_disk = [n for n in edits.workspace_edits(ws) if edits.find(props, n)[1] is None]
         if on_disk:
             msg += f"; the workspace has {len(on_disk)} edit(s) not in the scene: Edit panel > Load Edits"

@@ -205,6 +205,9 @@ class IGS_PT_layers(_SubPanel, bpy.types.Panel):
             _lines(layout.box(), "Blender's own Gaussian splats: Material Preview or Rendered shading shows them, "
                    "F12 renders A×S+R (Render panel)", icon="INFO", context=context)
             layout.operator("igs.native_tune", icon="MOD_SMOOTH")
+            if layers.shows_tuned() and context.scene.render.engine != "CYCLES":
+                _lines(layout.box(), "The layers shown are tuned for Cycles; with this engine, Load Layers again "
+                       "for the decomposition's own", icon="ERROR", context=context)
         else:
             _splat_view(layout.box(), props)
         layout.operator("igs.export_layer", icon="EXPORT")

@@ -67,6 +67,7 @@ def set_up(job: dict[str, Any]):
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
     scene.igs.workspace = str(job["workspace"])
+    scene.render.engine = "CYCLES"  # before Load Layers, which draws the layers tuned for Cycles where they are current
     check(bpy.ops.igs.load_cameras(), "Load Cameras", scene)
     check(bpy.ops.igs.load_layers(), "Load Layers", scene)
     root = bpy.data.objects.get("IGS Capture")

@@ -1,6 +1,7 @@
 """Layers tuned for Blender's drawing (``igs native-tune``) on Blender 5.3 (the bpy 5.3 module, background mode):
-Load Layers draws them while they belong to the current layers, and F12 then comes closer to ``igs render``
-of the decomposition; a decomposition changed since leaves them aside, and the report says why.
+with Cycles as the engine, Load Layers draws them while they belong to the current layers, and F12 then comes
+closer to ``igs render`` of the decomposition; with EEVEE, or after a decomposition, the originals are drawn,
+and the report says why.
 
 The scene is a wall of discs tilted every which way, so that they cross: there Cycles (which orders the
 splats along each ray) and the rasteriser (which orders their centres) draw differently."""
@@ -22,7 +23,7 @@ if bpy.app.version < (5, 3, 0):
 from backend.core.imageio import srgb_psnr  # noqa: E402
 from backend.splats.ply import write_ply  # noqa: E402
 from tests.support import addon_package  # noqa: E402, F401  (the add-on's bpy-free modules as the package intrinsic_splats)
-from tests.support.blender import load, reference, render_outputs, wall_workspace  # noqa: E402
+from tests.support.blender import draw, load, reference, render_outputs, shown_text, sub, wall_workspace  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -68,6 +69,17 @@ def test_f12_of_the_tuned_layers_comes_closer_to_igs_render(native_scene, tmp_pa
         assert bpy.data.objects[f"IGS {kind}"]["igs_ply"] == str(ws / "layers" / "native" / f"{kind}.ply")
     after = srgb_psnr(render_outputs(scene, tmp_path / "after", ("Image",))["Image"], want["Image"])
     assert after > before + 1.0, (before, after)
+    assert sub("layers").shows_tuned()
+    scene.render.engine = sub("compat").eevee_engine()  # switched after loading: the Layers panel says so
+    assert "tuned for Cycles; with this engine, Load Layers again" in shown_text(draw("IGS_PT_layers"))
+
+    # they are Cycles': with EEVEE (which sorts splats as the rasteriser does) Load Layers draws the originals
+    scene.render.engine = sub("compat").eevee_engine()
+    assert bpy.ops.igs.load_layers() == {"FINISHED"}
+    assert "layers/native/ is tuned for Cycles' drawing of splats" in scene.igs.last_report
+    assert bpy.data.objects["IGS albedo"]["igs_ply"] == str(ws / "layers" / "albedo.ply")
+    assert not sub("layers").shows_tuned()
+    scene.render.engine = "CYCLES"
 
     # a decomposition since: the tuned copies belong to other layers and are left aside
     g = sets["albedo"]
