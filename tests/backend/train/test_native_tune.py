@@ -60,11 +60,11 @@ def test_bad_input_is_one_line(tmp_path, capsys):
 
 
 def test_over_the_memory_limit_is_one_line_naming_the_crop_that_fits(box, monkeypatch, capsys):
-    """The estimate: 0.98 GiB, 80 kB a pixel of the window (32x24 here), 400 B a pixel, 600 B a Gaussian."""
+    """The estimate: 0.98 GiB, 200 kB a pixel of the window (32x24 here), 400 B a pixel, 600 B a Gaussian."""
     monkeypatch.setenv("IGS_MEMORY_LIMIT", "1.0G")
     assert main(["native-tune", str(box), "--iterations", "1"]) == EXIT_USER
     err = capsys.readouterr().err
-    assert "over the limit 1.0 GiB (IGS_MEMORY_LIMIT); use --crop 15" in err and err.count("\n") == 1
+    assert "over the limit 1.0 GiB (IGS_MEMORY_LIMIT); use --crop 10" in err and err.count("\n") == 1
     monkeypatch.setenv("IGS_MEMORY_LIMIT", "0.5G")
     assert main(["native-tune", str(box), "--iterations", "1"]) == EXIT_USER
     assert "free memory" in capsys.readouterr().err
