@@ -75,15 +75,14 @@ def shows_tuned() -> bool:
 
 
 def is_workspace_layer(obj: bpy.types.Object, workspace: str | Path, kind: str) -> bool:
-    """Whether ``obj`` shows the workspace's ``layers/<kind>.ply`` or its current tuned copy."""
+    """Whether ``obj`` shows the workspace's ``layers/<kind>.ply`` or its tuned copy (Load Layers draws that only
+    while it belongs to the layers; no hashing here, since the Lights panel asks on every redraw)."""
     source = obj.get("igs_ply")
     if not workspace or not source:
         return False
     shown = Path(source).resolve()
-    if shown == (Path(workspace) / "layers" / f"{kind}.ply").resolve():
-        return True
-    tuned = native_layers.tuned_paths(Path(workspace))[0].get(kind)
-    return tuned is not None and shown == tuned.resolve()
+    return shown in ((Path(workspace) / "layers" / f"{kind}.ply").resolve(),
+                     (native_layers.folder(Path(workspace)) / f"{kind}.ply").resolve())
 
 
 def composite_missing(kinds) -> list[str]:
